@@ -1,0 +1,34 @@
+"""icploc: real-time, robust 2D self-localization by ICP matching of laser scans to a map."""
+
+from __future__ import annotations
+
+from icploc._core import (
+    EmptyMapError,
+    IcpConfig,
+    IcpError,
+    IcpResult,
+    InvalidConfigError,
+    InvalidInputError,
+    MapIndex,
+    __version__,
+    icp,
+    icp_batch,
+    raycast,
+)
+from icploc.types import Odometry, Scan
+
+__all__ = [
+    "EmptyMapError",
+    "IcpConfig",
+    "IcpError",
+    "IcpResult",
+    "InvalidConfigError",
+    "InvalidInputError",
+    "MapIndex",
+    "Odometry",
+    "Scan",
+    "__version__",
+    "icp",
+    "icp_batch",
+    "raycast",
+]

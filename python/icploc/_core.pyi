@@ -1,0 +1,166 @@
+"""Type stubs for the private native module ``icploc._core`` (Rust, pyo3).
+
+Use the public names re-exported by :mod:`icploc`; this module is private.
+"""
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__version__: str
+
+class IcpError(Exception):
+    """Base class of every error raised by the ICP core."""
+
+class InvalidInputError(IcpError, ValueError):
+    """An input array has the wrong shape or dtype, holds NaN/inf, or has too few points."""
+
+class EmptyMapError(InvalidInputError):
+    """The map has no points."""
+
+class InvalidConfigError(IcpError, ValueError):
+    """A configuration value is out of range (e.g. a non-positive threshold)."""
+
+Metric = Literal["point_to_point", "point_to_line"]
+Robust = Literal["none", "huber", "cauchy"]
+
+class IcpConfig:
+    """ICP settings. Thresholds in metres. The correspondence threshold shrinks
+    geometrically from ``max_correspondence_distance`` to ``min_correspondence_distance``
+    by ``threshold_decay`` per iteration (set them equal for the paper's fixed threshold)."""
+
+    metric: Metric
+    max_iterations: int
+    max_correspondence_distance: float
+    min_correspondence_distance: float
+    threshold_decay: float
+    trim_fraction: float
+    robust: Robust
+    robust_scale: float
+    mse_threshold: float
+    mse_change: float
+    step_tolerance: float
+    min_inliers: int
+    min_inlier_ratio: float
+    def __init__(
+        self,
+        *,
+        metric: Metric = "point_to_line",
+        max_iterations: int = 50,
+        max_correspondence_distance: float = 1.0,
+        min_correspondence_distance: float = 0.1,
+        threshold_decay: float = 0.6,
+        trim_fraction: float = 1.0,
+        robust: Robust = "none",
+        robust_scale: float = 0.05,
+        mse_threshold: float = 1e-8,
+        mse_change: float = 1e-7,
+        step_tolerance: float = 1e-6,
+        min_inliers: int = 10,
+        min_inlier_ratio: float = 0.0,
+    ) -> None: ...
+    def validate(self) -> None:
+        """Raise :class:`InvalidConfigError` if any value is out of range."""
+    def to_dict(self) -> dict[str, object]: ...
+
+class IcpResult:
+    """What one ICP alignment did."""
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """Sensor pose (x, y, theta) in the map frame."""
+    @property
+    def converged(self) -> bool:
+        """False when the iteration limit was hit or too few inliers remained."""
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def mse(self) -> float:
+        """Mean squared error over the inliers of the final iteration (m^2)."""
+    @property
+    def inliers(self) -> int: ...
+    @property
+    def num_points(self) -> int: ...
+    @property
+    def inlier_ratio(self) -> float: ...
+    @property
+    def covariance(self) -> NDArray[np.float64]:
+        """3x3 covariance of (x, y, theta), sigma^2 * H^-1 of the final cost."""
+    @property
+    def information(self) -> NDArray[np.float64]:
+        """3x3 information (Hessian) matrix of (x, y, theta), point-to-line form."""
+    @property
+    def degeneracy(self) -> float:
+        """lambda_min / lambda_max of the translational information (0 = corridor, 1 = well constrained)."""
+    @property
+    def degenerate_direction(self) -> tuple[float, float]:
+        """Unit vector (map frame) of the least constrained translation direction."""
+    @property
+    def termination(self) -> str:
+        """Why it stopped: mse_below_threshold, mse_change_below_epsilon, step_below_tolerance,
+        max_iterations or too_few_inliers."""
+    def to_dict(self) -> dict[str, object]: ...
+
+class MapIndex:
+    """An immutable k-d tree over 2D map points with optional unit normals."""
+
+    def __init__(self, points: ArrayLike, normals: ArrayLike | None = None) -> None: ...
+    def __len__(self) -> int: ...
+    @property
+    def points(self) -> NDArray[np.float64]:
+        """(N, 2) copy of the map points."""
+    @property
+    def normals(self) -> NDArray[np.float64]:
+        """(N, 2) unit normals: the given ones, or estimated from neighbours on first use."""
+    @property
+    def has_normals(self) -> bool:
+        """True when normals were given at construction."""
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax)."""
+    def nearest(self, query: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Distance to and index of the closest map point for each row of an (M, 2) query."""
+    def within(self, center: Sequence[float], radius: float) -> NDArray[np.int64]:
+        """Indices of the map points within ``radius`` of ``center``, sorted."""
+    def visible(
+        self,
+        pose: Sequence[float],
+        fov: float = ...,
+        max_range: float = 30.0,
+        point_radius: float | None = None,
+        tolerance: float = 0.05,
+        angular_resolution: float = 0.0025,
+    ) -> NDArray[np.int64]:
+        """Indices of the map points a scanner at ``pose`` could see: within ``max_range``
+        and the field of view ``fov`` (radians, centred on the heading), not hidden behind
+        nearer points. Each point occludes an arc of half-width ``point_radius`` (default:
+        the median spacing between neighbouring map points)."""
+
+def icp(
+    scan_xy: ArrayLike,
+    index: MapIndex,
+    initial_pose: Sequence[float],
+    config: IcpConfig | None = None,
+) -> IcpResult:
+    """Align an (N, 2) scan in the sensor frame to the map, starting from ``initial_pose``."""
+
+def icp_batch(
+    scans: Sequence[ArrayLike],
+    index: MapIndex,
+    initial_poses: ArrayLike,
+    config: IcpConfig | None = None,
+    num_threads: int | None = None,
+) -> list[IcpResult]:
+    """Align many (scan, initial pose) pairs in parallel with the GIL released. ``initial_poses``
+    is (M, 3); ``scans`` has M entries, or one entry used for every pose (multi-start)."""
+
+def raycast(
+    segments: ArrayLike,
+    pose: Sequence[float],
+    angles: ArrayLike,
+    max_range: float,
+) -> NDArray[np.float64]:
+    """Range along each beam (angles in the sensor frame) from ``pose`` to the nearest of the
+    (K, 4) segments [x1, y1, x2, y2]; inf where nothing is hit within ``max_range``."""
