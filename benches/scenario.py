@@ -1,0 +1,443 @@
+"""Deterministic 2D benchmark scenario: an office floor plan, sampled maps, noisy scans.
+
+Everything here is plain numpy and depends only on the seed, so every method in
+``benches/peers.py`` sees exactly the same maps, scans and start poses.
+
+* The map is a set of line segments (outer walls, rooms off a corridor with door gaps,
+  mapped furniture, one slanted wall). :func:`sample_map` samples it uniformly at a
+  spacing chosen to give a target point count (1k ... 1M) and returns the exact 2D
+  normals of the segments.
+* Scans are 361 beams over 180 degrees (0.5 degree step), ray-cast exactly against the
+  segments, with Gaussian range noise (1 cm by default). A fixed fraction of beams
+  (20 %: 72 of 361) hits unmapped obstacles: boxes (a flat face spanning a block of
+  beams) and people (a circle whose angular width spans a block of beams). Obstacle
+  blocks are constructed so the obstacle covers exactly those beams, so the fraction is
+  exact, not just expected.
+* Start poses are the true pose plus an error of fixed magnitude per axis with random
+  signs, e.g. (+-0.3 m, +-0.3 m, +-10 deg).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+NUM_BEAMS = 361
+FOV = math.pi  # 180 degrees
+ANGLE_STEP = FOV / (NUM_BEAMS - 1)  # 0.5 degree
+MAX_RANGE = 30.0
+
+#: Start-error levels: (|dx| m, |dy| m, |dtheta| rad), signs drawn at random per pose.
+ERROR_LEVELS: dict[str, tuple[float, float, float]] = {
+    "small": (0.3, 0.3, math.radians(10.0)),
+    "large": (1.0, 0.5, math.radians(25.0)),
+}
+
+#: Target map sizes (points).
+MAP_SIZES = (1_000, 10_000, 100_000, 1_000_000)
+
+
+def beam_angles(num_beams: int = NUM_BEAMS, fov: float = FOV) -> NDArray[np.float64]:
+    """Beam angles in the sensor frame, from -fov/2 to +fov/2 (0 straight ahead)."""
+    return np.linspace(-fov / 2.0, fov / 2.0, num_beams)
+
+
+def _rect(x0: float, y0: float, x1: float, y1: float) -> list[tuple[float, float, float, float]]:
+    return [(x0, y0, x1, y0), (x1, y0, x1, y1), (x1, y1, x0, y1), (x0, y1, x0, y0)]
+
+
+def _wall_with_doors(
+    x0: float, x1: float, y: float, doors: list[tuple[float, float]]
+) -> list[tuple[float, float, float, float]]:
+    """A horizontal wall from x0 to x1 at height y with gaps [a, b) for doors."""
+    segs = []
+    x = x0
+    for a, b in sorted(doors):
+        if a > x:
+            segs.append((x, y, a, y))
+        x = b
+    if x < x1:
+        segs.append((x, y, x1, y))
+    return segs
+
+
+def office_segments() -> NDArray[np.float64]:
+    """The office floor plan as a (K, 4) array of segments [x1, y1, x2, y2] (metres).
+
+    24 m x 14 m: a 2 m corridor along x (y in [6, 8]); four rooms to the south and four
+    (of different widths) to the north, each with a 0.9 m door onto the corridor; mapped
+    cabinets and desks, two pillars in the corridor and a slanted wall in one room, so
+    that no two places look alike.
+    """
+    s: list[tuple[float, float, float, float]] = []
+    s += _rect(0.0, 0.0, 24.0, 14.0)  # outer walls
+    # Corridor walls with doors (south rooms: x edges 0, 6, 12, 18, 24; north: 0, 5, 10, 16, 24).
+    s += _wall_with_doors(0.0, 24.0, 6.0, [(2.5, 3.4), (8.0, 8.9), (14.6, 15.5), (20.1, 21.0)])
+    s += _wall_with_doors(0.0, 24.0, 8.0, [(1.5, 2.4), (7.2, 8.1), (12.0, 12.9), (19.5, 20.4)])
+    for x in (6.0, 12.0, 18.0):
+        s.append((x, 0.0, x, 6.0))
+    for x in (5.0, 10.0, 16.0):
+        s.append((x, 8.0, x, 14.0))
+    # Mapped furniture: cabinets / desks / a column, as closed rectangles.
+    s += _rect(0.4, 0.4, 1.6, 1.0)
+    s += _rect(3.8, 2.0, 5.2, 2.8)
+    s += _rect(7.0, 0.0, 9.0, 0.6)
+    s += _rect(10.4, 3.5, 11.4, 5.6)
+    s += _rect(13.0, 1.5, 14.6, 2.3)
+    s += _rect(19.0, 3.0, 19.8, 3.8)
+    s += _rect(22.6, 0.0, 24.0, 1.2)
+    s += _rect(0.0, 12.8, 2.0, 14.0)
+    s += _rect(6.5, 10.5, 8.5, 11.3)
+    s += _rect(11.0, 9.0, 11.6, 9.6)
+    s += _rect(14.0, 12.0, 16.0, 14.0)
+    s += _rect(20.0, 10.0, 21.2, 11.6)
+    # Pillars in the corridor (against the walls so the corridor stays passable).
+    s += _rect(5.6, 7.6, 6.0, 8.0)
+    s += _rect(16.5, 6.0, 16.9, 6.4)
+    # A slanted wall cutting a corner of the last north room.
+    s.append((22.0, 14.0, 24.0, 12.0))
+    return np.asarray(s, dtype=np.float64)
+
+
+def segment_normals(segments: NDArray[np.float64]) -> NDArray[np.float64]:
+    d = segments[:, 2:4] - segments[:, 0:2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    return np.column_stack((-d[:, 1], d[:, 0])) / length[:, None]
+
+
+def total_length(segments: NDArray[np.float64]) -> float:
+    d = segments[:, 2:4] - segments[:, 0:2]
+    return float(np.hypot(d[:, 0], d[:, 1]).sum())
+
+
+def sample_map(
+    segments: NDArray[np.float64], spacing: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Points every ``spacing`` metres along each segment (cell centres, no duplicated
+    corners) and their unit normals (the segment's normal)."""
+    p0 = segments[:, 0:2]
+    d = segments[:, 2:4] - p0
+    length = np.hypot(d[:, 0], d[:, 1])
+    counts = np.maximum(1, np.ceil(length / spacing).astype(np.int64))
+    seg_id = np.repeat(np.arange(len(segments)), counts)
+    start = np.cumsum(counts) - counts
+    k = np.arange(int(counts.sum())) - np.repeat(start, counts)
+    t = (k + 0.5) / counts[seg_id]
+    pts = p0[seg_id] + t[:, None] * d[seg_id]
+    normals = segment_normals(segments)[seg_id]
+    return pts, normals
+
+
+def map_for_size(
+    segments: NDArray[np.float64], num_points: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """Sample the map to about ``num_points`` points; returns (points, normals, spacing)."""
+    spacing = total_length(segments) / float(num_points)
+    pts, nrm = sample_map(segments, spacing)
+    return pts, nrm, spacing
+
+
+# --------------------------------------------------------------------------- ray casting
+
+
+def raycast_segments(
+    segments: NDArray[np.float64],
+    origin: tuple[float, float],
+    directions: NDArray[np.float64],
+    max_range: float = MAX_RANGE,
+) -> NDArray[np.float64]:
+    """Exact range along each unit direction (M, 2) to the nearest segment; inf if none."""
+    ox, oy = origin
+    ux = directions[:, 0][:, None]
+    uy = directions[:, 1][:, None]
+    ax = segments[:, 0][None, :] - ox
+    ay = segments[:, 1][None, :] - oy
+    ex = (segments[:, 2] - segments[:, 0])[None, :]
+    ey = (segments[:, 3] - segments[:, 1])[None, :]
+    # Solve o + t u = a + s e  ->  t u - s e = a
+    den = ux * (-ey) - uy * (-ex)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ax * (-ey) - ay * (-ex)) / den
+        s = (ux * ay - uy * ax) / den
+    ok = (np.abs(den) > 1e-15) & (t > 1e-12) & (s >= 0.0) & (s <= 1.0)
+    t = np.where(ok, t, np.inf)
+    r = t.min(axis=1)
+    r[r > max_range] = np.inf
+    return r
+
+
+@dataclass
+class Obstacles:
+    """Unmapped obstacles in the world frame: box faces (segments) and people (circles)."""
+
+    segments: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 4)))
+    circles: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))  # cx, cy, r
+
+
+@dataclass
+class SimScan:
+    """One simulated scan: sensor-frame beams and what each beam hit."""
+
+    pose: tuple[float, float, float]
+    angles: NDArray[np.float64]
+    ranges: NDArray[np.float64]  #: noisy ranges (inf: no return)
+    ranges_true: NDArray[np.float64]  #: noise-free ranges
+    obstacle: NDArray[np.bool_]  #: beams that hit an unmapped obstacle
+    obstacles: Obstacles
+
+    def points(self, noisy: bool = True) -> NDArray[np.float64]:
+        """Valid beams as (M, 2) sensor-frame points."""
+        r = self.ranges if noisy else self.ranges_true
+        ok = np.isfinite(r)
+        return np.column_stack((r[ok] * np.cos(self.angles[ok]), r[ok] * np.sin(self.angles[ok])))
+
+
+def _split_blocks(total: int, rng: np.random.Generator) -> list[int]:
+    """Split ``total`` beams into 3-6 obstacle blocks of at least 5 beams."""
+    n = int(rng.integers(3, 7))
+    while True:
+        cuts = np.sort(rng.choice(np.arange(1, total), size=n - 1, replace=False))
+        sizes = np.diff(np.concatenate(([0], cuts, [total])))
+        if sizes.min() >= 5:
+            return [int(v) for v in sizes]
+
+
+def simulate_scan(
+    segments: NDArray[np.float64],
+    pose: tuple[float, float, float],
+    rng: np.random.Generator,
+    noise: float = 0.01,
+    obstacle_fraction: float = 0.2,
+    angles: NDArray[np.float64] | None = None,
+    max_range: float = MAX_RANGE,
+) -> SimScan:
+    """Ray-cast a scan at ``pose`` with unmapped obstacles covering exactly
+    ``round(obstacle_fraction * beams)`` beams, then add Gaussian range noise."""
+    a = beam_angles() if angles is None else np.asarray(angles, dtype=np.float64)
+    nb = len(a)
+    x, y, th = pose
+    world = a + th
+    dirs = np.column_stack((np.cos(world), np.sin(world)))
+    r_map = raycast_segments(segments, (x, y), dirs, max_range)
+    ranges = r_map.copy()
+    hit = np.zeros(nb, dtype=bool)
+    obs_segs: list[tuple[float, float, float, float]] = []
+    obs_circ: list[tuple[float, float, float]] = []
+    n_obs = int(round(obstacle_fraction * nb))
+    step = float(a[1] - a[0]) if nb > 1 else ANGLE_STEP
+    if n_obs > 0:
+        for _attempt in range(200):
+            sizes = _split_blocks(n_obs, rng)
+            # place blocks left to right with random gaps (>= 1 beam apart)
+            free = nb - n_obs - len(sizes) + 1
+            if free < 0:
+                continue
+            gaps = np.sort(rng.integers(0, free + 1, size=len(sizes)))
+            order = rng.permutation(len(sizes))
+            starts, cursor = [], 0
+            for j, k in enumerate(order):
+                g = int(gaps[j]) - (int(gaps[j - 1]) if j else 0)
+                cursor += g
+                starts.append((cursor, sizes[k]))
+                cursor += sizes[k] + 1
+            need = 0.8 if _attempt < 100 else 0.45  # relax in doorways
+            ok = all(np.isfinite(r_map[s : s + n]).all() and r_map[s : s + n].min() > need for s, n in starts)
+            if ok:
+                break
+        else:  # pragma: no cover - the office is closed and poses keep 0.5 m from walls
+            raise RuntimeError("could not place obstacles")
+        for s, n in starts:
+            idx = np.arange(s, s + n)
+            rmin = float(r_map[idx].min())
+            lo_ang = world[s] - step / 2.0
+            hi_ang = world[s + n - 1] + step / 2.0
+            half = (hi_ang - lo_ang) / 2.0
+            mid = (hi_ang + lo_ang) / 2.0
+            dmax = min(rmin - 0.2, 8.0)
+            dmin = min(0.4, dmax - 0.05)
+            person_d = 0.22 / math.sin(half)  # a person of radius 0.22 m spanning the block
+            if rng.random() < 0.5 and 0.5 < person_d < dmax - 0.1:
+                rad = 0.22
+                cx, cy = x + person_d * math.cos(mid), y + person_d * math.sin(mid)
+                # circle seen under exactly +-half: centre distance D, radius D sin(half)
+                obs_circ.append((cx, cy, rad))
+                ux, uy = dirs[idx, 0], dirs[idx, 1]
+                wx, wy = cx - x, cy - y
+                tc = ux * wx + uy * wy
+                perp2 = wx * wx + wy * wy - tc * tc
+                ranges[idx] = tc - np.sqrt(np.maximum(rad * rad - perp2, 0.0))
+            else:
+                d1 = float(rng.uniform(dmin, dmax))
+                d2 = float(np.clip(d1 + rng.uniform(-0.5, 0.5), dmin, dmax))
+                p1 = (x + d1 * math.cos(lo_ang), y + d1 * math.sin(lo_ang))
+                p2 = (x + d2 * math.cos(hi_ang), y + d2 * math.sin(hi_ang))
+                seg = np.array([[p1[0], p1[1], p2[0], p2[1]]])
+                obs_segs.append(tuple(seg[0]))
+                ranges[idx] = raycast_segments(seg, (x, y), dirs[idx], max_range)
+            hit[idx] = True
+    true_r = ranges.copy()
+    noisy = ranges + (rng.normal(0.0, noise, nb) if noise > 0 else 0.0)
+    noisy = np.where(np.isfinite(true_r), np.maximum(noisy, 0.01), np.inf)
+    return SimScan(
+        pose=(float(x), float(y), float(th)),
+        angles=a,
+        ranges=noisy,
+        ranges_true=true_r,
+        obstacle=hit,
+        obstacles=Obstacles(
+            segments=np.asarray(obs_segs, dtype=np.float64).reshape(-1, 4),
+            circles=np.asarray(obs_circ, dtype=np.float64).reshape(-1, 3),
+        ),
+    )
+
+
+def distance_to_segments(points: NDArray[np.float64], segments: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Euclidean distance from each (M, 2) point to the nearest of the (K, 4) segments."""
+    p = points[:, None, :]
+    a = segments[None, :, 0:2]
+    e = segments[None, :, 2:4] - a
+    ee = np.maximum((e * e).sum(-1), 1e-300)
+    t = np.clip(((p - a) * e).sum(-1) / ee, 0.0, 1.0)
+    q = a + t[..., None] * e
+    return np.sqrt(((p - q) ** 2).sum(-1)).min(axis=1)
+
+
+def sample_free_poses(
+    segments: NDArray[np.float64], n: int, rng: np.random.Generator, clearance: float = 0.5
+) -> NDArray[np.float64]:
+    """``n`` poses inside the floor plan at least ``clearance`` from every wall, random heading."""
+    lo = segments[:, [0, 2]].min(), segments[:, [1, 3]].min()
+    hi = segments[:, [0, 2]].max(), segments[:, [1, 3]].max()
+    out: list[tuple[float, float, float]] = []
+    while len(out) < n:
+        xy = rng.uniform((lo[0] + clearance, lo[1] + clearance), (hi[0] - clearance, hi[1] - clearance), size=(4 * n, 2))
+        d = distance_to_segments(xy, segments)
+        for (px, py), dd in zip(xy, d, strict=True):
+            if dd >= clearance and not _inside_furniture(px, py):
+                out.append((float(px), float(py), float(rng.uniform(-math.pi, math.pi))))
+                if len(out) == n:
+                    break
+    return np.asarray(out, dtype=np.float64)
+
+
+def _inside_furniture(x: float, y: float) -> bool:
+    """Rough test: is (x, y) inside one of the closed rectangles (not free space)?"""
+    rects = [
+        (0.4, 0.4, 1.6, 1.0), (3.8, 2.0, 5.2, 2.8), (7.0, 0.0, 9.0, 0.6), (10.4, 3.5, 11.4, 5.6),
+        (13.0, 1.5, 14.6, 2.3), (19.0, 3.0, 19.8, 3.8), (22.6, 0.0, 24.0, 1.2), (0.0, 12.8, 2.0, 14.0),
+        (6.5, 10.5, 8.5, 11.3), (11.0, 9.0, 11.6, 9.6), (14.0, 12.0, 16.0, 14.0), (20.0, 10.0, 21.2, 11.6),
+        (5.6, 7.6, 6.0, 8.0), (16.5, 6.0, 16.9, 6.4),
+    ]  # fmt: skip
+    if x + y > 36.0:  # beyond the slanted wall (22,14)-(24,12)
+        return True
+    return any(x0 <= x <= x1 and y0 <= y <= y1 for x0, y0, x1, y1 in rects)
+
+
+def initial_poses(
+    poses: NDArray[np.float64], error: tuple[float, float, float], rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """True poses plus an error of exactly the given magnitudes with random signs (world frame)."""
+    signs = rng.choice(np.array([-1.0, 1.0]), size=poses.shape)
+    init = poses + signs * np.asarray(error)[None, :]
+    init[:, 2] = np.remainder(init[:, 2] + math.pi, 2.0 * math.pi) - math.pi
+    return init
+
+
+@dataclass
+class Scenario:
+    """Poses, scans and start poses for one benchmark run (the maps are sampled separately)."""
+
+    segments: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    scans: list[SimScan]
+    starts: dict[str, NDArray[np.float64]]
+    seed: int
+
+    def scan_points(self, i: int) -> NDArray[np.float64]:
+        return self.scans[i].points(noisy=True)
+
+
+def make_scenario(num_poses: int = 50, seed: int = 7, noise: float = 0.01, obstacle_fraction: float = 0.2) -> Scenario:
+    """The deterministic scenario: ``num_poses`` true poses, one noisy scan each, and a start
+    pose per error level (seeded independently of the pose count for the first poses)."""
+    segs = office_segments()
+    rng_pose = np.random.default_rng([seed, 1])
+    poses = sample_free_poses(segs, num_poses, rng_pose)
+    scans = [
+        simulate_scan(segs, tuple(p), np.random.default_rng([seed, 2, i]), noise, obstacle_fraction)
+        for i, p in enumerate(poses)
+    ]
+    starts = {
+        name: initial_poses(poses, err, np.random.default_rng([seed, 3, k]))
+        for k, (name, err) in enumerate(ERROR_LEVELS.items())
+    }
+    return Scenario(segments=segs, poses=poses, scans=scans, starts=starts, seed=seed)
+
+
+# --------------------------------------------------------------------------- replay log
+
+
+def _path_waypoints() -> list[tuple[float, float]]:
+    """A tour along the corridor, through doors into rooms and back (all in free space)."""
+    return [
+        (1.0, 7.0), (2.95, 7.0), (2.95, 4.0), (2.0, 3.5), (2.95, 4.5), (2.95, 7.0),
+        (7.65, 7.0), (7.65, 9.5), (9.25, 9.9), (9.25, 12.5), (9.25, 9.9), (7.65, 9.5), (7.65, 7.0),
+        (15.05, 7.0), (15.05, 4.0), (16.5, 2.0), (15.05, 4.0), (15.05, 7.0),
+        (19.95, 7.0), (19.95, 9.0), (22.5, 9.0), (19.95, 9.0), (19.95, 7.0), (23.0, 7.0),
+        (12.45, 7.0), (12.45, 11.0), (13.5, 12.5), (12.45, 11.0), (12.45, 7.0), (1.0, 7.0),
+    ]  # fmt: skip
+
+
+@dataclass
+class ReplayLog:
+    """A generated log: true poses, drifting odometry and scans, one of each per step."""
+
+    segments: NDArray[np.float64]
+    stamps: NDArray[np.float64]
+    truth: NDArray[np.float64]  #: (T, 3)
+    odometry: NDArray[np.float64]  #: (T, 3) drifting odometry poses (odometry frame)
+    scans: list[SimScan]
+
+
+def make_replay_log(num_scans: int = 1000, seed: int = 11, rate: float = 10.0) -> ReplayLog:
+    """Drive the waypoint tour at constant speed (looping), scanning at ``rate`` Hz, with
+    odometry that drifts (2 % scale error on distance, 1 % on rotation, random walk)."""
+    segs = office_segments()
+    wp = np.asarray(_path_waypoints())
+    seg_len = np.hypot(*(np.diff(wp, axis=0).T))
+    cum = np.concatenate(([0.0], np.cumsum(seg_len)))
+    rng = np.random.default_rng([seed, 5])
+    speed = 0.6
+    stamps = np.arange(num_scans) / rate
+    dist = np.mod(stamps * speed, cum[-1])
+    k = np.clip(np.searchsorted(cum, dist, side="right") - 1, 0, len(seg_len) - 1)
+    t = (dist - cum[k]) / seg_len[k]
+    xy = wp[k] + t[:, None] * (wp[k + 1] - wp[k])
+    heading = np.arctan2(*(wp[k + 1] - wp[k])[:, ::-1].T)
+    # smooth the heading a little so turns take a few scans (robots turn, not teleport)
+    unwrapped = np.unwrap(heading)
+    kernel = np.ones(9) / 9.0
+    smooth = np.convolve(np.pad(unwrapped, 4, mode="edge"), kernel, mode="valid")
+    truth = np.column_stack((xy, np.remainder(smooth + math.pi, 2 * math.pi) - math.pi))
+    # odometry: integrate true increments with scale errors and noise
+    odo = np.zeros_like(truth)
+    odo[0] = truth[0]
+    for i in range(1, num_scans):
+        a, b = truth[i - 1], truth[i]
+        c, s = math.cos(a[2]), math.sin(a[2])
+        dx, dy = b[0] - a[0], b[1] - a[1]
+        lx, ly = c * dx + s * dy, -s * dx + c * dy
+        dth = math.remainder(b[2] - a[2], 2 * math.pi)
+        lx = lx * 1.02 + rng.normal(0, 0.002)
+        ly = ly + rng.normal(0, 0.001)
+        dth = dth * 1.01 + rng.normal(0, 0.002)
+        o = odo[i - 1]
+        co, so = math.cos(o[2]), math.sin(o[2])
+        odo[i] = (o[0] + co * lx - so * ly, o[1] + so * lx + co * ly, math.remainder(o[2] + dth, 2 * math.pi))
+    scans = [
+        simulate_scan(segs, tuple(p), np.random.default_rng([seed, 6, i])) for i, p in enumerate(truth)
+    ]
+    return ReplayLog(segments=segs, stamps=stamps, truth=truth, odometry=odo, scans=scans)
