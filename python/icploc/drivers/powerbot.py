@@ -1,0 +1,432 @@
+"""ActivMedia PowerBot / Pioneer (AROS, ARCOS) driver over pyserial.
+
+>>> from icploc.drivers.powerbot import PowerBot
+>>> with PowerBot("/dev/ttyS0") as bot:                       # doctest: +SKIP
+...     bot.set_velocity(0.3, 0.0)
+...     for sip in bot.sips():
+...         print(sip.stamp, sip.pose)
+
+Connecting (PROTOCOLS.md §B.6): SYNC0, SYNC1 (each echoed), SYNC2 (answered with name,
+type and subtype, which select the conversion factors, §B.8), with retries and a CLOSE
+if the robot turns out to be still connected from an earlier session; then OPEN,
+PULSE and ENABLE 1. A heartbeat thread sends PULSE every ``heartbeat`` seconds (well
+inside the 2 s watchdog) unless another command went out meanwhile; a reader thread
+parses SIPs into :class:`~icploc.drivers.arcos_protocol.Sip` objects with the 15-bit
+pose counters unwrapped into a continuous odometry pose (m, rad), stamped on
+:func:`icploc.clock.now` at the arrival of the packet's first byte.
+
+On exit (also on Ctrl-C and exceptions inside the ``with`` block, and at interpreter
+exit) the driver sends STOP, ENABLE 0 and CLOSE.
+"""
+
+from __future__ import annotations
+
+import atexit
+import math
+import queue
+import threading
+import time
+import weakref
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import serial
+
+from icploc import clock
+from icploc.drivers import arcos_protocol as ap
+from icploc.drivers.arcos_protocol import Sip
+from icploc.drivers.recording import Recorder
+from icploc.types import Odometry
+
+__all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
+
+
+class PowerBotError(RuntimeError):
+    """The robot could not be reached, or the line failed."""
+
+
+class PowerBotTimeout(PowerBotError):
+    """No answer to the handshake, or no SIP within the stall timeout."""
+
+
+_STOP = object()
+_open_bots: weakref.WeakSet[PowerBot] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_all() -> None:  # pragma: no cover - exercised at interpreter exit
+    for bot in list(_open_bots):
+        try:
+            bot.close()
+        except Exception:
+            pass
+
+
+class PowerBot:
+    """PowerBot client. ``port`` is any pyserial URL or device path."""
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = 9600,
+        switch_baudrate: int | None = None,
+        params: ap.RobotParams | None = None,
+        sync_tries: int = 10,
+        sync_timeout: float = 0.5,
+        heartbeat: float = 0.5,
+        enable_motors: bool = True,
+        stall_timeout: float = 2.0,
+        recorder: Recorder | str | Path | None = None,
+        queue_size: int = 256,
+    ) -> None:
+        self.port = port
+        self.baudrate = baudrate
+        self.switch_baudrate = switch_baudrate
+        self._forced_params = params
+        self.params: ap.RobotParams = params or ap.POWERBOT
+        self.sync_tries = sync_tries
+        self.sync_timeout = sync_timeout
+        self.heartbeat = heartbeat
+        self.enable_motors = enable_motors
+        self.stall_timeout = stall_timeout
+        self._own_recorder = isinstance(recorder, (str, Path))
+        self.recorder: Recorder | None = (
+            Recorder(recorder) if isinstance(recorder, (str, Path)) else recorder
+        )
+        self._rec_dev = 0
+        self.ser: serial.SerialBase | None = None
+        self.parser = ap.PacketParser()
+        self.decoder = ap.SipDecoder(self.params)
+        self.name = self.robot_type = self.subtype = ""
+        self.last_sip: Sip | None = None
+        self.counters = {"sips": 0, "sync_retries": 0, "dropped_sips": 0, "commands": 0, "read_errors": 0,
+                         "other_packets": 0}  # fmt: skip
+        self._sips: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
+        self._write_lock = threading.Lock()
+        self._last_write = 0.0
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._error: BaseException | None = None
+        self._connected = False
+        self._last_sip_time = 0.0
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def __enter__(self) -> PowerBot:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _open_port(self) -> None:
+        self.ser = serial.serial_for_url(self.port, baudrate=self.baudrate, bytesize=8, parity=serial.PARITY_NONE,
+                                         stopbits=1, timeout=0.02, write_timeout=5.0)  # fmt: skip
+        self.parser.reset()
+        self.parser.byte_time = 10.0 / self.baudrate
+
+    def connect(self) -> None:
+        """Open the port, handshake, OPEN, ENABLE, start the reader and heartbeat."""
+        if self.recorder is not None and not self._rec_dev:
+            self._rec_dev = self.recorder.device("powerbot", {"driver": "powerbot", "port": str(self.port),
+                                                             "baudrate": self.baudrate}, clock.now())  # fmt: skip
+        self._open_port()
+        try:
+            self._handshake()
+            self._send(ap.OPEN)
+            self._send(ap.PULSE)
+            if self.switch_baudrate and self.switch_baudrate != self.baudrate:
+                self._switch_baud(self.switch_baudrate)
+            if self.enable_motors:
+                self._send(ap.ENABLE, 1)
+        except BaseException:
+            self._close_port()
+            raise
+        self._connected = True
+        self._last_sip_time = clock.now()
+        _open_bots.add(self)
+        self._stop.clear()
+        self._threads = [
+            threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
+            threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
+        ]
+        for th in self._threads:
+            th.start()
+
+    def _close_port(self) -> None:
+        if self.ser is not None:
+            try:
+                self.ser.close()
+            except (OSError, serial.SerialException):
+                pass
+        self.ser = None
+
+    def close(self) -> None:
+        """STOP, ENABLE 0, CLOSE; stop the threads; close the port. Idempotent."""
+        if self.ser is not None and self._connected:
+            for cmd, arg in ((ap.STOP, None), (ap.ENABLE, 0), (ap.CLOSE, None)):
+                try:
+                    self._send(cmd, arg)
+                except (OSError, serial.SerialException, PowerBotError):
+                    break
+            time.sleep(0.01)
+        self._connected = False
+        self._stop.set()
+        for th in self._threads:
+            if th is not threading.current_thread():
+                th.join(timeout=5.0)
+        self._threads = []
+        self._close_port()
+        _open_bots.discard(self)
+        if self.recorder is not None and self._own_recorder:
+            self.recorder.close()
+
+    def reconnect(self) -> None:
+        """Close (best effort) and connect again, keeping the odometry continuous."""
+        self.close()
+        pose_units = (
+            self.decoder.unwrapper.x_units,
+            self.decoder.unwrapper.y_units,
+            self.decoder.unwrapper.th_units,
+        )
+        self.connect()
+        self._reconnect_offset = pose_units  # informational; the controller keeps its own pose
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    @property
+    def stats(self) -> dict[str, int]:
+        return {
+            **self.counters,
+            **{f"parser_{k}": v for k, v in self.parser.stats.as_dict().items()},
+        }
+
+    # ------------------------------------------------------------------ handshake
+
+    def _read_packets(self, deadline: float) -> list[ap.Packet]:
+        ser = self.ser
+        assert ser is not None
+        while clock.now() < deadline:
+            data = ser.read(max(1, ser.in_waiting))
+            if not data:
+                continue
+            t = clock.now()
+            if self.recorder is not None:
+                self.recorder.rx(self._rec_dev, t, data)
+            pkts = self.parser.feed(data, t)
+            if pkts:
+                return pkts
+        return []
+
+    def _await(self, want: int, timeout: float) -> ap.Packet | None:
+        """Wait for a packet of type ``want``; a SIP means "still connected"."""
+        deadline = clock.now() + timeout
+        while True:
+            pkts = self._read_packets(deadline)
+            if not pkts:
+                return None
+            for p in pkts:
+                if p.type == want:
+                    return p
+                if p.type in ap.SIP_TYPES:
+                    raise _StillConnected()
+
+    def _handshake(self) -> None:
+        assert self.ser is not None
+        for attempt in range(self.sync_tries):
+            if attempt:
+                self.counters["sync_retries"] += 1
+                time.sleep(min(0.05 * attempt, 0.5))
+            self.ser.reset_input_buffer()
+            self.parser.reset()
+            try:
+                for n in (ap.SYNC0, ap.SYNC1):
+                    self._send(n)
+                    if self._await(n, self.sync_timeout) is None:
+                        raise _Retry()
+                self._send(ap.SYNC2)
+                reply = self._await(ap.SYNC2, self.sync_timeout)
+                if reply is None:
+                    raise _Retry()
+                self.name, self.robot_type, self.subtype = ap.parse_sync2(reply.payload)
+            except _StillConnected:
+                self._send(ap.CLOSE)
+                time.sleep(0.05)
+                continue
+            except (_Retry, ap.ArcosProtocolError):
+                continue
+            if self._forced_params is None:
+                self.params = ap.params_for(self.subtype)
+            self.decoder.set_params(self.params)
+            if self.recorder is not None:
+                self.recorder.meta(self._rec_dev, clock.now(), {"name": self.name, "type": self.robot_type,
+                                                                "subtype": self.subtype,
+                                                                "params": self.params.name})  # fmt: skip
+            return
+        raise PowerBotTimeout(
+            f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
+        )
+
+    def _switch_baud(self, baud: int) -> None:
+        code = ap.HOSTBAUD_CODES[baud]
+        self._send(ap.HOSTBAUD, code)
+        time.sleep(0.01)
+        assert self.ser is not None
+        self.ser.baudrate = baud
+        self.parser.byte_time = 10.0 / baud
+        self._send(ap.PULSE)
+        if self.recorder is not None:
+            self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
+
+    # ------------------------------------------------------------------ commands
+
+    def _send(self, cmd: int, arg: int | bytes | str | None = None) -> None:
+        pkt = ap.encode_command(cmd, arg)
+        ser = self.ser
+        if ser is None:
+            raise PowerBotError("not connected")
+        with self._write_lock:
+            t = clock.now()
+            if self.recorder is not None:
+                self.recorder.tx(self._rec_dev, t, pkt)
+            ser.write(pkt)
+            ser.flush()
+            self._last_write = t
+            self.counters["commands"] += 1
+
+    def command(self, cmd: int, arg: int | bytes | str | None = None) -> None:
+        """Send any client command (number per §B.5)."""
+        self._send(cmd, arg)
+
+    def set_velocity(self, v: float, w: float) -> None:
+        """Translational ``v`` (m/s) and rotational ``w`` (rad/s) via VEL and RVEL.
+        RVEL has a resolution of 1 °/s; use :meth:`set_wheel_velocities` (VEL2) for
+        direct wheel control."""
+        p = self.params
+        vmm = int(round(max(-p.max_velocity, min(p.max_velocity, v * 1000.0))))
+        wdeg = int(round(max(-p.max_rot_velocity, min(p.max_rot_velocity, math.degrees(w)))))
+        self._send(ap.VEL, vmm)
+        self._send(ap.RVEL, wdeg)
+
+    def set_wheel_velocities(self, left: float, right: float) -> None:
+        """Wheel speeds in m/s via VEL2 (resolution ``Vel2Divisor`` = 20 mm/s)."""
+        self._send(
+            ap.VEL2, ap.vel2_argument(left * 1000.0, right * 1000.0, self.params.vel2_divisor)
+        )
+
+    def stop(self) -> None:
+        self._send(ap.STOP)
+
+    def e_stop(self) -> None:
+        self._send(ap.E_STOP)
+
+    def enable_motors_cmd(self, on: bool = True) -> None:
+        self._send(ap.ENABLE, 1 if on else 0)
+
+    def reset_odometry(self) -> None:
+        """SETO: the controller's pose becomes (0, 0, 0); our unwrapped pose follows."""
+        self._send(ap.SETO)
+        self.decoder.unwrapper.reset()
+
+    # ------------------------------------------------------------------ threads
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(self.heartbeat / 4.0):
+            if clock.now() - self._last_write >= self.heartbeat:
+                try:
+                    self._send(ap.PULSE)
+                except (OSError, serial.SerialException, PowerBotError):
+                    return
+
+    def _reader(self) -> None:
+        try:
+            while not self._stop.is_set():
+                ser = self.ser
+                if ser is None:
+                    return
+                try:
+                    data = ser.read(max(1, ser.in_waiting))
+                except (OSError, serial.SerialException) as e:
+                    self.counters["read_errors"] += 1
+                    raise PowerBotError(f"serial line failed: {e}") from e
+                if not data:
+                    if clock.now() - self._last_sip_time > self.stall_timeout:
+                        raise PowerBotTimeout(f"no SIP for {self.stall_timeout} s")
+                    continue
+                t = clock.now()
+                if self.recorder is not None:
+                    self.recorder.rx(self._rec_dev, t, data)
+                for pkt in self.parser.feed(data, t):
+                    sip = self.decoder.decode(pkt)
+                    if sip is None:
+                        self.counters["other_packets"] += 1
+                        continue
+                    self.counters["sips"] += 1
+                    self.last_sip = sip
+                    self._last_sip_time = t
+                    self._put(sip)
+        except BaseException as e:
+            if not self._stop.is_set():
+                self._error = e
+            self._put(_STOP)
+
+    def _put(self, item: object) -> None:
+        while True:
+            try:
+                self._sips.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    self._sips.get_nowait()
+                    self.counters["dropped_sips"] += 1
+                except queue.Empty:
+                    pass
+
+    def get(self, timeout: float | None = None) -> Sip | None:
+        """Next SIP (None on timeout or after close). Raises the reader's error."""
+        try:
+            item = self._sips.get(timeout=timeout)
+        except queue.Empty:
+            return None
+        if item is _STOP:
+            err, self._error = self._error, None
+            if err is not None:
+                raise err
+            return None
+        assert isinstance(item, Sip)
+        return item
+
+    def sips(self, limit: int | None = None) -> Iterator[Sip]:
+        """Yield SIPs as they arrive (forever, or ``limit`` of them). Ends when the
+        driver is closed; raises :class:`PowerBotTimeout` if SIPs stop coming."""
+        n = 0
+        while limit is None or n < limit:
+            sip = self.get(timeout=0.1)
+            if sip is None:
+                if not self._connected and self._sips.empty():
+                    return
+                if self._threads and not self._threads[0].is_alive() and self._sips.empty():
+                    if self._error is not None:
+                        err, self._error = self._error, None
+                        raise err
+                    return
+                continue
+            n += 1
+            yield sip
+
+    def odometry(self, limit: int | None = None) -> Iterator[Odometry]:
+        """:meth:`sips` converted to :class:`icploc.types.Odometry`."""
+        for sip in self.sips(limit):
+            yield sip.to_odometry()
+
+
+class _Retry(Exception):
+    pass
+
+
+class _StillConnected(Exception):
+    pass
