@@ -1,0 +1,114 @@
+"""``icploc map ...``: inspect, draw, prepare and convert maps."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import typer
+
+from .errors import MapError
+
+map_app = typer.Typer(no_args_is_help=True, help="Load, fit, inspect and prepare maps.")
+
+
+def _load(path: Path, min_length: float | None = None):  # type: ignore[no-untyped-def]
+    from .map import Map
+
+    opts = {} if min_length is None else {"min_length": min_length}
+    try:
+        return Map.load(path, **opts)
+    except MapError as e:
+        typer.echo(f"error: {e}", err=True)
+        raise typer.Exit(2) from e
+
+
+@map_app.command()
+def show(
+    map_path: Path = typer.Argument(..., help="map file (.yaml, .geojson, .dxf, .npy, .csv, .npz)"),
+    out: Path = typer.Option(Path("map.png"), "--out", "-o", help="image to write (.png, .svg, .pdf)"),
+    spacing: float = typer.Option(0.1, help="sample spacing to draw [m]; 0 draws no samples"),
+    pose: str | None = typer.Option(None, help="'x,y,theta' to draw a scanner and what it sees"),  # noqa: UP007
+    fov: float = typer.Option(360.0, help="field of view with --pose [degrees]"),
+    max_range: float = typer.Option(30.0, help="max range with --pose [m]"),
+    normals: bool = typer.Option(False, help="draw sample normals"),
+    dpi: int = typer.Option(150),
+) -> None:
+    """Draw the grid, the fitted lines and the samples to an image."""
+    from .plot import save_map_plot
+
+    m = _load(map_path)
+    p = None
+    if pose:
+        try:
+            p = tuple(float(v) for v in pose.split(","))
+            assert len(p) == 3
+        except (ValueError, AssertionError) as e:
+            raise typer.BadParameter("--pose must be 'x,y,theta'") from e
+    save_map_plot(m, out, spacing=spacing if spacing > 0 else None, pose=p, fov=math.radians(fov),
+                  max_range=max_range, normals=normals, dpi=dpi)
+    typer.echo(f"wrote {out}")
+
+
+@map_app.command()
+def info(
+    map_path: Path = typer.Argument(..., help="map file"),
+    spacing: float = typer.Option(0.05, help="sample spacing for the point counts [m]"),
+    as_json: bool = typer.Option(False, "--json", help="print JSON"),
+) -> None:
+    """Print what the map holds: format, lines, fit quality, sample counts and timings."""
+    t0 = time.perf_counter()
+    m = _load(map_path)
+    t1 = time.perf_counter()
+    d = m.info()
+    d["samples"] = m.sample_counts(spacing)
+    t2 = time.perf_counter()
+    d["spacing"] = spacing
+    d["timing_s"] = {"load_and_fit": round(t1 - t0, 4), "sample": round(t2 - t1, 4)}
+    if as_json:
+        typer.echo(json.dumps(d, indent=1, default=str))
+        return
+    for k, v in d.items():
+        typer.echo(f"{k:>16}: {v}")
+
+
+@map_app.command()
+def prepare(
+    map_path: Path = typer.Argument(..., help="map file"),
+    out: Path = typer.Option(..., "--out", "-o", help="prepared map to write (.npz)"),
+    spacing: list[float] = typer.Option([0.05], help="sample spacing(s) to store [m]"),
+    min_length: float | None = typer.Option(None, help="shortest fitted line for grids [m]"),  # noqa: UP007
+) -> None:
+    """Fit and sample once; save everything to one .npz that loads fast."""
+    m = _load(map_path, min_length)
+    try:
+        m.save(out, spacing=spacing)
+    except MapError as e:
+        typer.echo(f"error: {e}", err=True)
+        raise typer.Exit(2) from e
+    counts = {s: m.sample_counts(s)["total"] for s in spacing}
+    typer.echo(f"wrote {out}: {len(m.lines)} lines, samples {counts}")
+
+
+@map_app.command()
+def convert(
+    map_path: Path = typer.Argument(..., help="map file"),
+    out: Path = typer.Option(..., "--out", "-o", help=".geojson (lines) or .yaml (ROS grid)"),
+    resolution: float = typer.Option(0.05, help="cell size for .yaml output [m]"),
+) -> None:
+    """Write the map's lines as GeoJSON, or rasterise them into a ROS map_server map."""
+    m = _load(map_path)
+    suffix = out.suffix.lower()
+    try:
+        if suffix in (".geojson", ".json"):
+            m.to_geojson(out)
+        elif suffix in (".yaml", ".yml"):
+            m.to_ros(out, resolution)
+        else:
+            raise typer.BadParameter("--out must end in .geojson or .yaml")
+    except MapError as e:
+        typer.echo(f"error: {e}", err=True)
+        raise typer.Exit(2) from e
+    typer.echo(f"wrote {out}")

@@ -1,0 +1,495 @@
+"""The :class:`Map`: walls as line segments (given or fitted from a grid), the grid they came
+from, and the uniformly sampled points + normals the ICP core matches against."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import MapError
+from .linefit import fit_lines
+from .sampling import estimate_normals, sample_lines, thin_points
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from icploc._core import MapIndex
+
+FloatArray = NDArray[np.float64]
+
+#: file suffix -> format name used by :meth:`Map.load`
+FORMATS = {
+    ".yaml": "ros",
+    ".yml": "ros",
+    ".geojson": "geojson",
+    ".json": "geojson",
+    ".dxf": "dxf",
+    ".npy": "points",
+    ".csv": "points",
+    ".txt": "points",
+    ".npz": "prepared",
+}
+
+DEFAULT_FIT = {"min_length": 0.2, "min_explained": 0.5}
+
+
+def _lines_array(lines: ArrayLike, what: str = "lines") -> FloatArray:
+    a = np.asarray(lines, dtype=np.float64)
+    if a.size == 0:
+        return np.zeros((0, 4))
+    if a.ndim != 2 or a.shape[1] != 4:
+        raise MapError(None, what, f"must be a (K, 4) array [x1, y1, x2, y2], got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise MapError(None, what, "contains NaN or inf")
+    return np.ascontiguousarray(a)
+
+
+def _check_spacing(spacing: float) -> float:
+    s = float(spacing)
+    if not (math.isfinite(s) and s > 0):
+        raise MapError(None, "spacing", f"must be a positive finite number, got {spacing!r}")
+    return s
+
+
+class Map:
+    """A 2D map in the map frame (metres).
+
+    Build one with :meth:`load` (format by file suffix), :meth:`from_lines`,
+    :meth:`from_grid` or :meth:`from_points`.
+
+    * ``lines`` — (K, 4) wall segments ``[x1, y1, x2, y2]`` (given, or fitted from a grid);
+      for fitted lines the left normal (direction turned +90°) faces free space.
+    * ``grid`` — boolean occupied cells ``grid[iy, ix]`` (row 0 at the origin, as in
+      ``nav_msgs/OccupancyGrid``) or ``None``; ``free`` the free cells; ``resolution`` metres per
+      cell; ``origin`` ``(x, y, yaw)`` of the outer corner of cell (0, 0).
+    * ``sample(spacing)`` — points every ``spacing`` along the lines with unit normals, plus
+      (for grids) the wall-surface cells no line explains; ``index(spacing)`` — the Rust
+      :class:`icploc.MapIndex` over them.
+    """
+
+    def __init__(
+        self,
+        lines: ArrayLike | None = None,
+        *,
+        grid: NDArray[np.bool_] | None = None,
+        free: NDArray[np.bool_] | None = None,
+        resolution: float | None = None,
+        origin: Sequence[float] | None = None,
+        points: ArrayLike | None = None,
+        point_normals: ArrayLike | None = None,
+        extra_points: ArrayLike | None = None,
+        extra_normals: ArrayLike | None = None,
+        source: str | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
+        self.lines: FloatArray = _lines_array([] if lines is None else lines)
+        self.grid = None if grid is None else np.ascontiguousarray(grid, dtype=bool)
+        self.free = None if free is None else np.ascontiguousarray(free, dtype=bool)
+        self.resolution = None if resolution is None else float(resolution)
+        o = (0.0, 0.0, 0.0) if origin is None else tuple(float(v) for v in origin)
+        if len(o) == 2:
+            o = (o[0], o[1], 0.0)
+        if len(o) != 3 or not all(math.isfinite(v) for v in o):
+            raise MapError(source, "origin", f"must be finite (x, y[, yaw]), got {origin!r}")
+        self.origin: tuple[float, float, float] = (o[0], o[1], o[2])
+        self.points = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        self.point_normals = (
+            None if point_normals is None else np.asarray(point_normals, dtype=np.float64).reshape(-1, 2)
+        )
+        self.extra_points = (
+            np.zeros((0, 2)) if extra_points is None else np.asarray(extra_points, dtype=np.float64).reshape(-1, 2)
+        )
+        self.extra_normals = (
+            np.zeros((0, 2)) if extra_normals is None else np.asarray(extra_normals, dtype=np.float64).reshape(-1, 2)
+        )
+        self.occupancy: NDArray[np.int8] | None = None  # ROS values (-1, 0..100) when loaded from ROS
+        self.source = source
+        self.meta: dict[str, Any] = dict(meta or {})
+        self._samples: dict[float, tuple[FloatArray, FloatArray, dict[str, int]]] = {}
+        self._indexes: dict[float, MapIndex] = {}
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def load(cls, path: str | Path, **options: Any) -> Map:
+        """Load a map, choosing the reader by suffix: ``.yaml``/``.yml`` (ROS map_server),
+        ``.geojson``/``.json``, ``.dxf``, ``.npy``/``.csv``/``.txt`` (points), ``.npz``
+        (prepared, see :meth:`save`). ``options`` go to the reader / line fit (e.g.
+        ``units="mm"`` for DXF, ``min_length=0.3`` for grids)."""
+        path = Path(path)
+        fmt = FORMATS.get(path.suffix.lower())
+        if fmt is None:
+            raise MapError(
+                path, None, f"unknown map format {path.suffix!r} (expected one of {', '.join(sorted(FORMATS))})"
+            )
+        if not path.exists():
+            raise MapError(path, None, "file not found")
+        if fmt == "ros":
+            from .ros import load_ros
+
+            g = load_ros(path)
+            m = cls.from_grid(g.occupied, g.resolution, g.origin, free=g.free, source=str(path), **options)
+            m.meta.update({"format": "ros", "ros": g.meta})
+            m.occupancy = g.occupancy
+            return m
+        if fmt == "geojson":
+            from .geojson import load_geojson
+
+            lines, meta = load_geojson(path)
+            return cls(lines, source=str(path), meta={"format": "geojson", **meta})
+        if fmt == "dxf":
+            from .dxf import load_dxf
+
+            lines, meta = load_dxf(path, **options)
+            return cls(lines, source=str(path), meta={"format": "dxf", **meta})
+        if fmt == "points":
+            from .points import load_csv, load_npy
+
+            pts, nrm = load_npy(path) if path.suffix.lower() == ".npy" else load_csv(path)
+            return cls(points=pts, point_normals=nrm, source=str(path), meta={"format": "points"})
+        from .prepared import load_prepared
+
+        return load_prepared(path)
+
+    @classmethod
+    def from_lines(cls, lines: ArrayLike, **meta: Any) -> Map:
+        """A map of the given (K, 4) wall segments in metres."""
+        return cls(lines, meta={"format": "lines", **meta})
+
+    @classmethod
+    def from_points(cls, points: ArrayLike, normals: ArrayLike | None = None) -> Map:
+        """A point map: (N, 2) points (optionally with (N, 2) normals)."""
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2 or len(p) == 0 or not np.isfinite(p).all():
+            raise MapError(None, "points", f"must be a non-empty finite (N, 2) array, got shape {p.shape}")
+        n = None
+        if normals is not None:
+            n = np.asarray(normals, dtype=np.float64)
+            if n.shape != p.shape:
+                raise MapError(None, "normals", f"shape {n.shape} != points shape {p.shape}")
+            ln = np.hypot(n[:, 0], n[:, 1])
+            if not (np.isfinite(ln).all() and (ln > 1e-9).all()):
+                raise MapError(None, "normals", "must be finite and non-zero")
+            n = n / ln[:, None]
+        return cls(points=p, point_normals=n, meta={"format": "points"})
+
+    @classmethod
+    def from_grid(
+        cls,
+        occupancy: ArrayLike,
+        resolution: float,
+        origin: Sequence[float] = (0.0, 0.0, 0.0),
+        *,
+        free: ArrayLike | None = None,
+        fit: bool = True,
+        min_length: float = DEFAULT_FIT["min_length"],
+        min_explained: float = DEFAULT_FIT["min_explained"],
+        source: str | None = None,
+    ) -> Map:
+        """A map from an occupancy grid ``occupancy[iy, ix]`` (row 0 at ``origin``).
+
+        ``occupancy`` is boolean (True = occupied; then ``free`` defaults to ``~occupancy``) or
+        OccupancyGrid-style numbers (-1 unknown, 0..100: > 65 occupied, < 19.6 free). Walls are
+        fitted as lines (``fit=False`` skips that); pieces shorter than ``min_length`` metres stay
+        as boundary points. If the lines explain less than ``min_explained`` of the wall-surface
+        cells, samples are all surface cells instead (``meta['sample_mode'] == 'points'``).
+        """
+        occ_in = np.asarray(occupancy)
+        if occ_in.ndim != 2 or occ_in.size == 0:
+            raise MapError(source, "grid", f"must be a non-empty 2-D array, got shape {occ_in.shape}")
+        if occ_in.dtype == bool:
+            occupied = occ_in
+            free_m = ~occupied if free is None else np.asarray(free, dtype=bool)
+        else:
+            v = occ_in.astype(np.float64)
+            if not np.isfinite(v).all():
+                raise MapError(source, "grid", "contains NaN or inf")
+            occupied = v > 65
+            free_m = (v >= 0) & (v < 19.6) if free is None else np.asarray(free, dtype=bool)
+        if free_m.shape != occupied.shape:
+            raise MapError(source, "free", f"shape {free_m.shape} != grid shape {occupied.shape}")
+        res = float(resolution)
+        if not (math.isfinite(res) and res > 0):
+            raise MapError(source, "resolution", f"must be a positive finite number, got {resolution!r}")
+        m = cls(grid=occupied, free=free_m, resolution=res, origin=origin, source=source,
+                meta={"format": "grid"})
+        if fit:
+            m.refit(min_length=min_length, min_explained=min_explained)
+        else:
+            m.refit(min_length=min_length, min_explained=min_explained, lines=False)
+        return m
+
+    def refit(self, *, min_length: float = 0.2, min_explained: float = 0.5, lines: bool = True) -> None:
+        """(Re)fit the wall lines of a grid map; updates ``lines``, fallback points and ``meta['fit']``."""
+        if self.grid is None or self.resolution is None:
+            raise MapError(self.source, "grid", "map has no occupancy grid to fit")
+        res = self.resolution
+        f = fit_lines(self.grid, self.free, min_length=max(3.0, min_length / res))
+        explained = f.explained_fraction if lines else 0.0
+        mode = "lines" if explained >= 0.999 else "lines+points"
+        keep_lines = lines
+        if explained < min_explained:
+            mode = "points"
+        rest = np.ones(len(f.surface), dtype=bool) if mode == "points" else ~f.explained
+        self.lines = self.cells_to_world(f.lines.reshape(-1, 2)).reshape(-1, 4) if keep_lines else np.zeros((0, 4))
+        self.extra_points = self.cells_to_world(f.surface[rest])
+        self.extra_normals = self._rotate(f.surface_normals[rest])
+        self.meta["sample_mode"] = mode
+        self.meta["fit"] = {
+            "lines": int(len(f.lines)),
+            "surface_cells": int(len(f.surface)),
+            "explained_fraction": round(float(f.explained_fraction), 4),
+            "rms_cells_median": round(float(np.median(f.rms)), 4) if len(f.rms) else None,
+            "min_length": min_length,
+        }
+        self._samples.clear()
+        self._indexes.clear()
+
+    # ------------------------------------------------------------------ geometry
+    def _rotate(self, v: FloatArray) -> FloatArray:
+        c, s = math.cos(self.origin[2]), math.sin(self.origin[2])
+        v = np.asarray(v, dtype=np.float64).reshape(-1, 2)
+        return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+
+    def cells_to_world(self, xy: ArrayLike) -> FloatArray:
+        """Cell-centre coordinates (x = ix, y = iy, fractional allowed) to metres."""
+        if self.resolution is None:
+            raise MapError(self.source, "grid", "map has no grid")
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        w = self._rotate((xy + 0.5) * self.resolution)
+        return w + np.array(self.origin[:2])
+
+    def world_to_cells(self, xy: ArrayLike) -> FloatArray:
+        """Inverse of :meth:`cells_to_world` (round to get integer cell indices)."""
+        if self.resolution is None:
+            raise MapError(self.source, "grid", "map has no grid")
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - np.array(self.origin[:2])
+        c, s = math.cos(self.origin[2]), math.sin(self.origin[2])
+        local = np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
+        return local / self.resolution - 0.5
+
+    @property
+    def grid_corners(self) -> FloatArray | None:
+        """(4, 2) world corners of the grid, or None."""
+        if self.grid is None or self.resolution is None:
+            return None
+        h, w = self.grid.shape
+        return self.cells_to_world([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the walls and points (of the grid if there are none)."""
+        parts = [self.lines.reshape(-1, 2), self.extra_points]
+        if self.points is not None:
+            parts.append(self.points)
+        xy = np.concatenate(parts)
+        if len(xy) == 0:
+            corners = self.grid_corners
+            if corners is None:
+                raise MapError(self.source, "bounds", "empty map")
+            xy = corners
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+
+    # ------------------------------------------------------------------ sampling
+    def sample(self, spacing: float) -> tuple[FloatArray, FloatArray]:
+        """Map points every ``spacing`` metres with unit normals: ``(points (N, 2), normals (N, 2))``.
+
+        Lines are sampled uniformly (see :func:`icploc.maps.sampling.sample_lines`); for grid
+        maps the wall-surface cells no line explains are added, thinned to one per
+        ``spacing`` square, with normals from their neighbourhood (facing free space); point
+        maps are thinned the same way, normals given or estimated by local PCA.
+        Results are cached per spacing (treat them as read-only).
+        """
+        s = _check_spacing(spacing)
+        if s in self._samples:
+            p, n, _ = self._samples[s]
+            return p, n
+        lp, ln, _ = sample_lines(self.lines, s)
+        counts = {"lines": int(len(lp))}
+        parts_p, parts_n = [lp], [ln]
+        if len(self.extra_points):
+            keep = thin_points(self.extra_points, s)
+            parts_p.append(self.extra_points[keep])
+            parts_n.append(self.extra_normals[keep])
+            counts["boundary"] = int(len(keep))
+        if self.points is not None:
+            keep = thin_points(self.points, s)
+            pts = self.points[keep]
+            if self.point_normals is not None:
+                nrm = self.point_normals[keep]
+            else:
+                nrm = estimate_normals(self.points, radius=max(3 * s, 1e-9))[keep]
+            parts_p.append(pts)
+            parts_n.append(nrm)
+            counts["points"] = int(len(keep))
+        p = np.ascontiguousarray(np.concatenate(parts_p))
+        n = np.ascontiguousarray(np.concatenate(parts_n))
+        counts["total"] = int(len(p))
+        p.flags.writeable = False
+        n.flags.writeable = False
+        self._samples[s] = (p, n, counts)
+        return p, n
+
+    def sample_counts(self, spacing: float) -> dict[str, int]:
+        """How many samples :meth:`sample` gives, by source (lines / boundary / points / total)."""
+        s = _check_spacing(spacing)
+        self.sample(s)
+        return dict(self._samples[s][2])
+
+    def index(self, spacing: float) -> MapIndex:
+        """The Rust :class:`icploc.MapIndex` (k-d tree) over ``sample(spacing)``, cached."""
+        s = _check_spacing(spacing)
+        if s not in self._indexes:
+            from icploc._core import MapIndex
+
+            p, n = self.sample(s)
+            if len(p) == 0:
+                raise MapError(self.source, "lines", "map has no points to index")
+            self._indexes[s] = MapIndex(p, n)
+        return self._indexes[s]
+
+    # ------------------------------------------------------------------ visibility
+    def visible(
+        self,
+        pose: Sequence[float],
+        fov: float = 2 * math.pi,
+        max_range: float = 30.0,
+        spacing: float = 0.05,
+        *,
+        exact: bool = False,
+        tolerance: float = 0.05,
+    ) -> NDArray[np.int64]:
+        """Indices into ``sample(spacing)`` of the points a scanner at ``pose`` (x, y, theta)
+        with field of view ``fov`` (radians, centred on theta) and ``max_range`` could see.
+
+        Default: the Rust z-buffer (:meth:`icploc.MapIndex.visible`) — fast, per scan.
+        ``exact=True``: ray-segment occlusion tests against ``lines`` in numpy (slower; grid
+        boundary points do not occlude there).
+        """
+        from .visibility import visible_exact
+
+        if exact:
+            p, _ = self.sample(spacing)
+            return visible_exact(p, self.lines, pose, fov, max_range, tolerance=tolerance)
+        return np.asarray(
+            self.index(spacing).visible(pose, fov=fov, max_range=max_range, tolerance=tolerance),
+            dtype=np.int64,
+        )
+
+    def visible_points(
+        self, pose: Sequence[float], fov: float = 2 * math.pi, max_range: float = 30.0,
+        spacing: float = 0.05, *, exact: bool = False,
+    ) -> tuple[FloatArray, FloatArray]:
+        """``(points, normals)`` of :meth:`visible`."""
+        idx = self.visible(pose, fov, max_range, spacing, exact=exact)
+        p, n = self.sample(spacing)
+        return p[idx], n[idx]
+
+    # ------------------------------------------------------------------ output
+    def save(self, path: str | Path, spacing: float | Sequence[float] | None = None) -> Path:
+        """Save the prepared map (lines, grid, fallback points, samples for ``spacing``, metadata)
+        to one ``.npz`` file that :meth:`load` reads back without refitting."""
+        from .prepared import save_prepared
+
+        spacings = [] if spacing is None else [spacing] if isinstance(spacing, int | float) else list(spacing)
+        return save_prepared(self, path, [_check_spacing(s) for s in spacings])
+
+    def to_ros(
+        self, yaml_path: str | Path, resolution: float, *, margin: float = 1.0,
+        origin: Sequence[float] | None = None, image_format: str = "pgm",
+    ) -> Path:
+        """Rasterise the lines into a ROS map_server map (trinary YAML + PGM/PNG); returns the
+        YAML path.
+
+        Every cell a line passes through is occupied, all others free. By default the grid
+        covers :attr:`bounds` plus ``margin`` and is aligned so cell centres sit on multiples
+        of ``resolution`` (a wall at x = 2.0 runs through cell centres); ``origin`` (x, y[, yaw])
+        overrides that.
+        """
+        from .raster import rasterize_lines
+        from .ros import save_ros
+
+        res = _check_spacing(resolution)
+        if len(self.lines) == 0:
+            raise MapError(self.source, "lines", "no lines to rasterise")
+        xmin, ymin, xmax, ymax = self.bounds
+        if origin is None:
+            ox = math.floor((xmin - margin) / res) * res - res / 2
+            oy = math.floor((ymin - margin) / res) * res - res / 2
+            o = (ox, oy, 0.0)
+        else:
+            ov = [float(v) for v in origin]
+            o = (ov[0], ov[1], ov[2] if len(ov) > 2 else 0.0)
+        grid_map = Map(resolution=res, origin=o)
+        cells = grid_map.world_to_cells(self.lines.reshape(-1, 2)).reshape(-1, 4)
+        if origin is None:
+            w = math.ceil((xmax + margin - o[0]) / res) + 1
+            h = math.ceil((ymax + margin - o[1]) / res) + 1
+        else:
+            if cells.min() < -0.5:
+                raise MapError(self.source, "origin", "lines extend below/left of the given origin")
+            hi = cells.reshape(-1, 2).max(axis=0)
+            w, h = int(math.ceil(hi[0] + margin / res)) + 1, int(math.ceil(hi[1] + margin / res)) + 1
+        if w * h > 400_000_000:
+            raise MapError(self.source, "resolution", f"grid of {w}x{h} cells is too large")
+        occ = rasterize_lines(cells, (h, w))
+        yaml_path = Path(yaml_path)
+        save_ros(yaml_path, occ, res, o, image_format=image_format)
+        return yaml_path
+
+    def to_geojson(self, path: str | Path) -> Path:
+        """Write the lines in our GeoJSON format (see docs/map-formats.md)."""
+        from .geojson import save_geojson
+
+        save_geojson(path, self.lines, name=self.meta.get("name"))
+        return Path(path)
+
+    def plot(self, ax: Axes | None = None, **options: Any) -> Axes:
+        """Draw grid, lines and samples with matplotlib (see :func:`icploc.maps.plot.plot_map`)."""
+        from .plot import plot_map
+
+        return plot_map(self, ax=ax, **options)
+
+    def info(self, spacing: float | None = None) -> dict[str, Any]:
+        """A summary (format, counts, bounds, fit statistics) as plain data."""
+        d: dict[str, Any] = {"source": self.source, "format": self.meta.get("format"),
+                             "lines": int(len(self.lines))}
+        if len(self.lines):
+            d["line_length_m"] = round(float(np.hypot(*(self.lines[:, 2:] - self.lines[:, :2]).T).sum()), 3)
+        if self.grid is not None:
+            d["grid_shape"] = list(self.grid.shape)
+            d["resolution"] = self.resolution
+            d["origin"] = list(self.origin)
+            d["occupied_cells"] = int(self.grid.sum())
+        if self.points is not None:
+            d["points"] = int(len(self.points))
+        if len(self.extra_points):
+            d["boundary_points"] = int(len(self.extra_points))
+        for k in ("fit", "sample_mode", "units"):
+            if k in self.meta:
+                d[k] = self.meta[k]
+        try:
+            d["bounds"] = [round(v, 4) for v in self.bounds]
+        except MapError:
+            pass
+        if spacing is not None:
+            d["samples"] = self.sample_counts(spacing)
+            d["spacing"] = spacing
+        return d
+
+    def __repr__(self) -> str:
+        parts = [f"lines={len(self.lines)}"]
+        if self.grid is not None:
+            parts.append(f"grid={self.grid.shape[1]}x{self.grid.shape[0]}@{self.resolution}m")
+        if self.points is not None:
+            parts.append(f"points={len(self.points)}")
+        if len(self.extra_points):
+            parts.append(f"boundary_points={len(self.extra_points)}")
+        if self.source:
+            parts.append(f"source={self.source!r}")
+        return f"Map({', '.join(parts)})"
