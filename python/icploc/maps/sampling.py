@@ -55,7 +55,7 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.int64]:
         return np.zeros(0, dtype=np.int64)
     if not (np.isfinite(spacing) and spacing > 0):
         raise ValueError(f"spacing must be a positive finite number, got {spacing!r}")
-    key = np.floor((points - points.min(axis=0)) / spacing).astype(np.int64)
+    key = np.floor((points - points.min(axis=0)) / spacing + 1e-6).astype(np.int64)
     _, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
     ncell = int(inv.max()) + 1
