@@ -87,7 +87,14 @@ def assess(walls: np.ndarray, fitted: np.ndarray, tol: float = TOL) -> list[dict
                 cov += y - max(x, cur)
                 cur = y
         out.append(
-            {"length": L, "coverage": cov / L, "distance": worst, "angle": ang, "overshoot": over, "n": len(ivs)}
+            {
+                "length": L,
+                "coverage": cov / L,
+                "distance": worst,
+                "angle": ang,
+                "overshoot": over,
+                "n": len(ivs),
+            }
         )
     return out
 
@@ -182,7 +189,10 @@ def test_supercover_touches_every_cell_the_segment_crosses() -> None:
         assert {tuple(c) for c in dense.tolist()} <= cells
         # and no cell farther than a half-diagonal from the segment
         for c in cells:
-            assert point_segment_distance(np.array(c, float), np.concatenate([p, q])) <= math.sqrt(0.5) + 1e-9
+            assert (
+                point_segment_distance(np.array(c, float), np.concatenate([p, q]))
+                <= math.sqrt(0.5) + 1e-9
+            )
 
 
 def test_clutter_falls_back_to_boundary_points() -> None:
@@ -201,7 +211,11 @@ def test_clutter_falls_back_to_boundary_points() -> None:
     nl = np.hypot(m.extra_normals[:, 0], m.extra_normals[:, 1])
     np.testing.assert_allclose(nl, 1.0)
     for p, nrm in zip(m.extra_points, m.extra_normals, strict=True):
-        centre = min((np.array([x, y]) + 0.5) * RES for y, x in blobs if np.hypot(*((np.array([x, y]) + 0.5) * RES - p)) < 0.1)
+        centre = min(
+            (np.array([x, y]) + 0.5) * RES
+            for y, x in blobs
+            if np.hypot(*((np.array([x, y]) + 0.5) * RES - p)) < 0.1
+        )
         assert nrm @ (p - centre) > 0  # faces away from the blob's centre, into free space
     pts, _ = m.sample(RES)
     assert m.sample_counts(RES)["boundary"] == 24

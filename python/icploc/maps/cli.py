@@ -28,7 +28,9 @@ def _load(path: Path, min_length: float | None = None):  # type: ignore[no-untyp
 @map_app.command()
 def show(
     map_path: Path = typer.Argument(..., help="map file (.yaml, .geojson, .dxf, .npy, .csv, .npz)"),
-    out: Path = typer.Option(Path("map.png"), "--out", "-o", help="image to write (.png, .svg, .pdf)"),
+    out: Path = typer.Option(
+        Path("map.png"), "--out", "-o", help="image to write (.png, .svg, .pdf)"
+    ),
     spacing: float = typer.Option(0.1, help="sample spacing to draw [m]; 0 draws no samples"),
     pose: str | None = typer.Option(None, help="'x,y,theta' to draw a scanner and what it sees"),  # noqa: UP007
     fov: float = typer.Option(360.0, help="field of view with --pose [degrees]"),
@@ -47,8 +49,16 @@ def show(
             assert len(p) == 3
         except (ValueError, AssertionError) as e:
             raise typer.BadParameter("--pose must be 'x,y,theta'") from e
-    save_map_plot(m, out, spacing=spacing if spacing > 0 else None, pose=p, fov=math.radians(fov),
-                  max_range=max_range, normals=normals, dpi=dpi)
+    save_map_plot(
+        m,
+        out,
+        spacing=spacing if spacing > 0 else None,
+        pose=p,
+        fov=math.radians(fov),
+        max_range=max_range,
+        normals=normals,
+        dpi=dpi,
+    )
     typer.echo(f"wrote {out}")
 
 

@@ -18,7 +18,16 @@ from numpy.typing import NDArray
 from .errors import MapError
 
 #: names accepted for ``units`` and their size in metres
-UNIT_NAMES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048, "dm": 0.1, "km": 1000.0, "yd": 0.9144}
+UNIT_NAMES = {
+    "m": 1.0,
+    "cm": 0.01,
+    "mm": 0.001,
+    "in": 0.0254,
+    "ft": 0.3048,
+    "dm": 0.1,
+    "km": 1000.0,
+    "yd": 0.9144,
+}
 WALL_TYPES = ("LINE", "LWPOLYLINE", "POLYLINE", "ARC", "CIRCLE", "ELLIPSE", "SPLINE")
 
 
@@ -35,7 +44,9 @@ def _entities(entities: Iterable[Any], depth: int = 0) -> Iterable[Any]:
 
 
 def load_dxf(
-    path: str | Path, units: str | None = None, layers: Iterable[str] | None = None,
+    path: str | Path,
+    units: str | None = None,
+    layers: Iterable[str] | None = None,
     chord: float = 0.01,
 ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """Read wall segments (K, 4) in metres from a DXF file's model space.
@@ -65,7 +76,9 @@ def load_dxf(
         scale, unit_label = 1.0, "m (unitless drawing, assumed)"
     else:
         try:
-            scale = 1.0 / ezunits.conversion_factor(ezunits.InsertUnits(insunits), ezunits.InsertUnits.Meters)
+            scale = ezunits.conversion_factor(
+                ezunits.InsertUnits(insunits), ezunits.InsertUnits.Meters
+            )
         except (ValueError, TypeError, KeyError) as e:
             raise MapError(path, "$INSUNITS", f"unsupported drawing unit code {insunits}") from e
         unit_label = ezunits.decode(insunits) or str(insunits)
@@ -95,8 +108,10 @@ def load_dxf(
                 counts[t] = counts.get(t, 0) + 1
     if not segs:
         raise MapError(
-            path, "ENTITIES", "no wall entities (LINE, LWPOLYLINE, POLYLINE, ARC, ...) in model space"
-            + ("" if wanted is None else f" on layers {sorted(wanted)}")
+            path,
+            "ENTITIES",
+            "no wall entities (LINE, LWPOLYLINE, POLYLINE, ARC, ...) in model space"
+            + ("" if wanted is None else f" on layers {sorted(wanted)}"),
         )
     lines = np.concatenate(segs) * scale
     if not np.isfinite(lines).all():

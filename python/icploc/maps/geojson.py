@@ -67,6 +67,12 @@ class _Reader:
             for i, gg in enumerate(geoms):
                 self.geometry(gg, f"{field}.geometries[{i}]")
             return
+        if kind not in ("LineString", "MultiLineString", "Polygon", "MultiPolygon"):
+            raise self.err(
+                f"{field}.type",
+                f"unsupported geometry type {kind!r} (use LineString, MultiLineString, Polygon, "
+                "MultiPolygon or GeometryCollection)",
+            )
         if "coordinates" not in g:
             raise self.err(f"{field}.coordinates", "missing")
         c = g["coordinates"]
@@ -78,7 +84,7 @@ class _Reader:
                 raise self.err(cf, "must be an array")
             for i, part in enumerate(c):
                 self.chain(part, f"{cf}[{i}]", closed=kind == "Polygon")
-        elif kind == "MultiPolygon":
+        else:  # MultiPolygon
             if not isinstance(c, list):
                 raise self.err(cf, "must be an array")
             for i, poly in enumerate(c):
@@ -86,12 +92,6 @@ class _Reader:
                     raise self.err(f"{cf}[{i}]", "must be an array of rings")
                 for j, ring in enumerate(poly):
                     self.chain(ring, f"{cf}[{i}][{j}]", closed=True)
-        else:
-            raise self.err(
-                f"{field}.type",
-                f"unsupported geometry type {kind!r} (use LineString, MultiLineString, Polygon, "
-                "MultiPolygon or GeometryCollection)",
-            )
 
     def document(self, doc: Any) -> None:
         if not isinstance(doc, dict):

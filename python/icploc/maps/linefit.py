@@ -166,7 +166,9 @@ def _split(pts: FloatArray, tol: float) -> list[tuple[int, int]]:
     return out
 
 
-def _tls(pts: FloatArray, hint: FloatArray | None = None) -> tuple[FloatArray, FloatArray, float, float]:
+def _tls(
+    pts: FloatArray, hint: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray, float, float]:
     """Total least squares line: centroid, unit direction, RMS and max |residual|."""
     c = pts.mean(axis=0)
     q = pts - c
@@ -368,8 +370,12 @@ def fit_lines(
     ys, xs = np.nonzero(surf)
     surface = np.column_stack([xs, ys]).astype(np.float64)
     empty = LineFit(
-        np.zeros((0, 4)), np.zeros(0), np.zeros(0, dtype=np.int64), surface,
-        np.zeros(len(surface), dtype=bool), np.zeros((len(surface), 2)),
+        np.zeros((0, 4)),
+        np.zeros(0),
+        np.zeros(0, dtype=np.int64),
+        surface,
+        np.zeros(len(surface), dtype=bool),
+        np.zeros((len(surface), 2)),
     )
     if len(surface) < 2:
         empty.surface_normals[:] = (1.0, 0.0)
@@ -390,9 +396,7 @@ def fit_lines(
                 segs.append(s)
 
     for _ in range(12):
-        segs, changed = _merge_round(
-            f, segs, band, np.deg2rad(merge_angle_deg), merge_gap, max_rms
-        )
+        segs, changed = _merge_round(f, segs, band, np.deg2rad(merge_angle_deg), merge_gap, max_rms)
         if not changed:
             break
 

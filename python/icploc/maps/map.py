@@ -97,17 +97,27 @@ class Map:
         if len(o) != 3 or not all(math.isfinite(v) for v in o):
             raise MapError(source, "origin", f"must be finite (x, y[, yaw]), got {origin!r}")
         self.origin: tuple[float, float, float] = (o[0], o[1], o[2])
-        self.points = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        self.points = (
+            None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        )
         self.point_normals = (
-            None if point_normals is None else np.asarray(point_normals, dtype=np.float64).reshape(-1, 2)
+            None
+            if point_normals is None
+            else np.asarray(point_normals, dtype=np.float64).reshape(-1, 2)
         )
         self.extra_points = (
-            np.zeros((0, 2)) if extra_points is None else np.asarray(extra_points, dtype=np.float64).reshape(-1, 2)
+            np.zeros((0, 2))
+            if extra_points is None
+            else np.asarray(extra_points, dtype=np.float64).reshape(-1, 2)
         )
         self.extra_normals = (
-            np.zeros((0, 2)) if extra_normals is None else np.asarray(extra_normals, dtype=np.float64).reshape(-1, 2)
+            np.zeros((0, 2))
+            if extra_normals is None
+            else np.asarray(extra_normals, dtype=np.float64).reshape(-1, 2)
         )
-        self.occupancy: NDArray[np.int8] | None = None  # ROS values (-1, 0..100) when loaded from ROS
+        self.occupancy: NDArray[np.int8] | None = (
+            None  # ROS values (-1, 0..100) when loaded from ROS
+        )
         self.source = source
         self.meta: dict[str, Any] = dict(meta or {})
         self._samples: dict[float, tuple[FloatArray, FloatArray, dict[str, int]]] = {}
@@ -124,7 +134,9 @@ class Map:
         fmt = FORMATS.get(path.suffix.lower())
         if fmt is None:
             raise MapError(
-                path, None, f"unknown map format {path.suffix!r} (expected one of {', '.join(sorted(FORMATS))})"
+                path,
+                None,
+                f"unknown map format {path.suffix!r} (expected one of {', '.join(sorted(FORMATS))})",
             )
         if not path.exists():
             raise MapError(path, None, "file not found")
@@ -132,7 +144,9 @@ class Map:
             from .ros import load_ros
 
             g = load_ros(path)
-            m = cls.from_grid(g.occupied, g.resolution, g.origin, free=g.free, source=str(path), **options)
+            m = cls.from_grid(
+                g.occupied, g.resolution, g.origin, free=g.free, source=str(path), **options
+            )
             m.meta.update({"format": "ros", "ros": g.meta})
             m.occupancy = g.occupancy
             return m
@@ -165,7 +179,9 @@ class Map:
         """A point map: (N, 2) points (optionally with (N, 2) normals)."""
         p = np.asarray(points, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 2 or len(p) == 0 or not np.isfinite(p).all():
-            raise MapError(None, "points", f"must be a non-empty finite (N, 2) array, got shape {p.shape}")
+            raise MapError(
+                None, "points", f"must be a non-empty finite (N, 2) array, got shape {p.shape}"
+            )
         n = None
         if normals is not None:
             n = np.asarray(normals, dtype=np.float64)
@@ -200,7 +216,9 @@ class Map:
         """
         occ_in = np.asarray(occupancy)
         if occ_in.ndim != 2 or occ_in.size == 0:
-            raise MapError(source, "grid", f"must be a non-empty 2-D array, got shape {occ_in.shape}")
+            raise MapError(
+                source, "grid", f"must be a non-empty 2-D array, got shape {occ_in.shape}"
+            )
         if occ_in.dtype == bool:
             occupied = occ_in
             free_m = ~occupied if free is None else np.asarray(free, dtype=bool)
@@ -214,16 +232,26 @@ class Map:
             raise MapError(source, "free", f"shape {free_m.shape} != grid shape {occupied.shape}")
         res = float(resolution)
         if not (math.isfinite(res) and res > 0):
-            raise MapError(source, "resolution", f"must be a positive finite number, got {resolution!r}")
-        m = cls(grid=occupied, free=free_m, resolution=res, origin=origin, source=source,
-                meta={"format": "grid"})
+            raise MapError(
+                source, "resolution", f"must be a positive finite number, got {resolution!r}"
+            )
+        m = cls(
+            grid=occupied,
+            free=free_m,
+            resolution=res,
+            origin=origin,
+            source=source,
+            meta={"format": "grid"},
+        )
         if fit:
             m.refit(min_length=min_length, min_explained=min_explained)
         else:
             m.refit(min_length=min_length, min_explained=min_explained, lines=False)
         return m
 
-    def refit(self, *, min_length: float = 0.2, min_explained: float = 0.5, lines: bool = True) -> None:
+    def refit(
+        self, *, min_length: float = 0.2, min_explained: float = 0.5, lines: bool = True
+    ) -> None:
         """(Re)fit the wall lines of a grid map; updates ``lines``, fallback points and ``meta['fit']``."""
         if self.grid is None or self.resolution is None:
             raise MapError(self.source, "grid", "map has no occupancy grid to fit")
@@ -235,7 +263,11 @@ class Map:
         if explained < min_explained:
             mode = "points"
         rest = np.ones(len(f.surface), dtype=bool) if mode == "points" else ~f.explained
-        self.lines = self.cells_to_world(f.lines.reshape(-1, 2)).reshape(-1, 4) if keep_lines else np.zeros((0, 4))
+        self.lines = (
+            self.cells_to_world(f.lines.reshape(-1, 2)).reshape(-1, 4)
+            if keep_lines
+            else np.zeros((0, 4))
+        )
         self.extra_points = self.cells_to_world(f.surface[rest])
         self.extra_normals = self._rotate(f.surface_normals[rest])
         self.meta["sample_mode"] = mode
@@ -278,7 +310,9 @@ class Map:
         if self.grid is None or self.resolution is None:
             return None
         h, w = self.grid.shape
-        return self.cells_to_world([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+        return self.cells_to_world(
+            [[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]
+        )
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
@@ -382,8 +416,13 @@ class Map:
         )
 
     def visible_points(
-        self, pose: Sequence[float], fov: float = 2 * math.pi, max_range: float = 30.0,
-        spacing: float = 0.05, *, exact: bool = False,
+        self,
+        pose: Sequence[float],
+        fov: float = 2 * math.pi,
+        max_range: float = 30.0,
+        spacing: float = 0.05,
+        *,
+        exact: bool = False,
     ) -> tuple[FloatArray, FloatArray]:
         """``(points, normals)`` of :meth:`visible`."""
         idx = self.visible(pose, fov, max_range, spacing, exact=exact)
@@ -396,12 +435,23 @@ class Map:
         to one ``.npz`` file that :meth:`load` reads back without refitting."""
         from .prepared import save_prepared
 
-        spacings = [] if spacing is None else [spacing] if isinstance(spacing, int | float) else list(spacing)
+        spacings = (
+            []
+            if spacing is None
+            else [spacing]
+            if isinstance(spacing, int | float)
+            else list(spacing)
+        )
         return save_prepared(self, path, [_check_spacing(s) for s in spacings])
 
     def to_ros(
-        self, yaml_path: str | Path, resolution: float, *, margin: float = 1.0,
-        origin: Sequence[float] | None = None, image_format: str = "pgm",
+        self,
+        yaml_path: str | Path,
+        resolution: float,
+        *,
+        margin: float = 1.0,
+        origin: Sequence[float] | None = None,
+        image_format: str = "pgm",
     ) -> Path:
         """Rasterise the lines into a ROS map_server map (trinary YAML + PGM/PNG); returns the
         YAML path.
@@ -434,7 +484,10 @@ class Map:
             if cells.min() < -0.5:
                 raise MapError(self.source, "origin", "lines extend below/left of the given origin")
             hi = cells.reshape(-1, 2).max(axis=0)
-            w, h = int(math.ceil(hi[0] + margin / res)) + 1, int(math.ceil(hi[1] + margin / res)) + 1
+            w, h = (
+                int(math.ceil(hi[0] + margin / res)) + 1,
+                int(math.ceil(hi[1] + margin / res)) + 1,
+            )
         if w * h > 400_000_000:
             raise MapError(self.source, "resolution", f"grid of {w}x{h} cells is too large")
         occ = rasterize_lines(cells, (h, w))
@@ -457,10 +510,15 @@ class Map:
 
     def info(self, spacing: float | None = None) -> dict[str, Any]:
         """A summary (format, counts, bounds, fit statistics) as plain data."""
-        d: dict[str, Any] = {"source": self.source, "format": self.meta.get("format"),
-                             "lines": int(len(self.lines))}
+        d: dict[str, Any] = {
+            "source": self.source,
+            "format": self.meta.get("format"),
+            "lines": int(len(self.lines)),
+        }
         if len(self.lines):
-            d["line_length_m"] = round(float(np.hypot(*(self.lines[:, 2:] - self.lines[:, :2]).T).sum()), 3)
+            d["line_length_m"] = round(
+                float(np.hypot(*(self.lines[:, 2:] - self.lines[:, :2]).T).sum()), 3
+            )
         if self.grid is not None:
             d["grid_shape"] = list(self.grid.shape)
             d["resolution"] = self.resolution

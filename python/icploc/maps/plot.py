@@ -45,24 +45,56 @@ def plot_map(
         res = m.resolution
         ox, oy, yaw = m.origin
         tr = Affine2D().rotate(yaw).translate(ox, oy) + ax.transData
-        ax.imshow(img, cmap="gray", vmin=0, vmax=1, origin="lower", interpolation="nearest",
-                  extent=(0, w * res, 0, h * res), transform=tr, zorder=0)
+        ax.imshow(
+            img,
+            cmap="gray",
+            vmin=0,
+            vmax=1,
+            origin="lower",
+            interpolation="nearest",
+            extent=(0, w * res, 0, h * res),
+            transform=tr,
+            zorder=0,
+        )
     if lines and len(m.lines):
         xs = np.column_stack([m.lines[:, 0], m.lines[:, 2], np.full(len(m.lines), np.nan)]).ravel()
         ys = np.column_stack([m.lines[:, 1], m.lines[:, 3], np.full(len(m.lines), np.nan)]).ravel()
         ax.plot(xs, ys, "-", color="tab:red", lw=1.0, label=f"{len(m.lines)} lines", zorder=2)
     if spacing is not None:
         p, n = m.sample(spacing)
-        ax.plot(p[:, 0], p[:, 1], ".", color="tab:blue", ms=2, label=f"{len(p)} samples @ {spacing} m", zorder=3)
+        ax.plot(
+            p[:, 0],
+            p[:, 1],
+            ".",
+            color="tab:blue",
+            ms=2,
+            label=f"{len(p)} samples @ {spacing} m",
+            zorder=3,
+        )
         if normals and len(p):
             ax.quiver(p[:, 0], p[:, 1], n[:, 0], n[:, 1], color="tab:blue", width=0.002, zorder=3)
         if pose is not None:
             idx = m.visible(pose, fov=fov, max_range=max_range, spacing=spacing)
-            ax.plot(p[idx, 0], p[idx, 1], ".", color="tab:orange", ms=3, label=f"{len(idx)} visible", zorder=4)
+            ax.plot(
+                p[idx, 0],
+                p[idx, 1],
+                ".",
+                color="tab:orange",
+                ms=3,
+                label=f"{len(idx)} visible",
+                zorder=4,
+            )
     if pose is not None:
         L = 0.05 * max(1e-9, max(m.bounds[2] - m.bounds[0], m.bounds[3] - m.bounds[1]))
-        ax.arrow(pose[0], pose[1], L * math.cos(pose[2]), L * math.sin(pose[2]), color="tab:green",
-                 width=L * 0.15, zorder=5)
+        ax.arrow(
+            pose[0],
+            pose[1],
+            L * math.cos(pose[2]),
+            L * math.sin(pose[2]),
+            color="tab:green",
+            width=L * 0.15,
+            zorder=5,
+        )
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

@@ -16,7 +16,11 @@ FloatArray = NDArray[np.float64]
 
 def _check(path: Path, a: NDArray[np.float64], field: str) -> tuple[FloatArray, FloatArray | None]:
     if a.ndim != 2 or a.shape[1] not in (2, 4):
-        raise MapError(path, field, f"expected an (N, 2) array of x, y (or (N, 4) with nx, ny), got shape {a.shape}")
+        raise MapError(
+            path,
+            field,
+            f"expected an (N, 2) array of x, y (or (N, 4) with nx, ny), got shape {a.shape}",
+        )
     if a.shape[0] == 0:
         raise MapError(path, field, "no points")
     bad = ~np.isfinite(a).all(axis=1)
@@ -58,7 +62,10 @@ def load_csv(path: str | Path) -> tuple[FloatArray, FloatArray | None]:
         dialect: type[csv.Dialect] | csv.Dialect = csv.Sniffer().sniff(rows[0], delimiters=",;\t ")
     except csv.Error:
         dialect = csv.excel
-    table = [[c.strip() for c in r if c.strip() != ""] for r in csv.reader(io.StringIO("\n".join(rows)), dialect)]
+    table = [
+        [c.strip() for c in r if c.strip() != ""]
+        for r in csv.reader(io.StringIO("\n".join(rows)), dialect)
+    ]
     cols = [0, 1]
     start = 0
 
@@ -83,7 +90,9 @@ def load_csv(path: str | Path) -> tuple[FloatArray, FloatArray | None]:
     for i, r in enumerate(table[start:]):
         line = i + start + 1
         if len(r) <= max(cols):
-            raise MapError(path, f"row {line}", f"expected at least {max(cols) + 1} columns, got {len(r)}")
+            raise MapError(
+                path, f"row {line}", f"expected at least {max(cols) + 1} columns, got {len(r)}"
+            )
         try:
             out[i] = [float(r[c]) for c in cols]
         except ValueError as e:
@@ -96,4 +105,11 @@ def save_csv(path: str | Path, points: FloatArray, normals: FloatArray | None = 
     if normals is None:
         np.savetxt(path, points, delimiter=",", header="x,y", comments="", fmt="%.9g")
     else:
-        np.savetxt(path, np.column_stack([points, normals]), delimiter=",", header="x,y,nx,ny", comments="", fmt="%.9g")
+        np.savetxt(
+            path,
+            np.column_stack([points, normals]),
+            delimiter=",",
+            header="x,y,nx,ny",
+            comments="",
+            fmt="%.9g",
+        )

@@ -78,7 +78,11 @@ def load_prepared(path: str | Path) -> Map:
         if not isinstance(meta, dict) or meta.get("format") != MAGIC:
             raise MapError(path, "meta.format", f"expected {MAGIC!r}")
         if meta.get("version") != VERSION:
-            raise MapError(path, "meta.version", f"unsupported version {meta.get('version')!r} (expected {VERSION})")
+            raise MapError(
+                path,
+                "meta.version",
+                f"unsupported version {meta.get('version')!r} (expected {VERSION})",
+            )
         for key in ("lines", "extra_points", "extra_normals"):
             if key not in z.files:
                 raise MapError(path, key, "missing")

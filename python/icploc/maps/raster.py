@@ -29,9 +29,7 @@ def supercover_cells(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[
     return np.unique(cells, axis=0)
 
 
-def rasterize_lines(
-    lines_cells: NDArray[np.float64], shape: tuple[int, int]
-) -> NDArray[np.bool_]:
+def rasterize_lines(lines_cells: NDArray[np.float64], shape: tuple[int, int]) -> NDArray[np.bool_]:
     """Boolean grid ``[iy, ix]`` of the cells touched by (K, 4) segments in cell units."""
     grid = np.zeros(shape, dtype=bool)
     h, w = shape

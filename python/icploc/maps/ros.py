@@ -115,9 +115,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         if not 0.0 <= v <= 1.0:
             raise MapError(path, key, f"must lie in [0, 1], got {v!r}")
     if not free < occ:
-        raise MapError(
-            path, "free_thresh", f"must be below occupied_thresh ({free!r} >= {occ!r})"
-        )
+        raise MapError(path, "free_thresh", f"must be below occupied_thresh ({free!r} >= {occ!r})")
 
     mode = doc.get("mode", "trinary")
     if not isinstance(mode, str) or mode.lower() not in MODES:
@@ -230,7 +228,9 @@ def save_ros(
         raise MapError(yaml_path, "image", f"image format must be pgm or png, got {image_format!r}")
     occupied = np.asarray(occupied, dtype=bool)
     if occupied.ndim != 2 or occupied.size == 0:
-        raise MapError(yaml_path, "grid", f"occupancy must be a non-empty 2-D array, got {occupied.shape}")
+        raise MapError(
+            yaml_path, "grid", f"occupancy must be a non-empty 2-D array, got {occupied.shape}"
+        )
     if free is None:
         free = ~occupied
     h, w = (int(v) for v in occupied.shape)

@@ -16,7 +16,9 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 
 
-def in_fov(points: FloatArray, pose: Sequence[float], fov: float, max_range: float) -> NDArray[np.bool_]:
+def in_fov(
+    points: FloatArray, pose: Sequence[float], fov: float, max_range: float
+) -> NDArray[np.bool_]:
     """Points within ``max_range`` of the sensor and within ``fov`` (radians) centred on its heading."""
     d = np.asarray(points, dtype=np.float64).reshape(-1, 2) - np.array([pose[0], pose[1]])
     r = np.hypot(d[:, 0], d[:, 1])
