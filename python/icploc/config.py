@@ -61,7 +61,9 @@ class IcpSection:
     min_inlier_ratio: float = 0.0
 
     def validate(self) -> None:
-        _positive(self, "max_iterations", "max_correspondence_distance", "min_correspondence_distance")
+        _positive(
+            self, "max_iterations", "max_correspondence_distance", "min_correspondence_distance"
+        )
         if self.min_correspondence_distance > self.max_correspondence_distance:
             raise ConfigError(
                 "icp.min_correspondence_distance must not exceed icp.max_correspondence_distance"
@@ -134,7 +136,7 @@ class GatingSection:
     max_translation_jump_cap: float = 1.5
     max_rotation_jump_cap_deg: float = 45.0
     #: a fit with a smaller inlier ratio is rejected
-    min_inlier_ratio: float = 0.35
+    min_inlier_ratio: float = 0.2
     #: translational degeneracy (lambda_min / lambda_max) below which the fit is treated as
     #: a corridor: along the degenerate direction the odometry prediction is kept
     degeneracy_threshold: float = 0.02
@@ -149,7 +151,11 @@ class GatingSection:
             "max_translation_jump_cap",
             "max_rotation_jump_cap_deg",
         )
-        for name in ("translation_jump_per_metre", "rotation_jump_per_radian_deg", "rotation_jump_per_metre_deg"):
+        for name in (
+            "translation_jump_per_metre",
+            "rotation_jump_per_radian_deg",
+            "rotation_jump_per_metre_deg",
+        ):
             if getattr(self, name) < 0.0:
                 raise ConfigError(f"gating.{name} must be >= 0")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
@@ -176,7 +182,7 @@ class LocalizerSection:
     min_sigma_xy: float = 0.002
     min_sigma_theta: float = 0.001
     #: lost when the inlier ratio stays below ``lost_inlier_ratio`` for this many scans ...
-    lost_inlier_ratio: float = 0.2
+    lost_inlier_ratio: float = 0.1
     lost_after_low_inlier_scans: int = 5
     #: ... or when this many scans in a row are rejected by the gate
     lost_after_rejections: int = 15
@@ -190,14 +196,28 @@ class LocalizerSection:
     def validate(self) -> None:
         if self.initial_pose is not None:
             if len(self.initial_pose) != 3 or not all(math.isfinite(v) for v in self.initial_pose):
-                raise ConfigError("localizer.initial_pose must be three finite numbers [x, y, theta]")
-        _positive(self, "initial_sigma_xy", "initial_sigma_theta", "min_sigma_xy", "min_sigma_theta")
-        for name in ("odom_sigma_per_metre", "odom_sigma_theta_per_radian", "odom_sigma_theta_per_metre"):
+                raise ConfigError(
+                    "localizer.initial_pose must be three finite numbers [x, y, theta]"
+                )
+        _positive(
+            self, "initial_sigma_xy", "initial_sigma_theta", "min_sigma_xy", "min_sigma_theta"
+        )
+        for name in (
+            "odom_sigma_per_metre",
+            "odom_sigma_theta_per_radian",
+            "odom_sigma_theta_per_metre",
+        ):
             if getattr(self, name) < 0.0:
                 raise ConfigError(f"localizer.{name} must be >= 0")
         if not 0.0 <= self.lost_inlier_ratio <= 1.0 or not 0.0 <= self.recover_inlier_ratio <= 1.0:
             raise ConfigError("localizer inlier ratios must be in [0, 1]")
-        _positive(self, "lost_after_low_inlier_scans", "lost_after_rejections", "recover_after", "max_odometry_gap")
+        _positive(
+            self,
+            "lost_after_low_inlier_scans",
+            "lost_after_rejections",
+            "recover_after",
+            "max_odometry_gap",
+        )
 
 
 @dataclass
@@ -258,7 +278,9 @@ class LocalizerConfig:
         if data is None:
             data = {}
         if not isinstance(data, dict):
-            raise ConfigError(f"{source}: the top level must be a mapping of sections, got {type(data).__name__}")
+            raise ConfigError(
+                f"{source}: the top level must be a mapping of sections, got {type(data).__name__}"
+            )
         cfg = cls()
         sections = {f.name: f for f in dataclasses.fields(cls)}
         for key, value in data.items():
@@ -269,7 +291,9 @@ class LocalizerConfig:
             if value is None:
                 continue
             if not isinstance(value, dict):
-                raise ConfigError(f"{source}: section {key!r} must be a mapping, got {type(value).__name__}")
+                raise ConfigError(
+                    f"{source}: section {key!r} must be a mapping, got {type(value).__name__}"
+                )
             sec = getattr(cfg, key)
             setattr(cfg, key, _update_section(sec, value, f"{source}: {key}"))
         try:
@@ -340,7 +364,9 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         return v
     if origin is Literal:
         if value not in args:
-            raise ConfigError(f"{where}: expected one of {', '.join(map(repr, args))}, got {value!r}")
+            raise ConfigError(
+                f"{where}: expected one of {', '.join(map(repr, args))}, got {value!r}"
+            )
         return value
     if args and type(None) in args:  # Optional[...]
         if value is None:
