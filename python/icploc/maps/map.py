@@ -396,22 +396,35 @@ class Map:
         spacing: float = 0.05,
         *,
         exact: bool = False,
+        point_radius: float | None = None,
         tolerance: float = 0.05,
     ) -> NDArray[np.int64]:
         """Indices into ``sample(spacing)`` of the points a scanner at ``pose`` (x, y, theta)
         with field of view ``fov`` (radians, centred on theta) and ``max_range`` could see.
 
-        Default: the Rust z-buffer (:meth:`icploc.MapIndex.visible`) — fast, per scan.
-        ``exact=True``: ray-segment occlusion tests against ``lines`` in numpy (slower; grid
-        boundary points do not occlude there).
+        Default: the Rust z-buffer (:meth:`icploc.MapIndex.visible`) — fast, per scan; each
+        sample hides an arc of half-width ``point_radius`` (default ``0.75 * spacing``, so
+        neighbouring samples leave no gaps). ``exact=True``: ray-segment tests in numpy
+        against the lines plus a ``spacing``-long piece of wall at every non-line sample
+        (slower; a reference).
         """
-        from .visibility import visible_exact
-
+        s = _check_spacing(spacing)
         if exact:
-            p, _ = self.sample(spacing)
-            return visible_exact(p, self.lines, pose, fov, max_range, tolerance=tolerance)
+            from .visibility import visible_exact
+
+            p, n = self.sample(s)
+            walls = self.lines
+            k = self._samples[s][2].get("lines", 0)
+            if k < len(p):
+                q, m = p[k:], n[k:]
+                tangent = np.column_stack([m[:, 1], -m[:, 0]]) * (0.5 * s)
+                walls = np.concatenate([walls, np.column_stack([q - tangent, q + tangent])])
+            return visible_exact(p, walls, pose, fov, max_range, tolerance=tolerance)
+        radius = 0.75 * s if point_radius is None else float(point_radius)
         return np.asarray(
-            self.index(spacing).visible(pose, fov=fov, max_range=max_range, tolerance=tolerance),
+            self.index(s).visible(
+                pose, fov=fov, max_range=max_range, point_radius=radius, tolerance=tolerance
+            ),
             dtype=np.int64,
         )
 

@@ -59,7 +59,7 @@ def plot_map(
     if lines and len(m.lines):
         xs = np.column_stack([m.lines[:, 0], m.lines[:, 2], np.full(len(m.lines), np.nan)]).ravel()
         ys = np.column_stack([m.lines[:, 1], m.lines[:, 3], np.full(len(m.lines), np.nan)]).ravel()
-        ax.plot(xs, ys, "-", color="tab:red", lw=1.0, label=f"{len(m.lines)} lines", zorder=2)
+        ax.plot(xs, ys, "-", color="tab:red", lw=1.0, label=f"{len(m.lines)} lines", zorder=4)
     if spacing is not None:
         p, n = m.sample(spacing)
         ax.plot(
@@ -67,7 +67,7 @@ def plot_map(
             p[:, 1],
             ".",
             color="tab:blue",
-            ms=2,
+            ms=1.5,
             label=f"{len(p)} samples @ {spacing} m",
             zorder=3,
         )
@@ -82,7 +82,7 @@ def plot_map(
                 color="tab:orange",
                 ms=3,
                 label=f"{len(idx)} visible",
-                zorder=4,
+                zorder=5,
             )
     if pose is not None:
         L = 0.05 * max(1e-9, max(m.bounds[2] - m.bounds[0], m.bounds[3] - m.bounds[1]))
@@ -93,7 +93,7 @@ def plot_map(
             L * math.sin(pose[2]),
             color="tab:green",
             width=L * 0.15,
-            zorder=5,
+            zorder=6,
         )
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
