@@ -1,0 +1,643 @@
+//! The ICP loop (Besl & McKay, as the paper uses it), with the point-to-line alternative.
+//!
+//! One iteration: transform the scan by the current pose, find the closest map point of
+//! every scan point (k-d tree), drop pairs farther apart than the current threshold (the
+//! paper's occlusion filter; the threshold may shrink from iteration to iteration), keep
+//! the best fraction (trimmed ICP), weight (Huber/Cauchy), and solve: point-to-point by the
+//! quaternion registration of the scan (P₀) onto its matches (Y_k), or point-to-line by one
+//! Gauss–Newton step on (x, y, θ) using the map normals. Stop when the mean-square error
+//! falls below τ, its relative change below ε, the step below a tolerance (once the
+//! threshold has reached its final value), or at the iteration limit (not converged).
+
+use nalgebra::{Matrix2, Matrix3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
+
+use crate::error::{IcpError, Result};
+use crate::index::MapIndex;
+use crate::quaternion::CrossCovariance;
+use crate::se2::{wrap_angle, Pose2};
+
+/// The error metric.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Metric {
+    /// The paper's metric: squared distance between a scan point and its closest map point.
+    PointToPoint,
+    /// Squared distance from a scan point to the line through its closest map point along
+    /// that point's normal.
+    PointToLine,
+}
+
+/// Robust weights applied on top of the distance threshold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Robust {
+    None,
+    Huber,
+    Cauchy,
+}
+
+/// ICP settings. Distances in metres, MSE in m².
+#[derive(Clone, Debug, PartialEq)]
+pub struct IcpConfig {
+    pub metric: Metric,
+    pub max_iterations: usize,
+    /// Correspondence threshold of the first iteration.
+    pub max_correspondence_distance: f64,
+    /// Final (smallest) correspondence threshold.
+    pub min_correspondence_distance: f64,
+    /// Per-iteration factor of the shrinking threshold, in (0, 1]; 1 keeps it fixed at
+    /// `max_correspondence_distance`.
+    pub threshold_decay: f64,
+    /// Fraction of the thresholded pairs kept (best first), in (0, 1].
+    pub trim_fraction: f64,
+    pub robust: Robust,
+    /// Scale k of the Huber/Cauchy weight (m).
+    pub robust_scale: f64,
+    /// τ: stop when the MSE falls below it (the paper's rule).
+    pub mse_threshold: f64,
+    /// ε: stop when the relative change of the MSE falls below it.
+    pub mse_change: f64,
+    /// Stop when the pose update is smaller than this (m, and rad × 1 m).
+    pub step_tolerance: f64,
+    /// Fewer inliers than this: stop, not converged.
+    pub min_inliers: usize,
+    /// A lower inlier ratio than this: stop, not converged.
+    pub min_inlier_ratio: f64,
+}
+
+impl Default for IcpConfig {
+    fn default() -> Self {
+        Self {
+            metric: Metric::PointToLine,
+            max_iterations: 50,
+            max_correspondence_distance: 1.0,
+            min_correspondence_distance: 0.1,
+            threshold_decay: 0.6,
+            trim_fraction: 1.0,
+            robust: Robust::None,
+            robust_scale: 0.05,
+            mse_threshold: 1e-8,
+            mse_change: 1e-7,
+            step_tolerance: 1e-6,
+            min_inliers: 10,
+            min_inlier_ratio: 0.0,
+        }
+    }
+}
+
+fn bad(field: &'static str, value: impl ToString, reason: &'static str) -> IcpError {
+    IcpError::InvalidConfig {
+        field,
+        value: value.to_string(),
+        reason,
+    }
+}
+
+impl IcpConfig {
+    /// The paper's setting: point-to-point, one fixed threshold.
+    pub fn paper(threshold: f64) -> Self {
+        Self {
+            metric: Metric::PointToPoint,
+            max_correspondence_distance: threshold,
+            min_correspondence_distance: threshold,
+            threshold_decay: 1.0,
+            ..Self::default()
+        }
+    }
+
+    /// Check every value; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let pos = |v: f64| v > 0.0 && v.is_finite();
+        let nonneg = |v: f64| v >= 0.0 && v.is_finite();
+        if self.max_iterations == 0 {
+            return Err(bad("max_iterations", 0, "must be at least 1"));
+        }
+        if !pos(self.max_correspondence_distance) {
+            return Err(bad(
+                "max_correspondence_distance",
+                self.max_correspondence_distance,
+                "must be positive and finite",
+            ));
+        }
+        if !pos(self.min_correspondence_distance) {
+            return Err(bad(
+                "min_correspondence_distance",
+                self.min_correspondence_distance,
+                "must be positive and finite",
+            ));
+        }
+        if self.min_correspondence_distance > self.max_correspondence_distance {
+            return Err(bad(
+                "min_correspondence_distance",
+                self.min_correspondence_distance,
+                "must not exceed max_correspondence_distance",
+            ));
+        }
+        if !(self.threshold_decay > 0.0 && self.threshold_decay <= 1.0) {
+            return Err(bad(
+                "threshold_decay",
+                self.threshold_decay,
+                "must be in (0, 1]",
+            ));
+        }
+        if !(self.trim_fraction > 0.0 && self.trim_fraction <= 1.0) {
+            return Err(bad("trim_fraction", self.trim_fraction, "must be in (0, 1]"));
+        }
+        if !pos(self.robust_scale) {
+            return Err(bad(
+                "robust_scale",
+                self.robust_scale,
+                "must be positive and finite",
+            ));
+        }
+        if !nonneg(self.mse_threshold) {
+            return Err(bad(
+                "mse_threshold",
+                self.mse_threshold,
+                "must be non-negative and finite",
+            ));
+        }
+        if !nonneg(self.mse_change) {
+            return Err(bad(
+                "mse_change",
+                self.mse_change,
+                "must be non-negative and finite",
+            ));
+        }
+        if !nonneg(self.step_tolerance) {
+            return Err(bad(
+                "step_tolerance",
+                self.step_tolerance,
+                "must be non-negative and finite",
+            ));
+        }
+        if self.min_inliers < 3 {
+            return Err(bad(
+                "min_inliers",
+                self.min_inliers,
+                "must be at least 3 (a planar pose has three unknowns)",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.min_inlier_ratio) {
+            return Err(bad(
+                "min_inlier_ratio",
+                self.min_inlier_ratio,
+                "must be in [0, 1]",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The correspondence threshold at iteration `k` (0-based).
+    #[inline]
+    pub fn threshold_at(&self, k: usize) -> f64 {
+        let t = self.max_correspondence_distance * self.threshold_decay.powi(k as i32);
+        t.max(self.min_correspondence_distance)
+    }
+
+    #[inline]
+    fn final_threshold(&self) -> f64 {
+        if self.threshold_decay >= 1.0 {
+            self.max_correspondence_distance
+        } else {
+            self.min_correspondence_distance
+        }
+    }
+}
+
+/// Why the loop stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Termination {
+    MseBelowThreshold,
+    MseChangeBelowEpsilon,
+    StepBelowTolerance,
+    MaxIterations,
+    TooFewInliers,
+}
+
+impl Termination {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Termination::MseBelowThreshold => "mse_below_threshold",
+            Termination::MseChangeBelowEpsilon => "mse_change_below_epsilon",
+            Termination::StepBelowTolerance => "step_below_tolerance",
+            Termination::MaxIterations => "max_iterations",
+            Termination::TooFewInliers => "too_few_inliers",
+        }
+    }
+
+    pub fn converged(&self) -> bool {
+        matches!(
+            self,
+            Termination::MseBelowThreshold
+                | Termination::MseChangeBelowEpsilon
+                | Termination::StepBelowTolerance
+        )
+    }
+}
+
+/// What one alignment did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IcpResult {
+    /// Sensor pose in the map frame.
+    pub pose: Pose2,
+    pub converged: bool,
+    pub iterations: usize,
+    /// Mean-square error of the last iteration's inliers (m²), in the chosen metric.
+    pub mse: f64,
+    pub inliers: usize,
+    pub num_points: usize,
+    /// 3×3 covariance of (x, y, θ): σ² H⁻¹ of the point-to-line cost at the final pose.
+    pub covariance: [[f64; 3]; 3],
+    /// 3×3 information (Hessian, Jᵀ J) of the point-to-line cost at the final pose.
+    pub information: [[f64; 3]; 3],
+    /// λ_min / λ_max of the translational information, in [0, 1] (0: a corridor).
+    pub degeneracy: f64,
+    /// Unit vector (map frame) of the least constrained translation.
+    pub degenerate_direction: [f64; 2],
+    pub termination: Termination,
+}
+
+impl IcpResult {
+    pub fn inlier_ratio(&self) -> f64 {
+        if self.num_points == 0 {
+            0.0
+        } else {
+            self.inliers as f64 / self.num_points as f64
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Pair {
+    /// scan point index
+    i: u32,
+    /// map point index
+    j: u32,
+    /// squared point-to-point distance
+    d2: f64,
+}
+
+/// Reusable buffers for one alignment.
+#[derive(Default)]
+struct Workspace {
+    pairs: Vec<Pair>,
+    moved: Vec<[f64; 2]>,
+}
+
+/// Validate the scan and the pose.
+fn check_inputs(scan: &[[f64; 2]], initial: Pose2, cfg: &IcpConfig) -> Result<()> {
+    cfg.validate()?;
+    let min = cfg.min_inliers.max(3);
+    if scan.len() < min {
+        return Err(IcpError::TooFewPoints {
+            what: "scan".into(),
+            got: scan.len(),
+            min,
+        });
+    }
+    crate::check_finite("scan", scan)?;
+    if !initial.is_finite() {
+        return Err(IcpError::InvalidInput {
+            what: "initial_pose".into(),
+            reason: format!(
+                "must be finite, got ({}, {}, {})",
+                initial.x, initial.y, initial.theta
+            ),
+        });
+    }
+    Ok(())
+}
+
+#[inline]
+fn robust_weight(kind: Robust, k: f64, r: f64) -> f64 {
+    match kind {
+        Robust::None => 1.0,
+        Robust::Huber => {
+            let a = r.abs();
+            if a <= k {
+                1.0
+            } else {
+                k / a
+            }
+        }
+        Robust::Cauchy => 1.0 / (1.0 + (r / k) * (r / k)),
+    }
+}
+
+/// Align `scan` (sensor frame) to the map from `initial` (sensor pose in the map).
+pub fn align(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    initial: Pose2,
+    cfg: &IcpConfig,
+) -> Result<IcpResult> {
+    check_inputs(scan, initial, cfg)?;
+    let mut ws = Workspace::default();
+    Ok(align_unchecked(scan, index, initial, cfg, &mut ws))
+}
+
+/// Align many (scan, initial pose) pairs in parallel (rayon). `scans` has one entry per
+/// pose, or a single entry used for every pose. `threads`: size of a dedicated pool, or
+/// the global pool when `None`. Each alignment has its own `Result`.
+pub fn align_batch(
+    scans: &[&[[f64; 2]]],
+    index: &MapIndex,
+    initial: &[Pose2],
+    cfg: &IcpConfig,
+    threads: Option<usize>,
+) -> Result<Vec<Result<IcpResult>>> {
+    cfg.validate()?;
+    if scans.len() != initial.len() && scans.len() != 1 {
+        return Err(IcpError::Shape {
+            what: "scans".into(),
+            expected: format!("1 or {} scans (one per initial pose)", initial.len()),
+            got: format!("{} scans", scans.len()),
+        });
+    }
+    let run = || -> Vec<Result<IcpResult>> {
+        initial
+            .par_iter()
+            .enumerate()
+            .map_init(Workspace::default, |ws, (k, pose)| {
+                let scan = if scans.len() == 1 { scans[0] } else { scans[k] };
+                check_inputs(scan, *pose, cfg)?;
+                Ok(align_unchecked(scan, index, *pose, cfg, ws))
+            })
+            .collect()
+    };
+    match threads {
+        None => Ok(run()),
+        Some(0) => Err(bad("num_threads", 0, "must be at least 1")),
+        Some(n) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .map_err(|e| IcpError::Internal(format!("thread pool: {e}")))?;
+            Ok(pool.install(run))
+        }
+    }
+}
+
+fn align_unchecked(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    initial: Pose2,
+    cfg: &IcpConfig,
+    ws: &mut Workspace,
+) -> IcpResult {
+    let n = scan.len();
+    let normals = if cfg.metric == Metric::PointToLine {
+        Some(index.normals())
+    } else {
+        None
+    };
+    let map = index.points();
+    let final_thr = cfg.final_threshold();
+    let min_inl = cfg
+        .min_inliers
+        .max((cfg.min_inlier_ratio * n as f64).ceil() as usize);
+
+    let mut pose = initial.normalized();
+    let mut mse = f64::INFINITY;
+    let mut iterations = 0;
+    let mut termination = Termination::MaxIterations;
+    ws.moved.resize(n, [0.0; 2]);
+
+    for k in 0..cfg.max_iterations {
+        iterations = k + 1;
+        let thr = cfg.threshold_at(k);
+        let thr2 = thr * thr;
+        let at_final = (thr - final_thr).abs() <= 1e-12 * final_thr.max(1.0);
+
+        // (a) closest points, with the distance threshold
+        let (s, c) = pose.theta.sin_cos();
+        ws.pairs.clear();
+        for (i, p) in scan.iter().enumerate() {
+            let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+            ws.moved[i] = q;
+            let (d2, j) = index.nearest(q);
+            if d2 <= thr2 {
+                ws.pairs.push(Pair {
+                    i: i as u32,
+                    j: j as u32,
+                    d2,
+                });
+            }
+        }
+        // trimmed variant: keep the best fraction
+        if cfg.trim_fraction < 1.0 && ws.pairs.len() > 3 {
+            let keep = ((cfg.trim_fraction * ws.pairs.len() as f64).ceil() as usize)
+                .clamp(3, ws.pairs.len());
+            if keep < ws.pairs.len() {
+                ws.pairs
+                    .select_nth_unstable_by(keep - 1, |a, b| a.d2.total_cmp(&b.d2));
+                ws.pairs.truncate(keep);
+            }
+        }
+        if ws.pairs.len() < min_inl {
+            termination = Termination::TooFewInliers;
+            mse = if ws.pairs.is_empty() {
+                f64::INFINITY
+            } else {
+                ws.pairs.iter().map(|p| p.d2).sum::<f64>() / ws.pairs.len() as f64
+            };
+            break;
+        }
+
+        // (b) solve
+        let (new_pose, cur_mse) = match normals {
+            None => {
+                let mut cc = CrossCovariance::default();
+                let mut sum = 0.0;
+                for pr in &ws.pairs {
+                    let w = robust_weight(cfg.robust, cfg.robust_scale, pr.d2.sqrt());
+                    cc.add(scan[pr.i as usize], map[pr.j as usize], w);
+                    sum += pr.d2;
+                }
+                let m = sum / ws.pairs.len() as f64;
+                match cc.solve() {
+                    Some(reg) => (Pose2::new(reg.t[0], reg.t[1], wrap_angle(reg.theta)), m),
+                    None => (pose, m),
+                }
+            }
+            Some(nrm) => {
+                let mut h = Matrix3::<f64>::zeros();
+                let mut g = Vector3::<f64>::zeros();
+                let mut sum = 0.0;
+                for pr in &ws.pairs {
+                    let q = ws.moved[pr.i as usize];
+                    let x = map[pr.j as usize];
+                    let nv = nrm[pr.j as usize];
+                    let r = nv[0] * (q[0] - x[0]) + nv[1] * (q[1] - x[1]);
+                    let dq = [q[0] - pose.x, q[1] - pose.y];
+                    let jac = Vector3::new(nv[0], nv[1], nv[1] * dq[0] - nv[0] * dq[1]);
+                    let w = robust_weight(cfg.robust, cfg.robust_scale, r);
+                    h += jac * jac.transpose() * w;
+                    g += jac * (w * r);
+                    sum += r * r;
+                }
+                let m = sum / ws.pairs.len() as f64;
+                let step = solve_step(&h, &g, thr);
+                (
+                    Pose2::new(pose.x + step[0], pose.y + step[1], wrap_angle(pose.theta + step[2])),
+                    m,
+                )
+            }
+        };
+
+        let dt = ((new_pose.x - pose.x).powi(2) + (new_pose.y - pose.y).powi(2)).sqrt();
+        let dth = wrap_angle(new_pose.theta - pose.theta).abs();
+        pose = new_pose;
+        let prev_mse = std::mem::replace(&mut mse, cur_mse);
+
+        // (d) termination
+        if cur_mse < cfg.mse_threshold {
+            termination = Termination::MseBelowThreshold;
+            break;
+        }
+        if at_final {
+            if dt <= cfg.step_tolerance && dth <= cfg.step_tolerance {
+                termination = Termination::StepBelowTolerance;
+                break;
+            }
+            if prev_mse.is_finite() && (prev_mse - cur_mse).abs() <= cfg.mse_change * prev_mse {
+                termination = Termination::MseChangeBelowEpsilon;
+                break;
+            }
+        }
+    }
+
+    let (information, covariance, degeneracy, direction) =
+        uncertainty(scan, index, pose, &ws.pairs, cfg);
+    IcpResult {
+        pose,
+        converged: termination.converged(),
+        iterations,
+        mse,
+        inliers: ws.pairs.len(),
+        num_points: n,
+        covariance,
+        information,
+        degeneracy,
+        degenerate_direction: direction,
+        termination,
+    }
+}
+
+/// One damped Gauss–Newton step of the point-to-line cost; the translation is capped at
+/// the current threshold and the rotation at 0.5 rad (a step farther than any pair's
+/// distance cannot be trusted).
+fn solve_step(h: &Matrix3<f64>, g: &Vector3<f64>, thr: f64) -> [f64; 3] {
+    let lambda = 1e-9 * (h.trace() + 1.0);
+    let hd = h + Matrix3::identity() * lambda;
+    let step = match hd.cholesky() {
+        Some(ch) => ch.solve(&(-g)),
+        None => {
+            let eig = SymmetricEigen::new(hd);
+            let mut inv = Matrix3::zeros();
+            let lmax = eig.eigenvalues.max().max(1e-300);
+            for k in 0..3 {
+                let l = eig.eigenvalues[k];
+                if l > 1e-12 * lmax {
+                    let v = eig.eigenvectors.column(k);
+                    inv += v * v.transpose() / l;
+                }
+            }
+            inv * (-g)
+        }
+    };
+    let mut s = [step[0], step[1], step[2]];
+    if !(s[0].is_finite() && s[1].is_finite() && s[2].is_finite()) {
+        return [0.0; 3];
+    }
+    let t = (s[0] * s[0] + s[1] * s[1]).sqrt();
+    if t > thr {
+        s[0] *= thr / t;
+        s[1] *= thr / t;
+    }
+    s[2] = s[2].clamp(-0.5, 0.5);
+    s
+}
+
+type Uncertainty = ([[f64; 3]; 3], [[f64; 3]; 3], f64, [f64; 2]);
+
+/// Information, covariance and degeneracy of the point-to-line cost at `pose` over the
+/// final pairs (the pairs' map points and normals; scan points moved to `pose`).
+fn uncertainty(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    pose: Pose2,
+    pairs: &[Pair],
+    _cfg: &IcpConfig,
+) -> Uncertainty {
+    let nrm = index.normals();
+    let map = index.points();
+    let (s, c) = pose.theta.sin_cos();
+    let mut h = Matrix3::<f64>::zeros();
+    let mut sum = 0.0;
+    for pr in pairs {
+        let p = scan[pr.i as usize];
+        let dq = [c * p[0] - s * p[1], s * p[0] + c * p[1]];
+        let q = [pose.x + dq[0], pose.y + dq[1]];
+        let x = map[pr.j as usize];
+        let nv = nrm[pr.j as usize];
+        let r = nv[0] * (q[0] - x[0]) + nv[1] * (q[1] - x[1]);
+        let jac = Vector3::new(nv[0], nv[1], nv[1] * dq[0] - nv[0] * dq[1]);
+        h += jac * jac.transpose();
+        sum += r * r;
+    }
+    let m = pairs.len();
+    let sigma2 = if m > 3 {
+        (sum / (m - 3) as f64).max(1e-12)
+    } else {
+        f64::INFINITY
+    };
+    // covariance = σ² H⁻¹, with unobservable directions given a huge (finite) variance
+    let eig = SymmetricEigen::new(h);
+    let lmax = eig.eigenvalues.max();
+    let mut cov = Matrix3::<f64>::zeros();
+    for k in 0..3 {
+        let l = eig.eigenvalues[k];
+        let v = eig.eigenvectors.column(k);
+        let inv = if lmax > 0.0 && l > 1e-9 * lmax {
+            1.0 / l
+        } else {
+            1e12
+        };
+        cov += v * v.transpose() * inv;
+    }
+    if sigma2.is_finite() {
+        cov *= sigma2;
+    } else {
+        cov = Matrix3::identity() * 1e12;
+    }
+    // degeneracy of the translational block
+    let ht = Matrix2::new(h[(0, 0)], h[(0, 1)], h[(1, 0)], h[(1, 1)]);
+    let e2 = SymmetricEigen::new(ht);
+    let (imin, imax) = if e2.eigenvalues[0] <= e2.eigenvalues[1] {
+        (0, 1)
+    } else {
+        (1, 0)
+    };
+    let lmin = e2.eigenvalues[imin].max(0.0);
+    let lmx = e2.eigenvalues[imax];
+    let degeneracy = if lmx > 0.0 { (lmin / lmx).clamp(0.0, 1.0) } else { 0.0 };
+    let v = e2.eigenvectors.column(imin);
+    let mut dir = [v[0], v[1]];
+    if dir[0] < 0.0 || (dir[0] == 0.0 && dir[1] < 0.0) {
+        dir = [-dir[0], -dir[1]];
+    }
+    let to_arr = |a: &Matrix3<f64>| {
+        let mut o = [[0.0; 3]; 3];
+        for (r, row) in o.iter_mut().enumerate() {
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = a[(r, k)];
+            }
+        }
+        o
+    };
+    (to_arr(&h), to_arr(&cov), degeneracy, dir)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,305 @@
+use super::*;
+use crate::testkit::{cases, office_segments, sample_segments, Rng};
+use proptest::prelude::*;
+
+fn scattered_map(seed: u64, n: usize) -> Vec<[f64; 2]> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| [rng.range(-5.0, 5.0), rng.range(-5.0, 5.0)])
+        .collect()
+}
+
+fn office_index(spacing: f64) -> MapIndex {
+    let (p, n) = sample_segments(&office_segments(), spacing);
+    MapIndex::new(p, Some(n)).unwrap()
+}
+
+fn cfg(metric: Metric) -> IcpConfig {
+    IcpConfig {
+        metric,
+        step_tolerance: 1e-12,
+        mse_change: 0.0,
+        mse_threshold: 0.0,
+        max_iterations: 100,
+        min_correspondence_distance: 0.5,
+        max_correspondence_distance: 1.0,
+        ..IcpConfig::default()
+    }
+}
+
+/// The scan is the map seen from `truth`: exact correspondences exist.
+fn exact_scan(map: &[[f64; 2]], truth: Pose2) -> Vec<[f64; 2]> {
+    let inv = truth.inverse();
+    map.iter().map(|p| inv.transform(*p)).collect()
+}
+
+#[test]
+fn noise_free_is_recovered_exactly_both_metrics() {
+    let map = scattered_map(1, 200);
+    let idx = MapIndex::new(map.clone(), None).unwrap();
+    let truth = Pose2::new(3.0, -2.0, 0.4);
+    let scan = exact_scan(&map, truth);
+    for metric in [Metric::PointToPoint, Metric::PointToLine] {
+        let init = Pose2::new(3.02, -2.01, 0.405);
+        let r = align(&scan, &idx, init, &cfg(metric)).unwrap();
+        assert!(r.converged, "{metric:?} {:?}", r.termination);
+        assert!((r.pose.x - truth.x).abs() < 1e-9, "{metric:?} {:?}", r.pose);
+        assert!((r.pose.y - truth.y).abs() < 1e-9);
+        assert!(wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9);
+        assert_eq!(r.inliers, 200);
+        assert!(r.mse < 1e-18);
+    }
+}
+
+#[test]
+fn paper_rule_mse_below_tau_stops() {
+    let map = scattered_map(2, 100);
+    let idx = MapIndex::new(map.clone(), None).unwrap();
+    let truth = Pose2::new(0.5, 0.5, 0.1);
+    let scan = exact_scan(&map, truth);
+    let mut c = IcpConfig::paper(0.5);
+    c.mse_threshold = 1e-10;
+    let r = align(&scan, &idx, Pose2::new(0.51, 0.5, 0.1), &c).unwrap();
+    assert_eq!(r.termination, Termination::MseBelowThreshold);
+    assert!(r.converged);
+}
+
+#[test]
+fn iteration_limit_is_not_convergence() {
+    let idx = office_index(0.05);
+    let case = &cases(&office_segments(), 1, (0.3, 0.3, 0.17), 0.01, 0.2, 5)[0];
+    let c = IcpConfig {
+        max_iterations: 1,
+        ..IcpConfig::default()
+    };
+    let r = align(&case.scan, &idx, case.initial, &c).unwrap();
+    assert!(!r.converged);
+    assert_eq!(r.termination, Termination::MaxIterations);
+    assert_eq!(r.iterations, 1);
+}
+
+#[test]
+fn too_few_inliers_is_not_convergence_and_not_identity() {
+    let idx = office_index(0.05);
+    let case = &cases(&office_segments(), 1, (0.0, 0.0, 0.0), 0.01, 0.0, 6)[0];
+    // start 100 m away: nothing within the threshold
+    let init = Pose2::new(case.truth.x + 100.0, case.truth.y, case.truth.theta);
+    let r = align(&case.scan, &idx, init, &IcpConfig::default()).unwrap();
+    assert!(!r.converged);
+    assert_eq!(r.termination, Termination::TooFewInliers);
+    assert_eq!(r.pose, init);
+}
+
+#[test]
+fn office_accuracy_small_start_error() {
+    let segs = office_segments();
+    let idx = office_index(0.05);
+    for metric in [Metric::PointToPoint, Metric::PointToLine] {
+        let cs = cases(&segs, 40, (0.3, 0.3, 10f64.to_radians()), 0.01, 0.2, 11);
+        let ok = cs
+            .iter()
+            .filter(|c| {
+                let r = align(&c.scan, &idx, c.initial, &IcpConfig { metric, ..IcpConfig::default() }).unwrap();
+                let dt = ((r.pose.x - c.truth.x).powi(2) + (r.pose.y - c.truth.y).powi(2)).sqrt();
+                let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
+                dt < 0.02 && dth < 0.5f64.to_radians()
+            })
+            .count();
+        assert!(ok >= 38, "{metric:?}: {ok}/40");
+    }
+}
+
+#[test]
+fn corridor_is_degenerate_room_is_not() {
+    // two long parallel walls
+    let segs = vec![[-50.0, -1.0, 50.0, -1.0], [-50.0, 1.0, 50.0, 1.0]];
+    let (p, n) = sample_segments(&segs, 0.05);
+    let idx = MapIndex::new(p, Some(n)).unwrap();
+    let mut rng = Rng::new(3);
+    let scan = crate::testkit::make_scan(&segs, Pose2::identity(), 361, 10.0, 0.0, 0.0, &mut rng);
+    let r = align(&scan, &idx, Pose2::new(0.0, 0.05, 0.01), &IcpConfig::default()).unwrap();
+    assert!(r.degeneracy < 1e-3, "{}", r.degeneracy);
+    assert!(r.degenerate_direction[0].abs() > 0.99);
+    assert!(r.covariance[0][0] > 1e3 * r.covariance[1][1]);
+    assert!(r.pose.y.abs() < 1e-6);
+
+    let idx = office_index(0.05);
+    let c = &cases(&office_segments(), 1, (0.1, 0.1, 0.05), 0.01, 0.0, 8)[0];
+    let r = align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap();
+    assert!(r.degeneracy > 0.05, "{}", r.degeneracy);
+    for i in 0..3 {
+        assert!(r.covariance[i][i] > 0.0 && r.covariance[i][i] < 1e-3);
+    }
+}
+
+#[test]
+fn trimmed_and_robust_variants_work() {
+    let segs = office_segments();
+    let idx = office_index(0.05);
+    let cs = cases(&segs, 10, (0.2, 0.2, 0.1), 0.01, 0.3, 21);
+    for (trim, robust) in [(0.7, Robust::None), (1.0, Robust::Huber), (1.0, Robust::Cauchy)] {
+        let c = IcpConfig {
+            trim_fraction: trim,
+            robust,
+            ..IcpConfig::default()
+        };
+        let ok = cs
+            .iter()
+            .filter(|k| {
+                let r = align(&k.scan, &idx, k.initial, &c).unwrap();
+                ((r.pose.x - k.truth.x).powi(2) + (r.pose.y - k.truth.y).powi(2)).sqrt() < 0.03
+            })
+            .count();
+        assert!(ok >= 9, "{trim} {robust:?}: {ok}");
+    }
+}
+
+#[test]
+fn config_validation_names_the_field() {
+    let cases: Vec<(IcpConfig, &str)> = vec![
+        (IcpConfig { max_iterations: 0, ..Default::default() }, "max_iterations"),
+        (IcpConfig { max_correspondence_distance: 0.0, ..Default::default() }, "max_correspondence_distance"),
+        (IcpConfig { max_correspondence_distance: f64::NAN, ..Default::default() }, "max_correspondence_distance"),
+        (IcpConfig { min_correspondence_distance: -1.0, ..Default::default() }, "min_correspondence_distance"),
+        (IcpConfig { min_correspondence_distance: 5.0, ..Default::default() }, "min_correspondence_distance"),
+        (IcpConfig { threshold_decay: 0.0, ..Default::default() }, "threshold_decay"),
+        (IcpConfig { trim_fraction: 1.5, ..Default::default() }, "trim_fraction"),
+        (IcpConfig { robust_scale: 0.0, ..Default::default() }, "robust_scale"),
+        (IcpConfig { min_inliers: 2, ..Default::default() }, "min_inliers"),
+        (IcpConfig { min_inlier_ratio: 2.0, ..Default::default() }, "min_inlier_ratio"),
+        (IcpConfig { mse_threshold: f64::INFINITY, ..Default::default() }, "mse_threshold"),
+    ];
+    for (c, field) in cases {
+        match c.validate() {
+            Err(IcpError::InvalidConfig { field: f, .. }) => assert_eq!(f, field),
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+    IcpConfig::default().validate().unwrap();
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let idx = office_index(0.5);
+    let c = IcpConfig::default();
+    let e = align(&[[0.0, 0.0]; 5], &idx, Pose2::identity(), &c).unwrap_err();
+    assert!(matches!(e, IcpError::TooFewPoints { got: 5, min: 10, .. }));
+    let mut scan = vec![[1.0, 1.0]; 20];
+    scan[7][1] = f64::NAN;
+    assert!(matches!(
+        align(&scan, &idx, Pose2::identity(), &c).unwrap_err(),
+        IcpError::NonFinite { row: 7, .. }
+    ));
+    let scan = vec![[1.0, 1.0]; 20];
+    assert!(matches!(
+        align(&scan, &idx, Pose2::new(0.0, f64::INFINITY, 0.0), &c).unwrap_err(),
+        IcpError::InvalidInput { .. }
+    ));
+}
+
+#[test]
+fn batch_matches_single_and_broadcasts() {
+    let segs = office_segments();
+    let idx = office_index(0.05);
+    let cs = cases(&segs, 8, (0.3, 0.3, 0.17), 0.01, 0.2, 31);
+    let c = IcpConfig::default();
+    let scans: Vec<&[[f64; 2]]> = cs.iter().map(|k| k.scan.as_slice()).collect();
+    let poses: Vec<Pose2> = cs.iter().map(|k| k.initial).collect();
+    let batch = align_batch(&scans, &idx, &poses, &c, Some(2)).unwrap();
+    for (k, r) in cs.iter().zip(&batch) {
+        let single = align(&k.scan, &idx, k.initial, &c).unwrap();
+        assert_eq!(r.as_ref().unwrap(), &single);
+    }
+    let multi = align_batch(&scans[..1], &idx, &poses, &c, None).unwrap();
+    assert_eq!(multi.len(), 8);
+    assert!(align_batch(&scans[..2], &idx, &poses, &c, None).is_err());
+    assert!(align_batch(&scans, &idx, &poses, &c, Some(0)).is_err());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
+
+    /// Random rigid transforms of noise-free scans are recovered to 1e-9.
+    #[test]
+    fn prop_rigid_transform_recovered(x in -50.0f64..50.0, y in -50.0f64..50.0,
+                                      th in -3.14f64..3.14, seed in 0u64..1000,
+                                      dx in -0.03f64..0.03, dy in -0.03f64..0.03, dth in -0.01f64..0.01,
+                                      p2l in any::<bool>()) {
+        let map = scattered_map(seed, 150);
+        let idx = MapIndex::new(map.clone(), None).unwrap();
+        let truth = Pose2::new(x, y, th);
+        let scan = exact_scan(&map, truth);
+        let metric = if p2l { Metric::PointToLine } else { Metric::PointToPoint };
+        let r = align(&scan, &idx, Pose2::new(x + dx, y + dy, th + dth), &cfg(metric)).unwrap();
+        prop_assert!((r.pose.x - x).abs() < 1e-9);
+        prop_assert!((r.pose.y - y).abs() < 1e-9);
+        prop_assert!(wrap_angle(r.pose.theta - th).abs() < 1e-9);
+    }
+
+    /// The answer does not depend on the order of the scan points.
+    #[test]
+    fn prop_order_independent(seed in 0u64..1000, shift in 1usize..300) {
+        let segs = office_segments();
+        let idx = office_index(0.1);
+        let c = &cases(&segs, 1, (0.2, 0.2, 0.1), 0.01, 0.2, seed)[0];
+        let mut rev = c.scan.clone();
+        rev.reverse();
+        let k = shift % rev.len();
+        rev.rotate_left(k);
+        for metric in [Metric::PointToPoint, Metric::PointToLine] {
+            let conf = IcpConfig { metric, ..IcpConfig::default() };
+            let a = align(&c.scan, &idx, c.initial, &conf).unwrap();
+            let b = align(&rev, &idx, c.initial, &conf).unwrap();
+            prop_assert!((a.pose.x - b.pose.x).abs() < 1e-9);
+            prop_assert!((a.pose.y - b.pose.y).abs() < 1e-9);
+            prop_assert!(wrap_angle(a.pose.theta - b.pose.theta).abs() < 1e-9);
+            prop_assert_eq!(a.inliers, b.inliers);
+        }
+    }
+
+    /// The rotation is always a yaw: the quaternion has no in-plane axis part.
+    #[test]
+    fn prop_rotation_is_yaw(pts in proptest::collection::vec((-10.0f64..10.0, -10.0f64..10.0, -10.0f64..10.0, -10.0f64..10.0), 3..40)) {
+        let mut cc = CrossCovariance::default();
+        for (a, b, c, d) in pts {
+            cc.add([a, b], [c, d], 1.0);
+        }
+        if let Some(r) = cc.solve() {
+            prop_assert_eq!(r.quaternion[1], 0.0);
+            prop_assert_eq!(r.quaternion[2], 0.0);
+            prop_assert!(r.theta.is_finite());
+            prop_assert!((r.quaternion[0].powi(2) + r.quaternion[3].powi(2) - 1.0).abs() < 1e-9);
+        }
+    }
+
+    /// No input, finite or not, makes the core panic.
+    #[test]
+    fn prop_no_panic(scan in proptest::collection::vec((any::<f64>(), any::<f64>()), 0..40),
+                     pose in (any::<f64>(), any::<f64>(), any::<f64>()),
+                     thr in any::<f64>(), map in proptest::collection::vec((any::<f64>(), any::<f64>()), 0..30)) {
+        let scan: Vec<[f64; 2]> = scan.into_iter().map(|(a, b)| [a, b]).collect();
+        let map: Vec<[f64; 2]> = map.into_iter().map(|(a, b)| [a, b]).collect();
+        let c = IcpConfig { max_correspondence_distance: thr, min_correspondence_distance: thr.abs().min(1.0), min_inliers: 3, ..IcpConfig::default() };
+        if let Ok(idx) = MapIndex::new(map, None) {
+            let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &c);
+            let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &IcpConfig::default());
+            let _ = idx.visible(Pose2::new(pose.0, pose.1, pose.2), thr, thr, None, 0.05, 0.01);
+            let _ = idx.within([pose.0, pose.1], thr);
+        }
+        let _ = crate::raycast::raycast(&[[pose.0, pose.1, pose.2, thr]], Pose2::new(pose.0, 0.0, 0.0), &[thr], 10.0);
+    }
+
+    /// Finite but extreme scans far from the map still return, never panic, never NaN pose.
+    #[test]
+    fn prop_finite_extremes(scale in prop_oneof![Just(1e-300), Just(1e-9), Just(1.0), Just(1e9), Just(1e150)], seed in 0u64..100) {
+        let map = scattered_map(seed, 50);
+        let idx = MapIndex::new(map.clone(), None).unwrap();
+        let scan: Vec<[f64; 2]> = map.iter().map(|p| [p[0] * scale, p[1] * scale]).collect();
+        for metric in [Metric::PointToPoint, Metric::PointToLine] {
+            let c = IcpConfig { metric, max_correspondence_distance: 1e6, min_correspondence_distance: 1e6, ..IcpConfig::default() };
+            if let Ok(r) = align(&scan, &idx, Pose2::identity(), &c) {
+                prop_assert!(r.pose.x.is_finite() && r.pose.y.is_finite() && r.pose.theta.is_finite());
+            }
+        }
+    }
+}

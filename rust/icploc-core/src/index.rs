@@ -1,0 +1,420 @@
+//! The map index: an immutable k-d tree (kiddo) over the map's 2D points, with unit normals.
+
+use std::num::NonZeroUsize;
+use std::sync::OnceLock;
+
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use kiddo::SquaredEuclidean;
+use rayon::prelude::*;
+
+use crate::error::{IcpError, Result};
+use crate::se2::{wrap_angle, Pose2};
+
+type Tree = ImmutableKdTree<f64, u32, 2, 32>;
+
+/// Neighbours used to estimate a normal when none are given.
+const NORMAL_NEIGHBOURS: usize = 7;
+
+/// An immutable nearest-neighbour index over 2D map points, with optional unit normals.
+pub struct MapIndex {
+    tree: Tree,
+    points: Vec<[f64; 2]>,
+    normals: OnceLock<Vec<[f64; 2]>>,
+    normals_given: bool,
+    spacing: OnceLock<f64>,
+    bounds: [f64; 4],
+}
+
+impl std::fmt::Debug for MapIndex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MapIndex")
+            .field("len", &self.points.len())
+            .field("normals_given", &self.normals_given)
+            .field("bounds", &self.bounds)
+            .finish()
+    }
+}
+
+impl MapIndex {
+    /// Build the index. Points must be finite; normals, when given, must match the points
+    /// in number, be finite and non-zero (they are normalised to unit length).
+    pub fn new(points: Vec<[f64; 2]>, normals: Option<Vec<[f64; 2]>>) -> Result<Self> {
+        if points.is_empty() {
+            return Err(IcpError::EmptyMap);
+        }
+        if points.len() >= u32::MAX as usize {
+            return Err(IcpError::InvalidInput {
+                what: "map points".into(),
+                reason: format!("{} points is more than the index supports", points.len()),
+            });
+        }
+        crate::check_finite("map points", &points)?;
+        let normals_given = normals.is_some();
+        let normals_lock = OnceLock::new();
+        if let Some(mut n) = normals {
+            if n.len() != points.len() {
+                return Err(IcpError::Shape {
+                    what: "map normals".into(),
+                    expected: format!("{} rows (one per map point)", points.len()),
+                    got: format!("{} rows", n.len()),
+                });
+            }
+            crate::check_finite("map normals", &n)?;
+            for (row, v) in n.iter_mut().enumerate() {
+                let len = (v[0] * v[0] + v[1] * v[1]).sqrt();
+                if !(len > 1e-9) {
+                    return Err(IcpError::InvalidInput {
+                        what: "map normals".into(),
+                        reason: format!("zero-length normal at row {row}"),
+                    });
+                }
+                v[0] /= len;
+                v[1] /= len;
+            }
+            let _ = normals_lock.set(n);
+        }
+        let mut bounds = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        for p in &points {
+            bounds[0] = bounds[0].min(p[0]);
+            bounds[1] = bounds[1].min(p[1]);
+            bounds[2] = bounds[2].max(p[0]);
+            bounds[3] = bounds[3].max(p[1]);
+        }
+        let tree = Tree::new_from_slice(&points);
+        Ok(Self {
+            tree,
+            points,
+            normals: normals_lock,
+            normals_given,
+            spacing: OnceLock::new(),
+            bounds,
+        })
+    }
+
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    #[inline]
+    pub fn points(&self) -> &[[f64; 2]] {
+        &self.points
+    }
+
+    /// (xmin, ymin, xmax, ymax).
+    pub fn bounds(&self) -> [f64; 4] {
+        self.bounds
+    }
+
+    /// True when the normals were given at construction (not estimated).
+    pub fn has_normals(&self) -> bool {
+        self.normals_given
+    }
+
+    /// Unit normals: the given ones, or estimated once (PCA of the nearest neighbours).
+    pub fn normals(&self) -> &[[f64; 2]] {
+        self.normals.get_or_init(|| self.estimate_normals())
+    }
+
+    /// Closest map point: (squared distance, index).
+    #[inline]
+    pub fn nearest(&self, q: [f64; 2]) -> (f64, usize) {
+        let nn = self.tree.nearest_one::<SquaredEuclidean>(&q);
+        (nn.distance, nn.item as usize)
+    }
+
+    /// Indices of the points within `radius` of `center`, sorted ascending.
+    pub fn within(&self, center: [f64; 2], radius: f64) -> Vec<usize> {
+        if !(radius >= 0.0) || !center[0].is_finite() || !center[1].is_finite() {
+            return Vec::new();
+        }
+        let mut v: Vec<usize> = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&center, radius * radius)
+            .into_iter()
+            .map(|nn| nn.item as usize)
+            .collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Median distance between a map point and its nearest neighbour (estimated on a
+    /// sample of at most 2,000 points; 0 for a single-point map).
+    pub fn spacing(&self) -> f64 {
+        *self.spacing.get_or_init(|| {
+            let n = self.points.len();
+            if n < 2 {
+                return 0.0;
+            }
+            let step = (n / 2000).max(1);
+            let k = NonZeroUsize::new(2).expect("2 is non-zero");
+            let mut d: Vec<f64> = (0..n)
+                .step_by(step)
+                .map(|i| {
+                    let nn = self.tree.nearest_n::<SquaredEuclidean>(&self.points[i], k);
+                    nn.last().map(|x| x.distance.sqrt()).unwrap_or(0.0)
+                })
+                .collect();
+            let mid = d.len() / 2;
+            d.select_nth_unstable_by(mid, f64::total_cmp);
+            d[mid]
+        })
+    }
+
+    fn estimate_normals(&self) -> Vec<[f64; 2]> {
+        let k = NonZeroUsize::new(NORMAL_NEIGHBOURS.min(self.points.len()).max(1))
+            .expect("at least one neighbour");
+        self.points
+            .par_iter()
+            .map(|p| {
+                let nn = self.tree.nearest_n::<SquaredEuclidean>(p, k);
+                let m = nn.len() as f64;
+                let (mut mx, mut my) = (0.0, 0.0);
+                for x in &nn {
+                    let q = self.points[x.item as usize];
+                    mx += q[0];
+                    my += q[1];
+                }
+                mx /= m;
+                my /= m;
+                let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+                for x in &nn {
+                    let q = self.points[x.item as usize];
+                    let (dx, dy) = (q[0] - mx, q[1] - my);
+                    sxx += dx * dx;
+                    sxy += dx * dy;
+                    syy += dy * dy;
+                }
+                smallest_eigenvector(sxx, sxy, syy)
+            })
+            .collect()
+    }
+
+    /// Indices of the map points a scanner at `pose` could see: within `max_range`, inside
+    /// the field of view `fov` (radians, centred on the heading), and not hidden behind a
+    /// nearer point. Each point occludes the arc of half-width `point_radius` it subtends;
+    /// a point is visible when it is at most `tolerance` farther than the nearest occluder
+    /// on its own bearing. Returns sorted indices.
+    pub fn visible(
+        &self,
+        pose: Pose2,
+        fov: f64,
+        max_range: f64,
+        point_radius: Option<f64>,
+        tolerance: f64,
+        angular_resolution: f64,
+    ) -> Result<Vec<usize>> {
+        if !pose.is_finite() {
+            return Err(IcpError::InvalidInput {
+                what: "pose".into(),
+                reason: "must be finite".into(),
+            });
+        }
+        for (field, v) in [
+            ("fov", fov),
+            ("max_range", max_range),
+            ("angular_resolution", angular_resolution),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(IcpError::InvalidConfig {
+                    field,
+                    value: v.to_string(),
+                    reason: "must be positive and finite",
+                });
+            }
+        }
+        if !(tolerance >= 0.0 && tolerance.is_finite()) {
+            return Err(IcpError::InvalidConfig {
+                field: "tolerance",
+                value: tolerance.to_string(),
+                reason: "must be non-negative and finite",
+            });
+        }
+        let radius = match point_radius {
+            Some(r) if r >= 0.0 && r.is_finite() => r,
+            Some(r) => {
+                return Err(IcpError::InvalidConfig {
+                    field: "point_radius",
+                    value: r.to_string(),
+                    reason: "must be non-negative and finite",
+                })
+            }
+            None => 0.5 * self.spacing(),
+        };
+        let fov = fov.min(std::f64::consts::TAU);
+        let half = 0.5 * fov;
+        let nbins = ((fov / angular_resolution).ceil() as usize).clamp(1, 10_000_000);
+        let res = fov / nbins as f64;
+        let mut zbuf = vec![f64::INFINITY; nbins];
+        let cand = self
+            .tree
+            .within_unsorted::<SquaredEuclidean>(&[pose.x, pose.y], max_range * max_range);
+        // (index, range, bin of the bearing)
+        let mut keep: Vec<(usize, f64, usize)> = Vec::with_capacity(cand.len());
+        let full_circle = fov >= std::f64::consts::TAU - 1e-12;
+        for nn in cand {
+            let i = nn.item as usize;
+            let p = self.points[i];
+            let (dx, dy) = (p[0] - pose.x, p[1] - pose.y);
+            let r = nn.distance.sqrt();
+            if r < 1e-9 {
+                continue;
+            }
+            let bearing = wrap_angle(dy.atan2(dx) - pose.theta);
+            let h = if r > radius { (radius / r).asin() } else { half };
+            let rel = bearing + half; // in [0, fov] when inside the view
+            if !full_circle && (rel + h < 0.0 || rel - h > fov) {
+                continue;
+            }
+            let lo = ((rel - h) / res).floor() as i64;
+            let hi = ((rel + h) / res).floor() as i64;
+            for b in lo..=hi {
+                let bin = if full_circle {
+                    b.rem_euclid(nbins as i64) as usize
+                } else if b < 0 || b >= nbins as i64 {
+                    continue;
+                } else {
+                    b as usize
+                };
+                if r < zbuf[bin] {
+                    zbuf[bin] = r;
+                }
+            }
+            if full_circle || (0.0..=fov).contains(&rel) {
+                let c = ((rel / res).floor() as i64).rem_euclid(nbins as i64) as usize;
+                keep.push((i, r, c.min(nbins - 1)));
+            }
+        }
+        let mut out: Vec<usize> = keep
+            .into_iter()
+            .filter(|&(_, r, c)| r <= zbuf[c] + tolerance)
+            .map(|(i, _, _)| i)
+            .collect();
+        out.sort_unstable();
+        Ok(out)
+    }
+}
+
+/// Unit eigenvector of the smaller eigenvalue of [[a, b], [b, c]].
+fn smallest_eigenvector(a: f64, b: f64, c: f64) -> [f64; 2] {
+    // Principal direction angle of the scatter: tan(2φ) = 2b / (a − c); the normal is
+    // perpendicular to it.
+    if a == 0.0 && b == 0.0 && c == 0.0 {
+        return [1.0, 0.0];
+    }
+    let phi = 0.5 * (2.0 * b).atan2(a - c);
+    let (s, co) = phi.sin_cos();
+    [-s, co]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn wall_points() -> Vec<[f64; 2]> {
+        // Axis-aligned walls: many identical coordinates on one axis.
+        let mut v = Vec::new();
+        for i in 0..=100 {
+            let t = i as f64 * 0.05;
+            v.push([t, 0.0]);
+            v.push([t, 5.0]);
+            v.push([0.0, t]);
+            v.push([5.0, t]);
+        }
+        v
+    }
+
+    #[test]
+    fn empty_map_is_an_error() {
+        assert_eq!(MapIndex::new(vec![], None).unwrap_err(), IcpError::EmptyMap);
+    }
+
+    #[test]
+    fn nan_is_an_error() {
+        let e = MapIndex::new(vec![[0.0, 0.0], [f64::NAN, 1.0]], None).unwrap_err();
+        assert!(matches!(e, IcpError::NonFinite { row: 1, .. }));
+    }
+
+    #[test]
+    fn normals_shape_and_zero() {
+        let e = MapIndex::new(vec![[0.0, 0.0]], Some(vec![])).unwrap_err();
+        assert!(matches!(e, IcpError::Shape { .. }));
+        let e = MapIndex::new(vec![[0.0, 0.0]], Some(vec![[0.0, 0.0]])).unwrap_err();
+        assert!(matches!(e, IcpError::InvalidInput { .. }));
+    }
+
+    #[test]
+    fn nearest_matches_brute_force_with_duplicates_on_axes() {
+        let pts = wall_points();
+        let idx = MapIndex::new(pts.clone(), None).unwrap();
+        for q in [[0.3, 0.2], [2.5, 2.4], [4.9, 4.0], [-1.0, 7.0], [2.51, 0.0]] {
+            let (d2, i) = idx.nearest(q);
+            let best = pts
+                .iter()
+                .map(|p| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+                .fold(f64::INFINITY, f64::min);
+            assert!((d2 - best).abs() < 1e-12);
+            let p = pts[i];
+            assert!(((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) - best).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn single_point_map() {
+        let idx = MapIndex::new(vec![[1.0, 2.0]], None).unwrap();
+        assert_eq!(idx.nearest([0.0, 0.0]).1, 0);
+        assert_eq!(idx.normals().len(), 1);
+        assert_eq!(idx.spacing(), 0.0);
+    }
+
+    #[test]
+    fn estimated_normals_are_perpendicular_to_walls() {
+        let idx = MapIndex::new(wall_points(), None).unwrap();
+        let n = idx.normals();
+        for (p, v) in idx.points().iter().zip(n) {
+            let len = (v[0] * v[0] + v[1] * v[1]).sqrt();
+            assert!((len - 1.0).abs() < 1e-9);
+            // interior of the bottom wall: normal along y
+            if p[1] == 0.0 && p[0] > 0.3 && p[0] < 4.7 {
+                assert!(v[0].abs() < 1e-6, "{p:?} {v:?}");
+            }
+        }
+        assert!((idx.spacing() - 0.05).abs() < 1e-9);
+    }
+
+    #[test]
+    fn visibility_hides_points_behind_a_wall() {
+        // Room 0..5 with an inner wall at x = 3 from y = 1 to 4.
+        let mut pts = wall_points();
+        for i in 0..=60 {
+            pts.push([3.0, 1.0 + i as f64 * 0.05]);
+        }
+        let idx = MapIndex::new(pts, None).unwrap();
+        let pose = Pose2::new(1.0, 2.5, 0.0);
+        let vis = idx
+            .visible(pose, std::f64::consts::TAU, 30.0, None, 0.05, 0.002)
+            .unwrap();
+        let pts = idx.points();
+        // the far wall x = 5 between y = 2 and 3 is hidden behind x = 3
+        assert!(!vis
+            .iter()
+            .any(|&i| pts[i][0] == 5.0 && pts[i][1] > 2.0 && pts[i][1] < 3.0));
+        // the inner wall's near face is visible, and so is the wall behind the robot
+        assert!(vis
+            .iter()
+            .any(|&i| pts[i][0] == 3.0 && (pts[i][1] - 2.5).abs() < 0.1));
+        assert!(vis
+            .iter()
+            .any(|&i| pts[i][0] == 0.0 && (pts[i][1] - 2.5).abs() < 0.1));
+        // a 180° field of view facing +x excludes the wall behind
+        let front = idx
+            .visible(pose, std::f64::consts::PI, 30.0, None, 0.05, 0.002)
+            .unwrap();
+        assert!(!front.iter().any(|&i| pts[i][0] == 0.0 && (pts[i][1] - 2.5).abs() < 1.0));
+    }
+}

@@ -1,0 +1,43 @@
+//! # icploc-core
+//!
+//! The pure-Rust core of icploc: 2D localization of a mobile robot by ICP matching of a
+//! laser scan against a known map (Sa, Baek & Kuc; Besl & McKay). No Python here: the
+//! `icploc-python` crate wraps this one.
+//!
+//! * [`se2`]: planar poses.
+//! * [`index`]: [`MapIndex`], an immutable k-d tree over the map points with unit normals,
+//!   nearest-neighbour queries and visibility culling.
+//! * [`icp`]: the ICP loop: closest points, outlier rejection (distance threshold with an
+//!   optional shrinking schedule, trimming, Huber/Cauchy weights), the Besl–McKay quaternion
+//!   solve kept to a yaw, the point-to-line alternative, convergence rules, covariance and
+//!   degeneracy from the Hessian of the final cost.
+//! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
+//! * [`raycast`]: ray casting against wall segments (simulation, visibility).
+//! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
+
+pub mod error;
+pub mod icp;
+pub mod index;
+pub mod quaternion;
+pub mod raycast;
+pub mod se2;
+pub mod testkit;
+
+pub use error::{IcpError, Result};
+pub use icp::{align, align_batch, IcpConfig, IcpResult, Metric, Robust, Termination};
+pub use index::MapIndex;
+pub use se2::Pose2;
+
+/// Check that every row of a point array is finite; name the input in the error.
+pub fn check_finite(what: &str, pts: &[[f64; 2]]) -> Result<()> {
+    match pts
+        .iter()
+        .position(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        Some(row) => Err(IcpError::NonFinite {
+            what: what.to_string(),
+            row,
+        }),
+        None => Ok(()),
+    }
+}

@@ -1,0 +1,758 @@
+//! pyo3 bindings for `icploc-core`: the private module `icploc._core`.
+//!
+//! Thin wrappers only: array arguments are borrowed from numpy without copying when they
+//! are C-contiguous float64 (converted otherwise), the GIL is released around every heavy
+//! call, core errors become Python exceptions, and a panic in the core (a bug) surfaces as
+//! `IcpError`, never as a crash.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::Arc;
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyTuple, PyType};
+
+use icploc_core as core;
+use icploc_core::{IcpError as CoreError, Pose2};
+
+pyo3::create_exception!(
+    icploc._core,
+    IcpError,
+    PyException,
+    "Base class of every error raised by the ICP core."
+);
+
+static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static EMPTY_MAP: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static INVALID_CONFIG: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+/// A class with several bases (e.g. IcpError and ValueError), made with `type()`.
+fn make_class(py: Python<'_>, name: &str, bases: Vec<Bound<'_, PyType>>, doc: &str) -> PyResult<Py<PyType>> {
+    let dict = PyDict::new(py);
+    dict.set_item("__module__", "icploc._core")?;
+    dict.set_item("__doc__", doc)?;
+    let bases = PyTuple::new(py, bases)?;
+    let cls = py.get_type::<PyType>().call1((name, bases, dict))?;
+    Ok(cls.cast_into::<PyType>()?.unbind())
+}
+
+fn invalid_input(py: Python<'_>) -> &Py<PyType> {
+    INVALID_INPUT.get_or_init(py, || {
+        make_class(
+            py,
+            "InvalidInputError",
+            vec![py.get_type::<IcpError>(), py.get_type::<PyValueError>()],
+            "An input array has the wrong shape or dtype, holds NaN/inf, or has too few points.",
+        )
+        .expect("creating InvalidInputError")
+    })
+}
+
+fn empty_map(py: Python<'_>) -> &Py<PyType> {
+    EMPTY_MAP.get_or_init(py, || {
+        let base = invalid_input(py).bind(py).clone();
+        make_class(py, "EmptyMapError", vec![base], "The map has no points.").expect("creating EmptyMapError")
+    })
+}
+
+fn invalid_config(py: Python<'_>) -> &Py<PyType> {
+    INVALID_CONFIG.get_or_init(py, || {
+        make_class(
+            py,
+            "InvalidConfigError",
+            vec![py.get_type::<IcpError>(), py.get_type::<PyValueError>()],
+            "A configuration value is out of range (e.g. a non-positive threshold).",
+        )
+        .expect("creating InvalidConfigError")
+    })
+}
+
+/// Core error → Python exception of the matching class.
+fn to_py(py: Python<'_>, e: CoreError) -> PyErr {
+    let msg = e.to_string();
+    let cls = match e {
+        CoreError::EmptyMap => empty_map(py),
+        CoreError::InvalidConfig { .. } => invalid_config(py),
+        CoreError::Internal(_) => return IcpError::new_err(msg),
+        _ => invalid_input(py),
+    };
+    PyErr::from_type(cls.bind(py).clone(), msg)
+}
+
+fn input_err(py: Python<'_>, what: &str, reason: String) -> PyErr {
+    to_py(
+        py,
+        CoreError::InvalidInput {
+            what: what.to_string(),
+            reason,
+        },
+    )
+}
+
+/// Run a core call with a panic guard (a panic is a bug: report it, don't crash).
+fn guarded<T>(f: impl FnOnce() -> core::Result<T>) -> core::Result<T> {
+    match catch_unwind(AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| p.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            Err(CoreError::Internal(format!("panic in the core: {msg}")))
+        }
+    }
+}
+
+/// An (N, K) float64 array: borrowed from numpy when C-contiguous float64, else converted.
+enum Array<'py> {
+    Borrowed(PyReadonlyArray2<'py, f64>),
+    Owned(Vec<f64>),
+}
+
+impl Array<'_> {
+    fn flat(&self) -> &[f64] {
+        match self {
+            Array::Borrowed(a) => a.as_slice().expect("checked contiguous"),
+            Array::Owned(v) => v,
+        }
+    }
+    fn pairs(&self) -> &[[f64; 2]] {
+        let f = self.flat();
+        // SAFETY: [f64; 2] has the size of two f64 and the alignment of one; the flat
+        // slice of an (N, 2) C-contiguous array holds N such pairs back to back.
+        unsafe { std::slice::from_raw_parts(f.as_ptr() as *const [f64; 2], f.len() / 2) }
+    }
+}
+
+fn array2<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, cols: usize, what: &str) -> PyResult<Array<'py>> {
+    let shape_err = |shape: &[usize]| {
+        to_py(
+            py,
+            CoreError::Shape {
+                what: what.to_string(),
+                expected: format!("an (N, {cols}) array"),
+                got: format!("shape {shape:?}"),
+            },
+        )
+    };
+    if let Ok(a) = obj.extract::<PyReadonlyArray2<'py, f64>>() {
+        if a.shape()[1] != cols {
+            return Err(shape_err(a.shape()));
+        }
+        if a.as_slice().is_ok() {
+            return Ok(Array::Borrowed(a));
+        }
+        return Ok(Array::Owned(a.as_array().iter().copied().collect()));
+    }
+    // Not a float64 2-D array: let numpy convert it (lists, ints, float32, ...).
+    let np = py.import("numpy")?;
+    let conv = np
+        .call_method1("ascontiguousarray", (obj,))
+        .and_then(|a| a.call_method1("astype", ("float64",)))
+        .map_err(|e| input_err(py, what, format!("cannot convert to a float64 array: {e}")))?;
+    let shape: Vec<usize> = conv.getattr("shape")?.extract()?;
+    if shape.len() != 2 || shape[1] != cols {
+        return Err(shape_err(&shape));
+    }
+    let a: PyReadonlyArray2<'py, f64> = conv.extract()?;
+    Ok(Array::Owned(a.as_array().iter().copied().collect()))
+}
+
+fn vector<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, what: &str) -> PyResult<Vec<f64>> {
+    if let Ok(a) = obj.extract::<PyReadonlyArray1<'py, f64>>() {
+        return Ok(a.as_array().to_vec());
+    }
+    let np = py.import("numpy")?;
+    let conv = np
+        .call_method1("asarray", (obj,))
+        .and_then(|a| a.call_method1("astype", ("float64",)))
+        .map_err(|e| input_err(py, what, format!("cannot convert to a float64 array: {e}")))?;
+    let shape: Vec<usize> = conv.getattr("shape")?.extract()?;
+    if shape.len() != 1 {
+        return Err(to_py(
+            py,
+            CoreError::Shape {
+                what: what.into(),
+                expected: "a 1-D array".into(),
+                got: format!("shape {shape:?}"),
+            },
+        ));
+    }
+    let a: PyReadonlyArray1<'py, f64> = conv.extract()?;
+    Ok(a.as_array().to_vec())
+}
+
+fn pose_arg<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, what: &str) -> PyResult<Pose2> {
+    let v = vector(py, obj, what)?;
+    if v.len() != 3 {
+        return Err(to_py(
+            py,
+            CoreError::Shape {
+                what: what.into(),
+                expected: "3 values (x, y, theta)".into(),
+                got: format!("{} values", v.len()),
+            },
+        ));
+    }
+    Ok(Pose2::new(v[0], v[1], v[2]))
+}
+
+fn mat3<'py>(py: Python<'py>, m: &[[f64; 3]; 3]) -> Bound<'py, PyArray2<f64>> {
+    let v: Vec<f64> = m.iter().flatten().copied().collect();
+    Array2::from_shape_vec((3, 3), v).expect("3x3").into_pyarray(py)
+}
+
+// ---------------------------------------------------------------- MapIndex
+
+/// An immutable k-d tree over 2D map points with optional unit normals.
+#[pyclass(name = "MapIndex", module = "icploc._core", frozen)]
+struct PyMapIndex {
+    inner: Arc<core::MapIndex>,
+}
+
+#[pymethods]
+impl PyMapIndex {
+    #[new]
+    #[pyo3(signature = (points, normals=None))]
+    fn new(py: Python<'_>, points: &Bound<'_, PyAny>, normals: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let p = array2(py, points, 2, "map points")?;
+        let n = match normals {
+            Some(n) if !n.is_none() => Some(array2(py, n, 2, "map normals")?),
+            _ => None,
+        };
+        let pv = p.pairs().to_vec();
+        let nv = n.as_ref().map(|a| a.pairs().to_vec());
+        let idx = py
+            .detach(|| guarded(|| core::MapIndex::new(pv, nv)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(Self { inner: Arc::new(idx) })
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let b = self.inner.bounds();
+        format!(
+            "MapIndex({} points, normals={}, bounds=({:.3}, {:.3}, {:.3}, {:.3}))",
+            self.inner.len(),
+            if self.inner.has_normals() { "given" } else { "estimated" },
+            b[0],
+            b[1],
+            b[2],
+            b[3]
+        )
+    }
+
+    #[getter]
+    fn points<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        pairs_to_array(py, self.inner.points())
+    }
+
+    #[getter]
+    fn normals<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let inner = self.inner.clone();
+        py.detach(move || {
+            inner.normals();
+        });
+        pairs_to_array(py, self.inner.normals())
+    }
+
+    #[getter]
+    fn has_normals(&self) -> bool {
+        self.inner.has_normals()
+    }
+
+    #[getter]
+    fn bounds(&self) -> (f64, f64, f64, f64) {
+        let b = self.inner.bounds();
+        (b[0], b[1], b[2], b[3])
+    }
+
+    /// Median nearest-neighbour spacing of the map points (m).
+    #[getter]
+    fn spacing(&self) -> f64 {
+        self.inner.spacing()
+    }
+
+    fn nearest<'py>(
+        &self,
+        py: Python<'py>,
+        query: &Bound<'py, PyAny>,
+    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
+        let q = array2(py, query, 2, "query")?;
+        let qs = q.pairs();
+        core::check_finite("query", qs).map_err(|e| to_py(py, e))?;
+        let inner = self.inner.clone();
+        let (d, i): (Vec<f64>, Vec<i64>) = py.detach(|| {
+            qs.iter()
+                .map(|p| {
+                    let (d2, j) = inner.nearest(*p);
+                    (d2.sqrt(), j as i64)
+                })
+                .unzip()
+        });
+        Ok((d.into_pyarray(py), i.into_pyarray(py)))
+    }
+
+    fn within<'py>(
+        &self,
+        py: Python<'py>,
+        center: &Bound<'py, PyAny>,
+        radius: f64,
+    ) -> PyResult<Bound<'py, PyArray1<i64>>> {
+        let c = vector(py, center, "center")?;
+        if c.len() != 2 || !c.iter().all(|v| v.is_finite()) {
+            return Err(input_err(py, "center", format!("expected 2 finite values, got {c:?}")));
+        }
+        if !(radius >= 0.0 && radius.is_finite()) {
+            return Err(to_py(
+                py,
+                CoreError::InvalidConfig {
+                    field: "radius",
+                    value: radius.to_string(),
+                    reason: "must be non-negative and finite",
+                },
+            ));
+        }
+        let inner = self.inner.clone();
+        let v: Vec<i64> = py.detach(|| inner.within([c[0], c[1]], radius).into_iter().map(|i| i as i64).collect());
+        Ok(v.into_pyarray(py))
+    }
+
+    #[pyo3(signature = (pose, fov=std::f64::consts::PI, max_range=30.0, point_radius=None, tolerance=0.05, angular_resolution=0.0025))]
+    #[allow(clippy::too_many_arguments)]
+    fn visible<'py>(
+        &self,
+        py: Python<'py>,
+        pose: &Bound<'py, PyAny>,
+        fov: f64,
+        max_range: f64,
+        point_radius: Option<f64>,
+        tolerance: f64,
+        angular_resolution: f64,
+    ) -> PyResult<Bound<'py, PyArray1<i64>>> {
+        let pose = pose_arg(py, pose, "pose")?;
+        let inner = self.inner.clone();
+        let v = py
+            .detach(|| guarded(|| inner.visible(pose, fov, max_range, point_radius, tolerance, angular_resolution)))
+            .map_err(|e| to_py(py, e))?;
+        let v: Vec<i64> = v.into_iter().map(|i| i as i64).collect();
+        Ok(v.into_pyarray(py))
+    }
+}
+
+fn pairs_to_array<'py>(py: Python<'py>, p: &[[f64; 2]]) -> Bound<'py, PyArray2<f64>> {
+    let v: Vec<f64> = p.iter().flatten().copied().collect();
+    Array2::from_shape_vec((p.len(), 2), v).expect("N x 2").into_pyarray(py)
+}
+
+// ---------------------------------------------------------------- IcpConfig
+
+/// ICP settings (see icploc._core.pyi for the meaning of each field).
+#[pyclass(name = "IcpConfig", module = "icploc._core", get_all, set_all)]
+#[derive(Clone)]
+struct PyIcpConfig {
+    metric: String,
+    max_iterations: usize,
+    max_correspondence_distance: f64,
+    min_correspondence_distance: f64,
+    threshold_decay: f64,
+    trim_fraction: f64,
+    robust: String,
+    robust_scale: f64,
+    mse_threshold: f64,
+    mse_change: f64,
+    step_tolerance: f64,
+    min_inliers: usize,
+    min_inlier_ratio: f64,
+}
+
+impl Default for PyIcpConfig {
+    fn default() -> Self {
+        let d = core::IcpConfig::default();
+        Self::from_core(&d)
+    }
+}
+
+impl PyIcpConfig {
+    fn from_core(d: &core::IcpConfig) -> Self {
+        Self {
+            metric: match d.metric {
+                core::Metric::PointToPoint => "point_to_point",
+                core::Metric::PointToLine => "point_to_line",
+            }
+            .into(),
+            max_iterations: d.max_iterations,
+            max_correspondence_distance: d.max_correspondence_distance,
+            min_correspondence_distance: d.min_correspondence_distance,
+            threshold_decay: d.threshold_decay,
+            trim_fraction: d.trim_fraction,
+            robust: match d.robust {
+                core::Robust::None => "none",
+                core::Robust::Huber => "huber",
+                core::Robust::Cauchy => "cauchy",
+            }
+            .into(),
+            robust_scale: d.robust_scale,
+            mse_threshold: d.mse_threshold,
+            mse_change: d.mse_change,
+            step_tolerance: d.step_tolerance,
+            min_inliers: d.min_inliers,
+            min_inlier_ratio: d.min_inlier_ratio,
+        }
+    }
+
+    fn to_core(&self) -> core::Result<core::IcpConfig> {
+        let metric = match self.metric.as_str() {
+            "point_to_point" => core::Metric::PointToPoint,
+            "point_to_line" => core::Metric::PointToLine,
+            _ => {
+                return Err(CoreError::InvalidConfig {
+                    field: "metric",
+                    value: self.metric.clone(),
+                    reason: "must be 'point_to_point' or 'point_to_line'",
+                })
+            }
+        };
+        let robust = match self.robust.as_str() {
+            "none" => core::Robust::None,
+            "huber" => core::Robust::Huber,
+            "cauchy" => core::Robust::Cauchy,
+            _ => {
+                return Err(CoreError::InvalidConfig {
+                    field: "robust",
+                    value: self.robust.clone(),
+                    reason: "must be 'none', 'huber' or 'cauchy'",
+                })
+            }
+        };
+        let c = core::IcpConfig {
+            metric,
+            max_iterations: self.max_iterations,
+            max_correspondence_distance: self.max_correspondence_distance,
+            min_correspondence_distance: self.min_correspondence_distance,
+            threshold_decay: self.threshold_decay,
+            trim_fraction: self.trim_fraction,
+            robust,
+            robust_scale: self.robust_scale,
+            mse_threshold: self.mse_threshold,
+            mse_change: self.mse_change,
+            step_tolerance: self.step_tolerance,
+            min_inliers: self.min_inliers,
+            min_inlier_ratio: self.min_inlier_ratio,
+        };
+        c.validate()?;
+        Ok(c)
+    }
+
+    fn items(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("metric", format!("{:?}", self.metric)),
+            ("max_iterations", self.max_iterations.to_string()),
+            ("max_correspondence_distance", self.max_correspondence_distance.to_string()),
+            ("min_correspondence_distance", self.min_correspondence_distance.to_string()),
+            ("threshold_decay", self.threshold_decay.to_string()),
+            ("trim_fraction", self.trim_fraction.to_string()),
+            ("robust", format!("{:?}", self.robust)),
+            ("robust_scale", self.robust_scale.to_string()),
+            ("mse_threshold", self.mse_threshold.to_string()),
+            ("mse_change", self.mse_change.to_string()),
+            ("step_tolerance", self.step_tolerance.to_string()),
+            ("min_inliers", self.min_inliers.to_string()),
+            ("min_inlier_ratio", self.min_inlier_ratio.to_string()),
+        ]
+    }
+}
+
+#[pymethods]
+impl PyIcpConfig {
+    #[new]
+    #[pyo3(signature = (*, metric="point_to_line", max_iterations=50, max_correspondence_distance=1.0,
+        min_correspondence_distance=0.1, threshold_decay=0.6, trim_fraction=1.0, robust="none",
+        robust_scale=0.05, mse_threshold=1e-8, mse_change=1e-7, step_tolerance=1e-6, min_inliers=10,
+        min_inlier_ratio=0.0))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        metric: &str,
+        max_iterations: usize,
+        max_correspondence_distance: f64,
+        min_correspondence_distance: f64,
+        threshold_decay: f64,
+        trim_fraction: f64,
+        robust: &str,
+        robust_scale: f64,
+        mse_threshold: f64,
+        mse_change: f64,
+        step_tolerance: f64,
+        min_inliers: usize,
+        min_inlier_ratio: f64,
+    ) -> PyResult<Self> {
+        let c = Self {
+            metric: metric.into(),
+            max_iterations,
+            max_correspondence_distance,
+            min_correspondence_distance,
+            threshold_decay,
+            trim_fraction,
+            robust: robust.into(),
+            robust_scale,
+            mse_threshold,
+            mse_change,
+            step_tolerance,
+            min_inliers,
+            min_inlier_ratio,
+        };
+        c.to_core().map_err(|e| to_py(py, e))?;
+        Ok(c)
+    }
+
+    fn validate(&self, py: Python<'_>) -> PyResult<()> {
+        self.to_core().map(|_| ()).map_err(|e| to_py(py, e))
+    }
+
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        d.set_item("metric", &self.metric)?;
+        d.set_item("max_iterations", self.max_iterations)?;
+        d.set_item("max_correspondence_distance", self.max_correspondence_distance)?;
+        d.set_item("min_correspondence_distance", self.min_correspondence_distance)?;
+        d.set_item("threshold_decay", self.threshold_decay)?;
+        d.set_item("trim_fraction", self.trim_fraction)?;
+        d.set_item("robust", &self.robust)?;
+        d.set_item("robust_scale", self.robust_scale)?;
+        d.set_item("mse_threshold", self.mse_threshold)?;
+        d.set_item("mse_change", self.mse_change)?;
+        d.set_item("step_tolerance", self.step_tolerance)?;
+        d.set_item("min_inliers", self.min_inliers)?;
+        d.set_item("min_inlier_ratio", self.min_inlier_ratio)?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let parts: Vec<String> = self.items().into_iter().map(|(k, v)| format!("{k}={v}")).collect();
+        format!("IcpConfig({})", parts.join(", "))
+    }
+
+    fn __eq__(&self, other: &Bound<'_, PyAny>) -> bool {
+        match other.extract::<PyRef<'_, PyIcpConfig>>() {
+            Ok(o) => self.items() == o.items(),
+            Err(_) => false,
+        }
+    }
+}
+
+// ---------------------------------------------------------------- IcpResult
+
+/// What one ICP alignment did.
+#[pyclass(name = "IcpResult", module = "icploc._core", frozen)]
+struct PyIcpResult {
+    inner: core::IcpResult,
+}
+
+#[pymethods]
+impl PyIcpResult {
+    #[getter]
+    fn pose(&self) -> (f64, f64, f64) {
+        let p = self.inner.pose;
+        (p.x, p.y, p.theta)
+    }
+    #[getter]
+    fn converged(&self) -> bool {
+        self.inner.converged
+    }
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.inner.iterations
+    }
+    #[getter]
+    fn mse(&self) -> f64 {
+        self.inner.mse
+    }
+    #[getter]
+    fn inliers(&self) -> usize {
+        self.inner.inliers
+    }
+    #[getter]
+    fn num_points(&self) -> usize {
+        self.inner.num_points
+    }
+    #[getter]
+    fn inlier_ratio(&self) -> f64 {
+        self.inner.inlier_ratio()
+    }
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat3(py, &self.inner.covariance)
+    }
+    #[getter]
+    fn information<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        mat3(py, &self.inner.information)
+    }
+    #[getter]
+    fn degeneracy(&self) -> f64 {
+        self.inner.degeneracy
+    }
+    #[getter]
+    fn degenerate_direction(&self) -> (f64, f64) {
+        let d = self.inner.degenerate_direction;
+        (d[0], d[1])
+    }
+    #[getter]
+    fn termination(&self) -> &'static str {
+        self.inner.termination.as_str()
+    }
+
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        d.set_item("pose", self.pose())?;
+        d.set_item("converged", self.inner.converged)?;
+        d.set_item("iterations", self.inner.iterations)?;
+        d.set_item("mse", self.inner.mse)?;
+        d.set_item("inliers", self.inner.inliers)?;
+        d.set_item("num_points", self.inner.num_points)?;
+        d.set_item("inlier_ratio", self.inner.inlier_ratio())?;
+        d.set_item("covariance", self.covariance(py))?;
+        d.set_item("information", self.information(py))?;
+        d.set_item("degeneracy", self.inner.degeneracy)?;
+        d.set_item("degenerate_direction", self.degenerate_direction())?;
+        d.set_item("termination", self.termination())?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let p = self.inner.pose;
+        format!(
+            "IcpResult(pose=({:.6}, {:.6}, {:.6}), converged={}, iterations={}, mse={:.3e}, inliers={}/{}, degeneracy={:.3}, termination='{}')",
+            p.x,
+            p.y,
+            p.theta,
+            if self.inner.converged { "True" } else { "False" },
+            self.inner.iterations,
+            self.inner.mse,
+            self.inner.inliers,
+            self.inner.num_points,
+            self.inner.degeneracy,
+            self.inner.termination.as_str()
+        )
+    }
+}
+
+// ---------------------------------------------------------------- functions
+
+fn config_arg(py: Python<'_>, config: Option<PyRef<'_, PyIcpConfig>>) -> PyResult<core::IcpConfig> {
+    match config {
+        Some(c) => c.to_core().map_err(|e| to_py(py, e)),
+        None => Ok(core::IcpConfig::default()),
+    }
+}
+
+/// Align an (N, 2) scan in the sensor frame to the map, starting from `initial_pose`.
+#[pyfunction]
+#[pyo3(signature = (scan_xy, index, initial_pose, config=None))]
+fn icp(
+    py: Python<'_>,
+    scan_xy: &Bound<'_, PyAny>,
+    index: &Bound<'_, PyMapIndex>,
+    initial_pose: &Bound<'_, PyAny>,
+    config: Option<PyRef<'_, PyIcpConfig>>,
+) -> PyResult<PyIcpResult> {
+    let scan = array2(py, scan_xy, 2, "scan_xy")?;
+    let pose = pose_arg(py, initial_pose, "initial_pose")?;
+    let cfg = config_arg(py, config)?;
+    let idx = index.get().inner.clone();
+    let s = scan.pairs();
+    let r = py
+        .detach(|| guarded(|| core::align(s, &idx, pose, &cfg)))
+        .map_err(|e| to_py(py, e))?;
+    Ok(PyIcpResult { inner: r })
+}
+
+/// Align many (scan, initial pose) pairs in parallel with the GIL released.
+#[pyfunction]
+#[pyo3(signature = (scans, index, initial_poses, config=None, num_threads=None))]
+fn icp_batch(
+    py: Python<'_>,
+    scans: &Bound<'_, PyAny>,
+    index: &Bound<'_, PyMapIndex>,
+    initial_poses: &Bound<'_, PyAny>,
+    config: Option<PyRef<'_, PyIcpConfig>>,
+    num_threads: Option<usize>,
+) -> PyResult<Vec<PyIcpResult>> {
+    let cfg = config_arg(py, config)?;
+    let mut arrays = Vec::new();
+    for (k, s) in scans.try_iter()?.enumerate() {
+        arrays.push(array2(py, &s?, 2, &format!("scans[{k}]"))?);
+    }
+    let poses_arr = array2(py, initial_poses, 3, "initial_poses")?;
+    let poses: Vec<Pose2> = poses_arr
+        .flat()
+        .chunks_exact(3)
+        .map(|c| Pose2::new(c[0], c[1], c[2]))
+        .collect();
+    let slices: Vec<&[[f64; 2]]> = arrays.iter().map(|a| a.pairs()).collect();
+    let idx = index.get().inner.clone();
+    let results = py
+        .detach(|| guarded(|| core::align_batch(&slices, &idx, &poses, &cfg, num_threads)))
+        .map_err(|e| to_py(py, e))?;
+    results
+        .into_iter()
+        .enumerate()
+        .map(|(k, r)| match r {
+            Ok(inner) => Ok(PyIcpResult { inner }),
+            Err(e) => {
+                let e = match e {
+                    CoreError::InvalidInput { what, reason } => CoreError::InvalidInput {
+                        what: format!("pair {k}: {what}"),
+                        reason,
+                    },
+                    other => other,
+                };
+                Err(to_py(py, e))
+            }
+        })
+        .collect()
+}
+
+/// Ranges from `pose` along each beam to the nearest of the (K, 4) segments.
+#[pyfunction]
+fn raycast<'py>(
+    py: Python<'py>,
+    segments: &Bound<'py, PyAny>,
+    pose: &Bound<'py, PyAny>,
+    angles: &Bound<'py, PyAny>,
+    max_range: f64,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let seg = array2(py, segments, 4, "segments")?;
+    let pose = pose_arg(py, pose, "pose")?;
+    let ang = vector(py, angles, "angles")?;
+    let f = seg.flat();
+    let segs: Vec<[f64; 4]> = f.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+    let r = py
+        .detach(|| guarded(|| core::raycast::raycast(&segs, pose, &ang, max_range)))
+        .map_err(|e| to_py(py, e))?;
+    Ok(r.into_pyarray(py))
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("IcpError", py.get_type::<IcpError>())?;
+    m.add("InvalidInputError", invalid_input(py).bind(py))?;
+    m.add("EmptyMapError", empty_map(py).bind(py))?;
+    m.add("InvalidConfigError", invalid_config(py).bind(py))?;
+    m.add_class::<PyMapIndex>()?;
+    m.add_class::<PyIcpConfig>()?;
+    m.add_class::<PyIcpResult>()?;
+    m.add_function(wrap_pyfunction!(icp, m)?)?;
+    m.add_function(wrap_pyfunction!(icp_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(raycast, m)?)?;
+    Ok(())
+}
