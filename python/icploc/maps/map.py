@@ -403,8 +403,8 @@ class Map:
         with field of view ``fov`` (radians, centred on theta) and ``max_range`` could see.
 
         Default: the Rust z-buffer (:meth:`icploc.MapIndex.visible`) — fast, per scan; each
-        sample hides an arc of half-width ``point_radius`` (default ``0.75 * spacing``, so
-        neighbouring samples leave no gaps). ``exact=True``: ray-segment tests in numpy
+        sample hides an arc of half-width ``point_radius`` (default ``spacing / 2``: the
+        piece of wall it stands for). ``exact=True``: ray-segment tests in numpy
         against the lines plus a ``spacing``-long piece of wall at every non-line sample
         (slower; a reference).
         """
@@ -420,7 +420,7 @@ class Map:
                 tangent = np.column_stack([m[:, 1], -m[:, 0]]) * (0.5 * s)
                 walls = np.concatenate([walls, np.column_stack([q - tangent, q + tangent])])
             return visible_exact(p, walls, pose, fov, max_range, tolerance=tolerance)
-        radius = 0.75 * s if point_radius is None else float(point_radius)
+        radius = 0.5 * s if point_radius is None else float(point_radius)
         return np.asarray(
             self.index(s).visible(
                 pose, fov=fov, max_range=max_range, point_radius=radius, tolerance=tolerance
