@@ -198,7 +198,7 @@ def lab(people: int = 3, seed: int = 7) -> World:
     walls += _rect(-3.45, -3.45, -2.25, -2.75)
     walls += _rect(2.0, -3.45, 3.45, -2.85)
     walls += _rect(2.95, 0.2, 3.45, 1.7)
-    walls += _rect(-0.35, -2.0, 0.15, -1.5)
+    walls += _rect(-3.25, -1.0, -2.75, -0.5)
     walls += [[-3.75, 1.2, -2.6, 1.2]]
     rng = np.random.default_rng(seed)
     persons = []
@@ -281,7 +281,7 @@ def lab_random_walk(length: float = 22.0, seed: int = 3) -> NDArray[np.float64]:
     while total < length - 3.0:
         for _ in range(100):
             q = (rng.uniform(*free[0]), rng.uniform(*free[1]))
-            if not (-0.9 < q[0] < 0.7 and -2.5 < q[1] < -1.0) and math.dist(q, pts[-1]) > 1.2:
+            if math.dist(q, pts[-1]) > 1.2:
                 break
         total += math.dist(q, pts[-1])
         pts.append(q)
