@@ -333,6 +333,67 @@ def _local_normals(
     return n
 
 
+def _consistent(surface: FloatArray, seg: _Seg) -> _Seg:
+    """Make a thin segment consistent with its raster.
+
+    A line through a set of cells must pass within ``h = (|n_x| + |n_y|) / 2`` of each cell
+    centre (the half-width of a cell seen along the line's normal n). Total least squares can
+    break that on short, nearly axis-parallel staircases (one step: the fit tilts towards the
+    step and leaves the end cells). Then take instead the centroid of the set of lines
+    ``y' = m x' + b`` (local frame of the fit) that pass through every cell: the middle of what
+    the raster allows. Unchanged when that set is empty (a noisy wall, not a digital line).
+    """
+    from scipy.optimize import linprog
+    from scipy.spatial import ConvexHull, HalfspaceIntersection
+
+    pts = surface[seg.idx]
+    u = seg.u
+    nrm = np.array([-u[1], u[0]])
+    c = pts.mean(axis=0)
+    x = (pts - c) @ u
+    y = (pts - c) @ nrm
+    h = 0.5 * (abs(nrm[0]) + abs(nrm[1]))
+    # |y - m x - b| <= h  as  A [m, b] <= rhs
+    one = np.ones_like(x)
+    a_ub = np.vstack([np.column_stack([-x, -one]), np.column_stack([x, one])])
+    rhs = np.concatenate([h - y, h + y])
+    # interior point: maximise the margin t in A [m, b] + t <= rhs
+    lp = linprog(
+        [0.0, 0.0, -1.0],
+        A_ub=np.column_stack([a_ub, np.ones(len(a_ub))]),
+        b_ub=rhs,
+        bounds=[(-1.0, 1.0), (None, None), (None, 1.0)],
+        method="highs",
+    )
+    if lp.status != 0 or lp.x[2] <= 1e-9:
+        return seg
+    try:
+        hs = HalfspaceIntersection(np.column_stack([a_ub, -rhs]), lp.x[:2])
+        v = hs.intersections[ConvexHull(hs.intersections).vertices]
+    except Exception:  # noqa: BLE001 - degenerate (qhull): keep the least-squares fit
+        return seg
+    xs, ys = v[:, 0], v[:, 1]
+    xn, yn = np.roll(xs, -1), np.roll(ys, -1)
+    cr = xs * yn - xn * ys
+    area = cr.sum() / 2.0
+    if abs(area) < 1e-15:
+        return seg
+    m = float(((xs + xn) * cr).sum() / (6.0 * area))
+    b = float(((ys + yn) * cr).sum() / (6.0 * area))
+    d = u + m * nrm
+    d = d / np.hypot(d[0], d[1])
+    c2 = c + b * nrm
+    t = (pts - c2) @ d
+    r = (pts - c2) @ np.array([-d[1], d[0]])
+    return _Seg(
+        c2 + d * t.min(),
+        c2 + d * t.max(),
+        seg.idx,
+        float(np.sqrt(np.mean(r * r))),
+        float(np.max(np.abs(r))),
+    )
+
+
 def _free_count(free: NDArray[np.bool_], p: FloatArray) -> int:
     h, w = free.shape
     ix = np.rint(p[:, 0]).astype(int)
@@ -418,6 +479,8 @@ def fit_lines(
     lines = np.zeros((len(kept), 4))
     for k, s in enumerate(kept):
         explained[f.band(s.a, s.b, 1.0, reach=0.5)] = True
+        if s.maxdev > 0.5 and s.maxdev < 1.0:
+            s = kept[k] = _consistent(surface, s)
         u = s.u
         a, b = s.a - extend * u, s.b + extend * u
         # orient so the left normal faces free space
