@@ -408,3 +408,52 @@ def test_cli_show_info_prepare_convert(tmp_path: Path) -> None:
     assert len(Map.load(tmp_path / "w.npz").lines) >= 5
     res = r.invoke(map_app, ["info", str(tmp_path / "missing.yaml")])
     assert res.exit_code == 2 and "not found" in res.output
+
+
+def test_dxf_blocks_and_arcs(tmp_path: Path) -> None:
+    doc = ezdxf.new("R2010")
+    doc.header["$INSUNITS"] = 6
+    blk = doc.blocks.new("DESK")
+    blk.add_line((0, 0), (1, 0))
+    msp = doc.modelspace()
+    msp.add_blockref("DESK", (2, 3))
+    msp.add_blockref("DESK", (5, 1), dxfattribs={"rotation": 90})
+    msp.add_arc((0, 0), 2.0, 0, 90)
+    doc.saveas(tmp_path / "b.dxf")
+    lines = Map.load(tmp_path / "b.dxf").lines
+    assert np.any(np.all(np.isclose(lines, [2, 3, 3, 3]), axis=1))
+    assert np.any(np.all(np.isclose(lines, [5, 1, 5, 2], atol=1e-9), axis=1))
+    r1, r2 = np.hypot(lines[:, 0], lines[:, 1]), np.hypot(lines[:, 2], lines[:, 3])
+    arc = lines[(np.abs(r1 - 2.0) < 0.1) & (np.abs(r2 - 2.0) < 0.1)]
+    assert len(arc) == len(lines) - 2
+    assert len(arc) >= 4
+    np.testing.assert_allclose(np.hypot(arc[:, 0], arc[:, 1]), 2.0, atol=1e-3)
+
+
+def test_to_ros_errors(tmp_path: Path) -> None:
+    with pytest.raises(MapError, match="no lines"):
+        Map.from_points(np.zeros((3, 2))).to_ros(tmp_path / "a.yaml", 0.05)
+    with pytest.raises(MapError, match="origin"):
+        Map.from_lines(WALLS).to_ros(tmp_path / "b.yaml", 0.05, origin=(1.0, 1.0, 0.0))
+    with pytest.raises(MapError, match="spacing"):
+        Map.from_lines(WALLS).to_ros(tmp_path / "c.yaml", 0.0)
+
+
+def test_to_ros_png_with_explicit_origin(tmp_path: Path) -> None:
+    y = Map.from_lines(WALLS).to_ros(
+        tmp_path / "w.yaml", 0.1, origin=(-0.55, -0.55), image_format="png"
+    )
+    assert (tmp_path / "w.png").is_file()
+    m = Map.load(y)
+    assert m.origin == (-0.55, -0.55, 0.0)
+    x0, y0, x1, y1 = m.bounds
+    assert abs(x0) < 0.1 and abs(y0) < 0.1 and abs(x1 - 8.0) < 0.1 and abs(y1 - 5.0) < 0.1
+
+
+def test_info_reports_counts() -> None:
+    m = Map.from_lines(WALLS)
+    info = m.info(spacing=0.5)
+    length = float(np.hypot(WALLS[:, 2] - WALLS[:, 0], WALLS[:, 3] - WALLS[:, 1]).sum())
+    assert info["lines"] == 5 and info["line_length_m"] == pytest.approx(length, abs=1e-3)
+    assert info["samples"]["total"] == len(m.sample(0.5)[0])
+    assert info["bounds"] == [0.0, 0.0, 8.0, 5.0]
