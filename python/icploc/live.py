@@ -139,6 +139,8 @@ class PursuitPlan:
         err = wrap_angle(math.atan2(ty - y, tx - x) - th)
         w = max(-self.omega_max, min(self.omega_max, 2.5 * err))
         v = self.speed * max(0.0, math.cos(err)) ** 4 * min(1.0, d / 0.4 + 0.3)
+        if self.i == len(self.path) - 1:  # brake in time to stop on the last waypoint
+            v = min(v, 0.7 * math.sqrt(2.0 * 1.0 * d) + 0.05)
         return (v, w)
 
 
@@ -243,7 +245,11 @@ def run_simulated(
             "laser_theta": sess.laser_offset[2],
         }
     )
-    m = map_ if map_ is not None else Map.from_lines(world.lines)
+    m = (
+        (Map.load(map_) if isinstance(map_, (str, Path)) else map_)
+        if map_ is not None
+        else Map.from_lines(world.lines)
+    )
     loc = Localizer(m, cfg, initial_pose=start)
     rec = Recorder(record) if record is not None else None
     tum = open(out, "w") if out is not None else None  # noqa: SIM115

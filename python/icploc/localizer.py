@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -251,6 +252,10 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
 
     if isinstance(map_, MapIndex):
         return map_
+    if isinstance(map_, (str, os.PathLike)):
+        from icploc.maps import Map
+
+        map_ = Map.load(map_)
     if hasattr(map_, "index") and callable(map_.index):
         return map_.index(config.map.spacing)
     pts = np.asarray(map_, dtype=np.float64)

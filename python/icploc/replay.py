@@ -1,0 +1,312 @@
+"""``icploc replay``: localize a recorded log against a map, deterministically, as fast
+as the machine allows.
+
+The log (CARMEN, ROS 1 / ROS 2 bag, or our raw-byte recording; :func:`icploc.logs.open_log`)
+is merged in time order; each scan is localized with the odometry interpolated to its
+stamp (a scan waits for the first odometry sample at or after it). One TUM row is
+written per scan with the scan's stamp, also while lost (the best guess).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icploc.config import LocalizerConfig
+from icploc.live import tum_row
+from icploc.localizer import Estimate, Localizer, run
+from icploc.types import Odometry, Scan
+
+__all__ = ["ReplayResult", "load_map", "parse_pose", "read_tum", "replay"]
+
+
+@dataclass
+class ReplayResult:
+    log: str
+    estimates: list[Estimate]
+    odometry: list[Odometry]
+    load_time: float  #: seconds to read and parse the log
+    localize_time: float  #: seconds in the localization loop
+    status_counts: dict[str, int]
+    metrics: dict[str, float] = field(default_factory=dict)
+    files: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def scans(self) -> int:
+        return len(self.estimates)
+
+    @property
+    def total_time(self) -> float:
+        return self.load_time + self.localize_time
+
+    @property
+    def rate(self) -> float:
+        """Scans per second end to end (parse + localize)."""
+        return self.scans / self.total_time if self.total_time > 0 else float("inf")
+
+    @property
+    def poses(self) -> NDArray[np.float64]:
+        return np.array([e.pose for e in self.estimates], dtype=np.float64).reshape(-1, 3)
+
+    @property
+    def stamps(self) -> NDArray[np.float64]:
+        return np.array([e.stamp for e in self.estimates], dtype=np.float64)
+
+    def summary(self) -> str:
+        c = self.status_counts
+        parts = [
+            f"{self.scans} scans in {self.total_time:.2f} s "
+            f"({self.rate:,.0f} scans/s end to end; parse {self.load_time:.2f} s, "
+            f"localize {self.localize_time:.2f} s)",
+            "status: " + ", ".join(f"{k} {c.get(k, 0)}" for k in ("tracking", "degraded", "lost")),
+        ]
+        if self.metrics:
+            parts.append(
+                "vs truth: "
+                + ", ".join(
+                    f"{k} {v * 1000:.1f} mm" if k.endswith("_m") else f"{k} {v:.3f}"
+                    for k, v in self.metrics.items()
+                )
+            )
+        return "\n".join(parts)
+
+
+def parse_pose(text: str) -> tuple[float, float, float]:
+    """``"X,Y,THETA"`` (metres, radians) → a pose; a clear error otherwise."""
+    parts = [p for p in text.replace(" ", ",").split(",") if p]
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError:
+        raise ValueError(f"initial pose must be X,Y,THETA (numbers), got {text!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise ValueError(f"initial pose must be three finite numbers X,Y,THETA, got {text!r}")
+    return (vals[0], vals[1], vals[2])
+
+
+def read_tum(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A TUM trajectory as (stamps (N,), poses (N, 3)); uses :mod:`icploc.trajectory`
+    when present. Errors name the file and line."""
+    try:
+        from icploc import trajectory as tr
+
+        reader = getattr(tr, "read_tum", None)
+        if reader is not None:
+            got = reader(path)
+            if isinstance(got, tuple) and len(got) == 2:
+                return np.asarray(got[0], dtype=np.float64), np.asarray(got[1], dtype=np.float64)
+            if hasattr(got, "stamps") and hasattr(got, "poses"):
+                return np.asarray(got.stamps, dtype=np.float64), np.asarray(
+                    got.poses, dtype=np.float64
+                )
+    except ImportError:
+        pass
+    stamps: list[float] = []
+    poses: list[tuple[float, float, float]] = []
+    with open(path) as f:
+        for n, line in enumerate(f, 1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            tok = s.split()
+            if len(tok) != 8:
+                raise ValueError(
+                    f"{path}:{n}: a TUM row has 8 fields (stamp x y z qx qy qz qw), got {len(tok)}"
+                )
+            try:
+                t, x, y, _z, qx, qy, qz, qw = (float(v) for v in tok)
+            except ValueError:
+                raise ValueError(f"{path}:{n}: not a number in {s!r}") from None
+            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+            stamps.append(t)
+            poses.append((x, y, yaw))
+    return np.array(stamps), np.array(poses).reshape(-1, 3)
+
+
+def load_map(map_arg: Any) -> Any:
+    """A Map from a path (anything ``icploc.Map.load`` reads), or pass a Map / MapIndex through."""
+    if isinstance(map_arg, (str, Path)):
+        from icploc.maps import Map
+
+        return Map.load(map_arg)
+    return map_arg
+
+
+def _metrics(
+    stamps: NDArray[np.float64],
+    poses: NDArray[np.float64],
+    t_true: NDArray[np.float64],
+    p_true: NDArray[np.float64],
+) -> dict[str, float]:
+    """ATE (positions, both in the map frame: no alignment) and RPE over 1 m segments."""
+    if len(t_true) < 2 or len(stamps) == 0:
+        return {}
+    order = np.argsort(t_true)
+    t_true, p_true = t_true[order], p_true[order]
+    inside = (stamps >= t_true[0]) & (stamps <= t_true[-1])
+    if not inside.any():
+        return {}
+    st, ps = stamps[inside], poses[inside]
+    tx = np.interp(st, t_true, p_true[:, 0])
+    ty = np.interp(st, t_true, p_true[:, 1])
+    th_u = np.unwrap(p_true[:, 2])
+    tth = np.interp(st, t_true, th_u)
+    e = np.hypot(ps[:, 0] - tx, ps[:, 1] - ty)
+    eth = np.abs(np.angle(np.exp(1j * (ps[:, 2] - tth))))
+    out = {
+        "ate_rmse_m": float(np.sqrt(np.mean(e**2))),
+        "ate_median_m": float(np.median(e)),
+        "ate_p95_m": float(np.percentile(e, 95)),
+        "ate_max_m": float(e.max()),
+        "heading_max_deg": float(np.degrees(eth.max())),
+    }
+    # RPE: relative translation error over ~1 m of travel
+    d = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(tx), np.diff(ty)))])
+    j = np.searchsorted(d, d + 1.0)
+    ok = j < len(d)
+    if ok.any():
+        i = np.nonzero(ok)[0]
+        j = j[ok]
+        rel_true = np.column_stack([tx[j] - tx[i], ty[j] - ty[i]])
+        rel_est = ps[j, :2] - ps[i, :2]
+        out["rpe_1m_rmse_m"] = float(np.sqrt(np.mean(np.sum((rel_est - rel_true) ** 2, axis=1))))
+    return out
+
+
+def replay(
+    log: str | Path | Sequence[Scan | Odometry],
+    map_: Any,
+    *,
+    config: LocalizerConfig | None = None,
+    initial_pose: Sequence[float] | None = None,
+    out: str | Path | None = None,
+    truth: str | Path | tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    plot: str | Path | None = None,
+    on_progress: Callable[[int, int], None] | None = None,
+    log_options: dict[str, Any] | None = None,
+) -> ReplayResult:
+    """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
+    ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
+    else ``config.localizer.initial_pose``, else the first odometry pose, else the origin."""
+    cfg = config or LocalizerConfig()
+    t0 = time.perf_counter()
+    name = str(log) if isinstance(log, (str, Path)) else "<memory>"
+    if isinstance(log, (str, Path)):
+        from icploc.logs import open_log
+
+        data = open_log(log, **(log_options or {}))
+        scans = list(data.scans)
+        odoms = list(data.odometry)
+    else:
+        scans = [m for m in log if isinstance(m, Scan)]
+        odoms = [m for m in log if isinstance(m, Odometry)]
+    load_time = time.perf_counter() - t0
+    if not scans:
+        raise ValueError(f"{name}: the log holds no laser scans")
+
+    t_true = p_true = None
+    if truth is not None:
+        t_true, p_true = read_tum(truth) if isinstance(truth, (str, Path)) else truth
+        t_true = np.asarray(t_true, dtype=np.float64)
+        p_true = np.asarray(p_true, dtype=np.float64).reshape(-1, 3)
+
+    if initial_pose is None:
+        if t_true is not None and len(t_true):
+            k = int(np.argmin(np.abs(t_true - scans[0].stamp)))
+            initial_pose = tuple(p_true[k])  # type: ignore[index]
+        elif cfg.localizer.initial_pose is not None:
+            initial_pose = cfg.localizer.initial_pose
+        elif odoms:
+            initial_pose = odoms[0].pose
+        else:
+            initial_pose = (0.0, 0.0, 0.0)
+
+    m = load_map(map_)
+    t1 = time.perf_counter()
+    loc = Localizer(m, cfg, initial_pose=initial_pose)
+    n = len(scans)
+    done = [0]
+    step = max(1, n // 200)
+
+    def progress(_e: Estimate) -> None:
+        done[0] += 1
+        if on_progress is not None and (done[0] % step == 0 or done[0] == n):
+            on_progress(done[0], n)
+
+    from icploc.logs import merge_in_time
+
+    estimates = run(loc, merge_in_time(scans, odoms), progress)
+    localize_time = time.perf_counter() - t1
+    res = ReplayResult(
+        log=name,
+        estimates=estimates,
+        odometry=odoms,
+        load_time=load_time,
+        localize_time=localize_time,
+        status_counts=dict(Counter(e.status.value for e in estimates)),
+    )
+    if out is not None:
+        p = Path(out)
+        with open(p, "w") as f:
+            f.writelines(tum_row(e.stamp, e.pose) for e in estimates)
+        res.files["trajectory"] = p
+    if t_true is not None and p_true is not None:
+        res.metrics = _metrics(res.stamps, res.poses, t_true, p_true)
+    if plot is not None:
+        res.files["plot"] = plot_replay(
+            res, m, plot, truth=(t_true, p_true) if t_true is not None else None
+        )
+    return res
+
+
+def plot_replay(
+    res: ReplayResult,
+    map_: Any,
+    path: str | Path,
+    truth: tuple[Any, Any] | None = None,
+) -> Path:
+    """The map with the odometry, localized (and true) trajectories, like Fig. 9–11."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from icploc.se2 import between, compose
+
+    fig, ax = plt.subplots(figsize=(8, 8), constrained_layout=True)
+    lines = getattr(map_, "lines", None)
+    if lines is not None and len(lines):
+        for x1, y1, x2, y2 in np.asarray(lines):
+            ax.plot([x1, x2], [y1, y2], color="k", lw=0.8)
+    elif hasattr(map_, "points"):
+        pts = np.asarray(map_.points)
+        ax.plot(pts[:, 0], pts[:, 1], ",", color="k")
+    P = res.poses
+    ests = res.estimates
+    odo0 = next((e.odometry for e in ests if e.odometry is not None), None)
+    if odo0 is not None:
+        start = ests[0].pose
+        odo = np.array(
+            [compose(start, between(odo0, e.odometry)) for e in ests if e.odometry is not None]
+        )
+        ax.plot(odo[:, 0], odo[:, 1], color="tab:red", lw=0.8, label="odometry")
+    if truth is not None:
+        ax.plot(truth[1][:, 0], truth[1][:, 1], color="0.5", ls="--", lw=0.8, label="truth")
+    ax.plot(P[:, 0], P[:, 1], color="tab:blue", lw=1.0, label="localized")
+    lost = np.array([e.status.value == "lost" for e in ests])
+    if lost.any():
+        ax.plot(P[lost, 0], P[lost, 1], ".", color="tab:orange", ms=2, label="lost")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(Path(res.log).name)
+    p = Path(path)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
