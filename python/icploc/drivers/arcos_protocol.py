@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from icploc.drivers.byteclock import ByteClock
 from icploc.types import Odometry
 
 HEADER = b"\xfa\xfb"
@@ -192,7 +193,7 @@ class PacketParser:
         self.byte_time = byte_time
         self.stats = PacketStats()
         self._buf = bytearray()
-        self._stamps: list[tuple[int, float]] = []  # (end offset, stamp of last byte)
+        self._clock = ByteClock()
 
     @property
     def buffered(self) -> int:
@@ -200,16 +201,7 @@ class PacketParser:
 
     def reset(self) -> None:
         self._buf.clear()
-        self._stamps.clear()
-
-    def _time_of(self, i: int) -> float:
-        prev = None
-        for end, st in self._stamps:
-            if i < end:
-                t = st - self.byte_time * (end - 1 - i)
-                return t if prev is None else max(t, prev)
-            prev = st
-        return self._stamps[-1][1] if self._stamps else 0.0
+        self._clock.clear()
 
     def feed(self, data: bytes, stamp: float = 0.0) -> list[Packet]:
         out: list[Packet] = []
@@ -219,7 +211,7 @@ class PacketParser:
         st.bytes_in += len(data)
         buf = self._buf
         buf += data
-        self._stamps.append((len(buf), stamp))
+        self._clock.add(len(buf), stamp, self.byte_time)
         pos = 0
         end = len(buf)
         while pos < end:
@@ -253,11 +245,11 @@ class PacketParser:
                 pos += 1
                 continue
             st.packets += 1
-            out.append(Packet(payload, self._time_of(pos)))
+            out.append(Packet(payload, self._clock.time_of(pos)))
             pos += total
         if pos:
             del buf[:pos]
-            self._stamps = [(e - pos, s) for e, s in self._stamps if e - pos > 0]
+            self._clock.consume(pos)
         return out
 
 

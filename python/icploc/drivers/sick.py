@@ -214,10 +214,17 @@ class SickLaser:
             except (ValueError, OSError, serial.SerialException):
                 continue  # e.g. 500 kBd not settable on this line
             self._flush_input()
+            naks = self.counters["naks"]
             try:
                 self._mode(sp.MODE_ON_REQUEST, retries=1)
             except SickTimeout:
-                continue
+                if self.counters["naks"] == naks:
+                    continue
+                # NAKs prove a device at this baud rate: keep trying here
+                try:
+                    self._mode(sp.MODE_ON_REQUEST)
+                except SickTimeout:
+                    continue
             found = baud
             break
         if found is None:

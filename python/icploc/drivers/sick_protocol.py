@@ -13,13 +13,13 @@ Frame (§A.2)::
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.drivers.byteclock import ByteClock
 from icploc.types import (
     BEAM_DAZZLE,
     BEAM_FIELD_A,
@@ -155,47 +155,6 @@ class ParserStats:
         return dict(self.__dict__)
 
 
-class _ByteClock:
-    """Arrival time of each buffered byte, from chunk stamps (time of a chunk's last
-    byte), back-dated by the byte time but never before the previous chunk's stamp."""
-
-    def __init__(self) -> None:
-        self._ends: list[int] = []
-        self._stamps: list[float] = []
-        self._floors: list[float] = []
-        self._byte_times: list[float] = []
-
-    def clear(self) -> None:
-        self._ends.clear()
-        self._stamps.clear()
-        self._floors.clear()
-        self._byte_times.clear()
-
-    def add(self, end: int, stamp: float, byte_time: float) -> None:
-        floor = self._stamps[-1] if self._stamps else -math.inf
-        self._ends.append(end)
-        self._stamps.append(stamp)
-        self._floors.append(floor)
-        self._byte_times.append(byte_time)
-
-    def time_of(self, i: int) -> float:
-        k = bisect.bisect_right(self._ends, i)
-        if k >= len(self._ends):
-            k = len(self._ends) - 1
-        t = self._stamps[k] - self._byte_times[k] * (self._ends[k] - 1 - i)
-        return max(t, self._floors[k]) if self._floors[k] > -math.inf else t
-
-    def consume(self, n: int) -> None:
-        ends = [e - n for e in self._ends]
-        k = 0
-        while k < len(ends) and ends[k] <= 0:
-            k += 1
-        self._ends = ends[k:]
-        self._stamps = self._stamps[k:]
-        self._floors = self._floors[k:]
-        self._byte_times = self._byte_times[k:]
-
-
 @dataclass
 class TelegramParser:
     """Incremental telegram finder for an arbitrary byte stream (§A.4).
@@ -226,7 +185,7 @@ class TelegramParser:
                 frozenset(range(0x00, 0x80)) if self.device_side else frozenset(range(0x80, 0x85))
             )
         self._buf = bytearray()
-        self._clock = _ByteClock()
+        self._clock = ByteClock()
         self._min_len = 1 if self.device_side else 2
 
     @property

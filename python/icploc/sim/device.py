@@ -204,6 +204,8 @@ class DeviceRunner:
         while not self._stop.is_set():
             now = clock.now()
             if eng.faults.vanished:
+                # bytes already in the pty buffer still reach the host, like bytes in a
+                # UART FIFO (flushing them here would race with the host's select/read)
                 tr.read()
                 self._pending.clear()
                 time.sleep(0.005)

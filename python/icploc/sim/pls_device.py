@@ -34,6 +34,7 @@ class B0Record:
     sim_time: float
     intact: bool
     sent_at: float
+    frame: bytes = b""  #: the telegram as built, before fault injection
 
 
 @dataclass
@@ -177,7 +178,7 @@ class PLSDevice:
             unit = 0.01
         frame = sp.encode_measured(r, unit_m=unit, status=self.status, address=0x80 | self.address)
         if self.keep_b0_log:
-            self.b0_log.append(B0Record(self.scan_index, t, True, now))
+            self.b0_log.append(B0Record(self.scan_index, t, True, now, frame))
         self.scan_index += 1
         return frame
 

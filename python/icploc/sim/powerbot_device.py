@@ -39,6 +39,7 @@ class SipRecord:
     true_pose: tuple[float, float, float]
     odom_pose: tuple[float, float, float]
     intact: bool
+    frame: bytes = b""  #: the packet as built, before fault injection
 
 
 @dataclass
@@ -210,10 +211,11 @@ class PowerBotDevice:
             battery=min(255, volts10), stall_bumpers=sb, control=0, flags=flags, compass=0,
             sonar=tuple(sonar), **kw,  # type: ignore[arg-type]
         )  # fmt: skip
+        frame = ap.build_sip(raw)
         if self.keep_log:
-            self.sip_log.append(SipRecord(self.sip_index, t, r.pose, r.odom, True))
+            self.sip_log.append(SipRecord(self.sip_index, t, r.pose, r.odom, True, frame))
         self.sip_index += 1
-        return ap.build_sip(raw)
+        return frame
 
     def _send(self, now: float, delay: float, data: bytes) -> None:
         d = (delay if self.realtime else 0.0) + self.faults.late_reply
