@@ -1,0 +1,294 @@
+"""The localizer: odometry buffer, scan preparation, tracking, gating, corridors, lost."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from icploc import MapIndex, worlds
+from icploc.config import LocalizerConfig
+from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
+from icploc.se2 import compose, wrap_angle
+from icploc.types import BEAM_DAZZLE, BEAM_NO_RETURN, Odometry, Scan
+
+ANGLES = np.linspace(-math.pi / 2, math.pi / 2, 361)
+
+
+def sample_lines(lines: np.ndarray, spacing: float = 0.05) -> MapIndex:
+    pts, nrm = [], []
+    for x1, y1, x2, y2 in np.asarray(lines, dtype=float):
+        length = math.hypot(x2 - x1, y2 - y1)
+        k = max(int(length / spacing), 1)
+        t = (np.arange(k) + 0.5) / k
+        pts.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
+        nrm.append(np.tile([-(y2 - y1) / length, (x2 - x1) / length], (k, 1)))
+    return MapIndex(np.vstack(pts), np.vstack(nrm))
+
+
+def scan_at(
+    world: worlds.World, pose, stamp: float = 0.0, noise: float = 0.0, seed: int = 0
+) -> Scan:
+    rng = np.random.default_rng(seed)
+    r = world.ranges(pose, ANGLES, 8.0, stamp, rng, noise)
+    return Scan(stamp=stamp, ranges=r, angles=ANGLES, max_range=8.0)
+
+
+# -- odometry buffer -------------------------------------------------------------------------
+
+
+def test_odometry_buffer_interpolates_and_extrapolates() -> None:
+    b = OdometryBuffer(max_extrapolation=0.2)
+    assert b.pose_at(1.0) is None
+    b.add(Odometry(0.0, (0.0, 0.0, 0.0)))
+    b.add(Odometry(0.1, (0.1, 0.2, 0.05)))
+    assert b.pose_at(-0.1) is None
+    assert b.pose_at(0.05) == pytest.approx((0.05, 0.1, 0.025))
+    assert b.pose_at(0.15) == pytest.approx((0.15, 0.3, 0.075))  # constant velocity
+    assert b.pose_at(5.0) == pytest.approx((0.3, 0.6, 0.15))  # capped extrapolation
+    b.add(Odometry(0.05, (9.0, 9.0, 9.0)))  # out of order: dropped
+    b.add(Odometry(2.0, (float("nan"), 0.0, 0.0)))  # NaN: dropped
+    assert len(b) == 2
+
+
+def test_odometry_buffer_heading_wraps_the_short_way() -> None:
+    b = OdometryBuffer()
+    b.add(Odometry(0.0, (0.0, 0.0, math.pi - 0.1)))
+    b.add(Odometry(1.0, (0.0, 0.0, -math.pi + 0.1)))  # crossed +pi, turned +0.2 rad
+    th = b.pose_at(0.5)
+    assert th is not None
+    assert abs(wrap_angle(th[2] - math.pi)) < 1e-9
+    th = b.pose_at(0.75)
+    assert th is not None
+    assert wrap_angle(th[2] - (math.pi + 0.05)) == pytest.approx(0.0, abs=1e-9)
+
+
+# -- scan preparation ------------------------------------------------------------------------
+
+
+def test_prepare_scan_drops_bad_beams_decimates_and_mounts() -> None:
+    r = np.array([1.0, np.inf, np.nan, 0.01, 7.999, 8.0, 2.0, 3.0])
+    a = np.linspace(-0.7, 0.7, 8)
+    flags = np.zeros(8, np.uint8)
+    flags[6] = BEAM_DAZZLE
+    flags[1] = BEAM_NO_RETURN
+    s = Scan(stamp=0.0, ranges=r, angles=a, flags=flags, max_range=8.0)
+    cfg = LocalizerConfig()
+    pts = prepare_scan(s, cfg)
+    # kept: beam 0 (1.0), beam 4 (7.999 < 8*0.999? no: 7.992 limit) -> dropped, beam 7 (3.0)
+    kept = [0, 7]
+    assert pts.shape == (len(kept), 2)
+    assert np.allclose(pts[:, 0], r[kept] * np.cos(a[kept]))
+    cfg2 = cfg.replace(
+        scan={"laser_x": 0.25, "laser_y": -0.1, "laser_theta": math.pi / 2, "decimation": 2}
+    )
+    pts2 = prepare_scan(s, cfg2)
+    assert pts2.shape == (1, 2)  # every 2nd of [0, 7]
+    exp = compose((0.25, -0.1, math.pi / 2), (r[0] * math.cos(a[0]), r[0] * math.sin(a[0]), 0.0))
+    assert pts2[0] == pytest.approx(exp[:2])
+
+
+# -- tracking --------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def lab() -> worlds.World:
+    return worlds.lab(people=3)
+
+
+@pytest.fixture(scope="module")
+def lab_index(lab: worlds.World) -> MapIndex:
+    return sample_lines(lab.lines)
+
+
+def test_tracks_a_drifting_random_walk_in_the_lab(lab: worlds.World, lab_index: MapIndex) -> None:
+    frames = list(worlds.simulate(lab, worlds.lab_random_walk(12.0, seed=4), seed=3))
+    loc = Localizer(lab_index, initial_pose=frames[0].truth)
+    err, odo_err = [], []
+    start_odo = frames[0].odometry.pose
+    for f in frames:
+        e = loc.update(f.scan, f.odometry)
+        assert all(math.isfinite(v) for v in e.pose)
+        assert np.all(np.linalg.eigvalsh(e.covariance) > 0)
+        assert e.time > 0 and e.iterations > 0
+        err.append(math.hypot(e.x - f.truth[0], e.y - f.truth[1]))
+        from icploc.se2 import between
+
+        o = compose(frames[0].truth, between(start_odo, f.odometry.pose))
+        odo_err.append(math.hypot(o[0] - f.truth[0], o[1] - f.truth[1]))
+    err_a = np.array(err)
+    assert np.median(err_a) < 0.005
+    assert err_a.max() < 0.03
+    assert max(odo_err) > 0.05  # the odometry really drifted
+    assert loc.status_counts["lost"] == 0
+    assert loc.scans_processed == len(frames)
+
+
+def test_stream_interface_interpolates_odometry(lab: worlds.World, lab_index: MapIndex) -> None:
+    frames = list(worlds.simulate(lab, worlds.lab_random_walk(6.0, seed=9), seed=5, max_frames=150))
+    items: list[Scan | Odometry] = []
+    for f in frames:
+        # odometry at a different rate and offset from the scans: every other frame, +20 ms
+        items.append(f.scan)
+        if f.scan.seq % 2 == 0:
+            items.append(Odometry(f.odometry.stamp + 0.02, f.odometry.pose))
+    items.sort(key=lambda m: m.stamp)
+    loc = Localizer(lab_index, initial_pose=frames[0].truth)
+    ests = run(loc, items)
+    assert len(ests) == len(frames)
+    assert [e.stamp for e in ests] == [f.scan.stamp for f in frames]
+    err = [
+        math.hypot(e.x - f.truth[0], e.y - f.truth[1]) for e, f in zip(ests, frames, strict=True)
+    ]
+    assert max(err) < 0.03
+
+
+def test_gate_rejects_a_scan_that_would_yank_the_pose(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    pose = (0.0, 0.0, 0.0)
+    loc = Localizer(lab_index, initial_pose=pose)
+    for k in range(5):  # settle: robot standing still
+        e = loc.update(scan_at(lab, pose, k * 0.1), (0.0, 0.0, 0.0))
+        assert e.status is Status.TRACKING
+    # a scan taken 0.4 m away while odometry says the robot did not move
+    e = loc.update(scan_at(lab, (0.4, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))
+    assert not e.accepted
+    assert e.reason in ("jump", "low_inlier_ratio")
+    assert e.status is Status.DEGRADED
+    assert math.hypot(e.x, e.y) < 0.01  # kept the odometry prediction
+    # and a small true correction is accepted
+    e = loc.update(scan_at(lab, (0.05, 0.0, 0.01), 0.6), (0.0, 0.0, 0.0))
+    assert e.accepted and e.status is Status.TRACKING
+    assert e.x == pytest.approx(0.05, abs=0.005)
+
+
+def test_gate_rejects_a_large_rotation_jump(lab: worlds.World, lab_index: MapIndex) -> None:
+    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0))
+    loc.update(scan_at(lab, (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0))
+    e = loc.update(scan_at(lab, (0.0, 0.0, math.radians(25)), 0.1), (0.0, 0.0, 0.0))
+    assert not e.accepted
+    assert abs(e.theta) < math.radians(1)
+
+
+def corridor(length: float = 200.0, width: float = 2.0) -> worlds.World:
+    return worlds.World(
+        "corridor",
+        np.array([[-length / 2, 0, length / 2, 0], [-length / 2, width, length / 2, width]]),
+    )
+
+
+def test_corridor_follows_odometry_along_and_icp_across() -> None:
+    w = corridor()
+    idx = sample_lines(w.lines)
+    cfg = LocalizerConfig()
+    loc = Localizer(idx, cfg, initial_pose=(0.0, 1.0, 0.0))
+    e = loc.update(scan_at(w, (0.0, 1.0, 0.0)), (0.0, 0.0, 0.0))
+    # truth moves 1.10 m along and 0.06 m across; odometry says 1.00 m straight ahead
+    truth = (1.10, 1.06, 0.0)
+    e = loc.update(scan_at(w, truth, 0.1), (1.0, 0.0, 0.0))
+    assert e.accepted
+    assert e.reason == "degenerate" and e.status is Status.DEGRADED
+    assert e.degeneracy < cfg.gating.degeneracy_threshold
+    assert e.x == pytest.approx(1.0, abs=1e-3)  # along: the odometry prediction
+    assert e.y == pytest.approx(1.06, abs=3e-3)  # across: ICP
+    # the covariance says so: large along the corridor, small across
+    assert e.covariance[0, 0] > 10 * e.covariance[1, 1]
+
+
+def test_corridor_rotation_is_corrected() -> None:
+    w = corridor()
+    idx = sample_lines(w.lines)
+    loc = Localizer(idx, initial_pose=(0.0, 1.0, 0.0))
+    loc.update(scan_at(w, (0.0, 1.0, 0.0)), (0.0, 0.0, 0.0))
+    e = loc.update(scan_at(w, (0.5, 1.0, 0.04), 0.1), (0.5, 0.0, 0.0))
+    assert e.theta == pytest.approx(0.04, abs=2e-3)
+
+
+def test_odometry_wrap_around_while_spinning(lab: worlds.World, lab_index: MapIndex) -> None:
+    """Odometry heading crossing ±pi (and an odometry frame far from the map frame)."""
+    loc = Localizer(lab_index, initial_pose=(0.5, 0.5, 3.0))
+    odo0 = (1000.0, -2000.0, 3.0)
+    for k in range(40):
+        th = 3.0 + 0.05 * k  # crosses pi at k ~ 3
+        truth = (0.5, 0.5, wrap_angle(th))
+        odo = (1000.0, -2000.0, wrap_angle(th + 0.002 * k))  # slight odometry drift
+        e = loc.update(scan_at(lab, truth, 0.1 * k, noise=0.01, seed=k), odo if k else odo0)
+        assert e.status is Status.TRACKING
+        assert abs(wrap_angle(e.theta - truth[2])) < math.radians(0.3)
+        assert math.hypot(e.x - 0.5, e.y - 0.5) < 0.01
+
+
+def test_lost_after_inlier_collapse_and_relocalize_hook(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    calls = []
+
+    def global_search(points, index, prior, cov):  # noqa: ANN001, ANN202
+        calls.append(prior)
+        return [(1.0, -1.0, 0.3)]
+
+    cfg = LocalizerConfig()
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0), global_search=global_search)
+    loc.update(scan_at(lab, (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0))
+    # kidnapped: the scans now come from a room that is not on the map
+    other = worlds.World("other", np.array([[-20, -20, -20, 20], [-20, 20, -19.0, 20]]))
+    statuses = []
+    for k in range(cfg.localizer.lost_after_rejections + 2):
+        e = loc.update(scan_at(other, (-19.5, 0.0, 0.5), 0.1 * (k + 1)), (0.0, 0.0, 0.0))
+        statuses.append(e.status)
+        assert all(math.isfinite(v) for v in e.pose)
+    assert statuses[-1] is Status.LOST
+    assert Status.DEGRADED in statuses[:3]
+    # put back into the lab at (1, -1, 0.3): the global search proposes it, tracking resumes
+    truth = (1.0, -1.0, 0.3)
+    for k in range(cfg.localizer.recover_after + 1):
+        e = loc.update(scan_at(lab, truth, 5.0 + 0.1 * k), (0.0, 0.0, 0.0))
+        if e.status is Status.TRACKING:
+            break
+    assert calls, "the global search was consulted while lost"
+    assert e.status is Status.TRACKING and e.reason == "relocalized"
+    assert math.hypot(e.x - 1.0, e.y + 1.0) < 0.01
+
+
+def test_without_initial_pose_the_localizer_starts_lost(lab_index: MapIndex) -> None:
+    loc = Localizer(lab_index)
+    assert loc.status is Status.LOST
+    with pytest.raises(ValueError, match="three finite"):
+        loc.reset((0.0, float("nan"), 0.0))
+
+
+def test_too_few_points_keeps_the_prediction(lab_index: MapIndex) -> None:
+    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0))
+    s = Scan(stamp=0.0, ranges=np.full(361, np.inf), angles=ANGLES, max_range=8.0)
+    e = loc.update(s, (0.0, 0.0, 0.0))
+    e = loc.update(
+        Scan(stamp=0.1, ranges=np.full(361, np.inf), angles=ANGLES, max_range=8.0), (0.3, 0.0, 0.0)
+    )
+    assert e.reason == "too_few_points" and not e.accepted
+    assert e.pose == pytest.approx((0.3, 0.0, 0.0))
+
+
+def test_map_arguments(lab: worlds.World) -> None:
+    from icploc.maps import Map
+
+    m = Map.from_lines(lab.lines)
+    for arg in (m, m.index(0.05), m.sample(0.05)[0]):
+        loc = Localizer(arg, initial_pose=(0.0, 0.0, 0.0))
+        e = loc.update(scan_at(lab, (0.02, 0.0, 0.0)), (0.0, 0.0, 0.0))
+        assert e.x == pytest.approx(0.02, abs=0.005)
+    with pytest.raises(TypeError, match="map must be"):
+        Localizer(np.zeros((3, 3)), initial_pose=(0.0, 0.0, 0.0))
+
+
+def test_visibility_culling_and_point_to_point(lab: worlds.World, lab_index: MapIndex) -> None:
+    cfg = LocalizerConfig().replace(
+        map={"visibility_culling": True, "visibility_fov_deg": 200.0, "visibility_max_range": 8.0},
+        icp={"metric": "point_to_point"},
+    )
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    e = loc.update(scan_at(lab, (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0))
+    e = loc.update(scan_at(lab, (0.1, 0.05, 0.02), 0.1), (0.1, 0.0, 0.0))
+    assert e.accepted
+    assert e.pose == pytest.approx((0.1, 0.05, 0.02), abs=0.01)
