@@ -6,7 +6,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from icploc.config import ConfigError, LocalizerConfig, default_yaml
 
 

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-
 from icploc import MapIndex, worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
