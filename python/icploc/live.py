@@ -285,7 +285,9 @@ def run_simulated(
     return result, truth
 
 
-def truth_at(truth: list[tuple[float, Pose]], stamps: Sequence[float]) -> NDArray[np.float64]:
+def truth_at(
+    truth: list[tuple[float, Pose]], stamps: Sequence[float] | NDArray[np.float64]
+) -> NDArray[np.float64]:
     """(N, 3) true poses at ``stamps`` (the generated scan nearest in time)."""
     t = np.array([s for s, _ in truth])
     p = np.array([q for _, q in truth])

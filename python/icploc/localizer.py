@@ -132,6 +132,7 @@ class OdometryBuffer:
         return self._t[-1] if self._t else None
 
     def add(self, odom: Odometry | tuple[float, Sequence[float]]) -> None:
+        pose: Sequence[float]
         if isinstance(odom, Odometry):
             stamp, pose = odom.stamp, odom.pose
         else:
@@ -255,7 +256,7 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
     if isinstance(map_, (str, os.PathLike)):
         from icploc.maps import Map
 
-        map_ = Map.load(map_)
+        map_ = Map.load(os.fspath(map_))
     if hasattr(map_, "index") and callable(map_.index):
         return map_.index(config.map.spacing)
     pts = np.asarray(map_, dtype=np.float64)

@@ -119,10 +119,8 @@ class World:
         if self.glass.shape[0]:
             rg = _raycast(self.glass, sensor_pose, angles, max_range)
             hit_glass = rg < r
-            if rng is not None:
-                passes = rng.random(angles.shape[0]) < self.glass_transmission
-            else:
-                passes = np.ones(angles.shape[0], dtype=bool)
+            u = rng.random(angles.shape[0]) if rng is not None else np.zeros(angles.shape[0])
+            passes = np.less(u, self.glass_transmission)
             r = np.where(hit_glass & ~passes, rg, r)
         circles = self.people_at(t)
         if circles.shape[0]:
