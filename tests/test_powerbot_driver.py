@@ -1,0 +1,274 @@
+"""PowerBot driver against the PowerBot device simulator over a real pseudo-terminal."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import pytest
+import serial
+from icploc.drivers import arcos_protocol as ap
+from icploc.drivers.powerbot import PowerBot, PowerBotTimeout
+from icploc.se2 import wrap_angle
+from icploc.sim.device import DeviceRunner, Faults
+from icploc.sim.powerbot_device import PowerBotDevice, constant_plan
+from icploc.sim.robot import DiffDriveRobot, EncoderNoise
+from icploc.types import Odometry
+
+
+def runner(**kw: object) -> DeviceRunner:
+    return DeviceRunner(PowerBotDevice(**kw)).start()  # type: ignore[arg-type]
+
+
+@pytest.fixture
+def sim() -> Iterator[DeviceRunner]:
+    run = runner()
+    yield run
+    run.stop()
+    assert run.error is None
+
+
+def dev_of(run: DeviceRunner) -> PowerBotDevice:
+    assert isinstance(run.engine, PowerBotDevice)
+    return run.engine
+
+
+def wait_for(cond: object, timeout: float = 2.0) -> bool:
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():  # type: ignore[operator]
+            return True
+        time.sleep(0.005)
+    return False
+
+
+def test_handshake_open_enable_and_1000_sips(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    with PowerBot(sim.port) as bot:
+        assert (bot.name, bot.robot_type, bot.subtype) == ("PowerBot", "Pioneer", "powerbot")
+        assert bot.params.dist_conv == 0.5813
+        assert dev.connected and dev.sips_on and dev.robot.enabled
+        cmds = [(c.cmd, c.arg) for c in dev.commands]
+        assert cmds[:6] == [
+            (0, None),
+            (1, None),
+            (2, None),
+            (ap.OPEN, None),
+            (ap.PULSE, None),
+            (ap.ENABLE, 1),
+        ]
+        sips = list(bot.sips(limit=1000))
+        assert (
+            bot.ser is not None
+            and bot.ser.baudrate == 9600
+            and bot.ser.parity == serial.PARITY_NONE
+        )
+    assert [s.seq for s in sips] == list(range(1, 1001))
+    assert bot.stats["dropped_sips"] == 0 and bot.stats["parser_checksum_errors"] == 0
+    assert all(b.stamp >= a.stamp for a, b in zip(sips, sips[1:], strict=False))
+    assert all(s.battery_volts == pytest.approx(24.5) for s in sips)
+    # CLOSE on exit: STOP, ENABLE 0, CLOSE
+    assert [(c.cmd, c.arg) for c in dev.commands[-3:]] == [
+        (ap.STOP, None),
+        (ap.ENABLE, 0),
+        (ap.CLOSE, None),
+    ]
+    assert not dev.connected and not dev.sips_on and not dev.robot.enabled
+
+
+def test_velocity_commands_reach_the_robot(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    with PowerBot(sim.port) as bot:
+        bot.set_velocity(0.5, 0.2)
+        assert wait_for(lambda: dev.robot.v_cmd == 0.5)
+        assert wait_for(
+            lambda: dev.robot.w_cmd == pytest.approx(math.radians(11))
+        )  # RVEL: 1 deg/s steps
+        sips = list(bot.sips(limit=60))  # 6 s of simulated time
+        assert sips[-1].v == pytest.approx(0.5, abs=0.03) and sips[-1].moving
+        bot.set_wheel_velocities(-0.2, 0.3)  # VEL2 with a negative left wheel
+        assert wait_for(lambda: dev.robot.v_cmd == pytest.approx(0.05))
+        assert dev.robot.w_cmd == pytest.approx(0.5 / dev.robot.geometry.wheel_base)
+        bot.stop()
+        assert wait_for(lambda: dev.robot.v_cmd == 0.0 and dev.robot.w_cmd == 0.0)
+        bot.set_velocity(0.3, 0.0)
+        bot.e_stop()
+        assert wait_for(lambda: dev.robot.estopped)
+        assert wait_for(lambda: bot.last_sip is not None and bot.last_sip.estop)
+
+
+def test_close_on_exception_and_ctrl_c(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    with pytest.raises(KeyboardInterrupt), PowerBot(sim.port) as bot:
+        bot.set_velocity(0.4, 0.0)
+        raise KeyboardInterrupt
+    assert dev.commands[-1].cmd == ap.CLOSE and not dev.connected
+    with pytest.raises(RuntimeError), PowerBot(sim.port):
+        raise RuntimeError("boom")
+    assert dev.commands[-1].cmd == ap.CLOSE and not dev.connected
+
+
+def test_heartbeat_keeps_the_watchdog_quiet() -> None:
+    run = runner(watchdog=0.3)
+    dev = dev_of(run)
+    try:
+        with PowerBot(run.port, heartbeat=0.1):
+            time.sleep(1.0)
+            assert dev.watchdog_trips == 0
+            assert sum(1 for c in dev.commands if c.cmd == ap.PULSE) >= 5
+    finally:
+        run.stop()
+
+
+def test_watchdog_stops_robot_without_heartbeat() -> None:
+    run = runner(watchdog=0.3)
+    dev = dev_of(run)
+    try:
+        with PowerBot(run.port, heartbeat=60.0) as bot:
+            bot.set_velocity(0.4, 0.0)
+            assert wait_for(lambda: dev.watchdog_trips == 1, timeout=2.0)
+            assert dev.robot.v_cmd == 0.0
+            bot.command(ap.PULSE)  # any packet restores the last set-points
+            assert wait_for(lambda: dev.robot.v_cmd == 0.4)
+    finally:
+        run.stop()
+
+
+def test_still_connected_robot_is_closed_and_reconnected(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    # a previous client connected, opened, and died without CLOSE
+    s = serial.Serial(sim.port, 9600, timeout=0.2)
+    for cmd in (0, 1, 2, ap.OPEN):
+        s.write(ap.encode_command(cmd))
+        time.sleep(0.02)
+    s.close()
+    assert wait_for(lambda: dev.sips_on)
+    with PowerBot(sim.port) as bot:
+        assert bot.stats["sync_retries"] >= 1
+        assert next(bot.sips()).seq == 1
+    assert sum(1 for c in dev.commands if c.cmd == ap.CLOSE) >= 2
+
+
+def test_no_robot_times_out() -> None:
+    run = runner(faults=Faults(vanished=True))
+    try:
+        with pytest.raises(PowerBotTimeout):
+            PowerBot(run.port, sync_tries=2, sync_timeout=0.1).connect()
+    finally:
+        run.stop()
+
+
+def test_lost_sync_packets_are_retried() -> None:
+    run = runner(faults=Faults(nak_storm=2))  # the first two packets vanish
+    try:
+        with PowerBot(run.port, sync_timeout=0.1) as bot:
+            assert bot.stats["sync_retries"] >= 1
+            assert next(bot.sips()) is not None
+    finally:
+        run.stop()
+
+
+def test_late_sync_replies() -> None:
+    run = runner(faults=Faults(late_reply=0.2))
+    try:
+        with PowerBot(run.port, sync_timeout=0.5) as bot:
+            assert bot.stats["sync_retries"] == 0 and bot.subtype == "powerbot"
+    finally:
+        run.stop()
+
+
+def test_vanished_robot_raises_timeout(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    bot = PowerBot(sim.port, stall_timeout=0.3)
+    bot.connect()
+    try:
+        assert len(list(bot.sips(limit=5))) == 5
+        dev.vanish()
+        with pytest.raises(PowerBotTimeout):
+            for _ in bot.sips(limit=10**6):
+                pass
+    finally:
+        bot.close()
+
+
+def test_disconnect_and_reconnect(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    with PowerBot(sim.port) as bot:
+        assert len(list(bot.sips(limit=5))) == 5
+    assert not dev.connected
+    with PowerBot(sim.port) as bot:
+        assert dev.connected
+        assert len(list(bot.sips(limit=5))) == 5
+
+
+def test_corrupted_sips_and_garbage_never_decoded(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    dev.plan = constant_plan(0.8, 0.3)
+    with PowerBot(sim.port) as bot:
+        dev.faults.corrupt_rate = 0.05
+        dev.faults.garbage_rate = 0.5
+        sips = list(bot.sips(limit=400))
+    frames = {ap.parse_sip(r.frame[3:-2]): r for r in dev.sip_log}
+    got = [frames[s.raw] for s in sips]  # KeyError would mean a SIP the device never built
+    assert all(r.intact for r in got)
+    idx = [r.index for r in got]
+    expect = [r.index for r in dev.sip_log[idx[0] : idx[-1] + 1] if r.intact]
+    assert idx == expect
+    assert sum(1 for r in dev.sip_log[idx[0] : idx[-1] + 1] if not r.intact) > 5
+
+
+def _drive(
+    start_odom: tuple[float, float, float], v: float, w: float, n: int
+) -> list[tuple[tuple[float, float, float], tuple[float, float, float]]]:
+    robot = DiffDriveRobot(noise=EncoderNoise(relative_std=0.0))
+    robot.reset_odometry(start_odom)
+    run = runner(robot=robot, plan=constant_plan(v, w))
+    dev = dev_of(run)
+    try:
+        with PowerBot(run.port) as bot:
+            sips = list(bot.sips(limit=n))
+    finally:
+        run.stop()
+    return [(s.pose, dev.sip_log[s.seq - 1].odom_pose) for s in sips]
+
+
+def _check_continuous(
+    pairs: list[tuple[tuple[float, float, float], tuple[float, float, float]]],
+) -> None:
+    (d0, o0) = pairs[0]
+    for d, o in pairs:
+        assert d[0] - d0[0] == pytest.approx(o[0] - o0[0], abs=1.5e-3)
+        assert d[1] - d0[1] == pytest.approx(o[1] - o0[1], abs=1.5e-3)
+        assert wrap_angle(d[2] - o[2]) == pytest.approx(0.0, abs=2e-3)
+
+
+def test_odometry_wraps_forward_across_15_bit_counter() -> None:
+    limit = 32768 * 0.5813 / 1000.0  # 19.048 m
+    pairs = _drive((limit - 3.0, 0.0, 0.0), 2.0, 0.0, 60)
+    assert pairs[0][1][0] < limit < pairs[-1][1][0]  # the raw counter wrapped
+    _check_continuous(pairs)
+    xs = [d[0] for d, _ in pairs]
+    assert all(b >= a for a, b in zip(xs, xs[1:], strict=False))
+
+
+def test_odometry_wraps_backward_across_zero() -> None:
+    pairs = _drive((1.0, 0.5, 0.0), -1.5, 0.0, 60)
+    assert pairs[0][1][0] > 0 > pairs[-1][1][0]
+    _check_continuous(pairs)
+    assert pairs[-1][0][0] < 0  # continuous, negative: not 19 m
+
+
+def test_odometry_heading_wraps_both_ways() -> None:
+    for w in (2.0, -2.0):
+        pairs = _drive((0.0, 0.0, 3.0 if w > 0 else -3.0), 0.2, w, 40)
+        _check_continuous(pairs)
+        ths = [d[2] for d, _ in pairs]
+        assert max(ths) > 2.5 and min(ths) < -2.5  # crossed +-pi
+
+
+def test_sip_to_odometry(sim: DeviceRunner) -> None:
+    with PowerBot(sim.port) as bot:
+        odo = next(bot.odometry())
+    assert isinstance(odo, Odometry)
+    assert odo.velocity is not None and "battery_volts" in odo.extra
