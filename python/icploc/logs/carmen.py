@@ -120,21 +120,28 @@ def _fast_matrix(heads: list[str], ncols: int) -> NDArray[np.float64] | None:
     except ImportError:  # pragma: no cover - depends on the environment
         pd = None
     if pd is not None and _ENGINE["name"] != "numpy":
-        try:
-            m = pd.read_csv(
-                io.StringIO(text),
-                sep=r"\s+",
-                header=None,
-                dtype=np.float64,
-                engine="c",
-                keep_default_na=False,
-                na_values=["nan", "NaN", "-nan", "NAN"],
-            ).to_numpy(dtype=np.float64)
-        except Exception:  # noqa: BLE001 - any tokenizer/conversion failure: go line by line
-            return None
-        if m.shape != (len(heads), ncols):
-            return None
-        return m
+        # single spaces (the common case) parse fastest; tabs or runs of spaces need \s+
+        for sep in (" ", r"\s+"):
+            try:
+                m = pd.read_csv(
+                    io.StringIO(text),
+                    sep=sep,
+                    header=None,
+                    dtype=np.float64,
+                    engine="c",
+                    keep_default_na=False,
+                    na_values=["nan", "NaN", "-nan", "NAN"],
+                ).to_numpy(dtype=np.float64)
+            except Exception:  # noqa: BLE001 - any tokenizer/conversion failure
+                continue
+            if m.shape == (len(heads), ncols):
+                # pandas' fast float parser can be 1 ulp off; stamps must be exact
+                try:
+                    m[:, -1] = [float(h.rsplit(None, 1)[1]) for h in heads]
+                except (ValueError, IndexError):
+                    return None
+                return m
+        return None
     try:
         flat = np.fromstring(text, dtype=np.float64, sep=" ")
     except ValueError:
@@ -184,11 +191,38 @@ def _exact_flaser(path: str, lineno: int, line: str) -> list[float]:
         raise LogFormatError(
             path, f"FLASER: {len(t)} tokens, expected {need + 2} for {n} readings", lineno
         )
+    _check_not_short(
+        path, lineno, "FLASER", t, 2, need, f"{n} readings, 6 pose values and a timestamp"
+    )
     vals = [float(n)]
     for k in range(2, need):
         what = f"FLASER reading {k - 1}" if k < 2 + n else "FLASER pose/timestamp"
         vals.append(_num(path, lineno, what, t[k]))
     return vals
+
+
+def _is_num(tok: str) -> bool:
+    try:
+        float(tok)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_not_short(
+    path: str, lineno: int, kind: str, t: list[str], start: int, need: int, what: str
+) -> None:
+    """A line whose hostname shows up where numbers are still expected is truncated."""
+    for k in range(start, min(need, len(t))):
+        if not _is_num(t[k]):
+            if len(t) - k <= 2:  # only 'hostname [logger_ts]' left: values are missing
+                raise LogFormatError(
+                    path,
+                    f"{kind}: truncated line: expected {what} ({need - start} numbers) before "
+                    f"the hostname, found {k - start}",
+                    lineno,
+                )
+            return
 
 
 def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
@@ -201,6 +235,7 @@ def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
         )
     if len(t) > 10:
         raise LogFormatError(path, f"ODOM: {len(t)} tokens, expected 10", lineno)
+    _check_not_short(path, lineno, "ODOM", t, 1, 8, "x y theta tv rv accel timestamp")
     return [_num(path, lineno, "ODOM value", t[k]) for k in range(1, 8)]
 
 
@@ -209,6 +244,7 @@ def _exact_rawlaser(path: str, lineno: int, line: str, robot: bool) -> list[floa
     t = line.split()
     if len(t) < 9:
         raise LogFormatError(path, f"{kind}: truncated line", lineno)
+    _check_not_short(path, lineno, kind, t, 1, 9, "a 7-value header and a beam count")
     vals = [_num(path, lineno, f"{kind} header", t[k]) for k in range(1, 8)]
     n = _count(path, lineno, f"{kind} beam count", t[8])
     if n == 0:
@@ -229,6 +265,7 @@ def _exact_rawlaser(path: str, lineno: int, line: str, robot: bool) -> list[floa
         )
     if len(t) > need + 2:
         raise LogFormatError(path, f"{kind}: {len(t)} tokens, expected {need + 2}", lineno)
+    _check_not_short(path, lineno, kind, t, 10 + n, need, f"{m} remissions, poses and a timestamp")
     vals.extend(_num(path, lineno, f"{kind} value", t[k]) for k in range(10 + n, need))
     return vals
 
