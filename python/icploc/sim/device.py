@@ -240,12 +240,15 @@ class DeviceRunner:
             if writable and self._pending:
                 now = clock.now()
                 chunk = self._pending
+                # while the line stays busy, keep the byte clock running from where it is
+                # (late wake-ups must not stretch the line time); after a pause, restart
+                base = self._line_free_at if now - self._line_free_at < 0.02 else now
                 if self.realtime:
-                    # at most ~5 ms worth of bytes ahead of the line
-                    n = max(1, int(0.005 / byte_time))
+                    # write what the line carries up to ~5 ms from now
+                    n = max(1, int((now + 0.005 - base) / byte_time))
                     chunk = self._pending[:n]
                 k = tr.write(bytes(chunk))
                 if k:
                     del self._pending[:k]
                     self.bytes_out += k
-                    self._line_free_at = max(self._line_free_at, now) + k * byte_time
+                    self._line_free_at = base + k * byte_time

@@ -1,0 +1,133 @@
+"""Simulated world (walls via the Rust ray caster, glass, people), the differential-drive
+robot, and the two-device session with both drivers on ptys."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from icploc.drivers.powerbot import PowerBot
+from icploc.drivers.sick import PLS
+from icploc.se2 import compose
+from icploc.sim.powerbot_device import waypoint_plan
+from icploc.sim.robot import DiffDriveRobot, EncoderNoise
+from icploc.sim.session import SimSession
+from icploc.sim.world import Person, World
+
+
+def test_box_ranges_match_geometry() -> None:
+    w = World.box(10.0, 8.0)
+    r = w.scan((5.0, 4.0, 0.0), [0.0, math.pi / 2, math.pi, -math.pi / 2, math.atan2(4, 5)], 30.0)
+    np.testing.assert_allclose(r, [5.0, 4.0, 5.0, 4.0, math.hypot(5, 4)], atol=1e-9)
+    r = w.scan((5.0, 4.0, math.pi / 2), [0.0], 30.0)  # sensor heading rotates the beams
+    assert r[0] == pytest.approx(4.0)
+    assert np.isinf(w.scan((5.0, 4.0, 0.0), [0.0], 3.0)).all()  # beyond max range
+
+
+def test_glass_reflects_only_near_normal_incidence() -> None:
+    w = World.box(10.0, 8.0, glass=np.array([[7.0, 0.0, 7.0, 8.0]]))
+    r = w.scan((5.0, 4.0, 0.0), [0.0, math.radians(5), math.radians(30)], 30.0)
+    assert r[0] == pytest.approx(2.0)  # straight on: sees the glass
+    assert r[1] == pytest.approx(2.0 / math.cos(math.radians(5)))  # within 10 deg of normal
+    assert r[2] == pytest.approx(5.0 / math.cos(math.radians(30)))  # passes, hits the wall
+    w.glass_reflect_prob = 1.0
+    r = w.scan((5.0, 4.0, 0.0), [math.radians(30)], 30.0, rng=np.random.default_rng(0))
+    assert r[0] == pytest.approx(2.0 / math.cos(math.radians(30)))
+
+
+def test_people_are_deterministic_and_occlude() -> None:
+    a, b = World.box(), World.box()
+    a.add_random_people(4, seed=9)
+    b.add_random_people(4, seed=9)
+    for t in (0.0, 3.3, 17.0):
+        np.testing.assert_array_equal(a.people_at(t), b.people_at(t))
+    assert not np.array_equal(a.people_at(0.0), a.people_at(1.0))  # they move
+    w = World.box(
+        10.0, 8.0, people=[Person(np.array([[8.0, 4.0], [8.0, 4.0]]), speed=0.0, radius=0.5)]
+    )
+    assert w.scan((5.0, 4.0, 0.0), [0.0], 30.0)[0] == pytest.approx(2.5)
+
+
+def test_range_noise() -> None:
+    w = World.box(10.0, 8.0)
+    ang = np.zeros(5000)
+    r = w.scan((5.0, 4.0, 0.0), ang, 30.0, noise_std=0.02, rng=np.random.default_rng(1))
+    assert np.mean(r) == pytest.approx(5.0, abs=0.002) and np.std(r) == pytest.approx(
+        0.02, rel=0.05
+    )
+
+
+def test_robot_straight_and_turn_without_noise() -> None:
+    r = DiffDriveRobot(pose=(1.0, 2.0, 0.0), noise=EncoderNoise(relative_std=0.0))
+    r.set_velocity(0.5, 0.0)
+    for _ in range(500):
+        r.step(0.01)
+    # accelerates at 1 m/s^2 to 0.5 m/s (0.125 m during the ramp, + discretisation), then cruises
+    assert r.pose[0] == pytest.approx(1.0 + 0.125 + 0.5 * 4.5, abs=5e-3) and r.pose[
+        1
+    ] == pytest.approx(2.0)
+    assert r.odom[0] == pytest.approx(r.pose[0] - 1.0)
+    r.set_velocity(0.0, math.pi / 4)
+    for _ in range(1000):
+        r.step(0.01)
+    assert abs(r.pose[2]) > 0.1 and r.odom[2] == pytest.approx(r.pose[2], abs=1e-9)
+
+
+def test_encoder_noise_makes_odometry_drift() -> None:
+    r = DiffDriveRobot(noise=EncoderNoise(relative_std=0.02, right_scale=1.01), seed=4)
+    r.set_velocity(1.0, 0.2)
+    for _ in range(2000):
+        r.step(0.01)
+    err = math.hypot(r.odom[0] - r.pose[0], r.odom[1] - r.pose[1])
+    assert 0.01 < err < 5.0
+
+
+def test_collision_stalls() -> None:
+    r = DiffDriveRobot(noise=EncoderNoise(relative_std=0.0), collides=lambda p: p[0] > 1.0)
+    r.set_velocity(1.0, 0.0)
+    for _ in range(300):
+        r.step(0.01)
+    assert r.pose[0] <= 1.0 and r.left_stall and r.right_stall
+
+
+def test_session_both_drivers_test_mode() -> None:
+    world = World.box(10.0, 8.0)
+    plan = waypoint_plan([(2.0, 0.5, 0.0), (2.0, 0.0, 0.5)])
+    with SimSession(
+        world, start_pose=(2.0, 4.0, 0.0), plan=plan, realtime=False, laser_noise_std=0.0
+    ) as sim:
+        with PLS(sim.laser_port, baud_settle=0.0) as laser, PowerBot(sim.base_port) as bot:
+            scans = list(laser.scans(limit=20))
+            sips = list(bot.sips(limit=30))
+        assert sim.errors == []
+    assert len(scans) == 20 and len(sips) == 30
+    # every scan is consistent with the true laser pose logged when it was taken
+    _, pose, lp = sim.truth[-1]
+    assert lp == pytest.approx(compose(pose, (0.251, 0.0, 0.0)))
+    first = sim.truth[0][2]
+    exp = world.scan(first, sim.laser.beam_angles(), 50.0)
+    np.testing.assert_allclose(scans[0].ranges, np.round(exp * 100) / 100, atol=0.006)
+    assert sips[-1].pose[0] > 0.5  # the plan moved the robot
+
+
+@pytest.mark.slow
+def test_session_realtime_rates() -> None:
+    world = World.box(10.0, 8.0)
+    world.add_random_people(2, seed=1)
+    with SimSession(world, start_pose=(3.0, 4.0, 0.0), realtime=True) as sim:
+        with PLS(sim.laser_port, baud_settle=0.05) as laser, PowerBot(sim.base_port) as bot:
+            t0 = time.monotonic()
+            scans = list(laser.scans(limit=8))
+            dt_scans = np.diff([s.stamp for s in scans])
+            sips = list(bot.sips(limit=15))
+            dt_sips = np.diff([s.stamp for s in sips])
+            assert time.monotonic() - t0 > 1.5
+    # a 732-byte telegram at 38400 Bd 8E1 occupies the line for 0.21 s; SIPs every 100 ms
+    assert np.median(dt_scans) == pytest.approx(732 * 11 / 38400, rel=0.15)
+    assert np.median(dt_sips) == pytest.approx(0.1, abs=0.02)
+    # scan stamps = first byte of the telegram, within a few ms of when the sim took the scan
+    taken = np.array([t for t, _, _ in sim.truth])
+    for s in scans[2:]:
+        assert np.min(np.abs(taken - s.stamp)) < 0.02
