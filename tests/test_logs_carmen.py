@@ -106,9 +106,9 @@ def test_round_trip_flaser(
         assert b.flags is not None
         assert np.array_equal((b.flags & BEAM_NO_RETURN) != 0, ~fin)
         assert b.max_range == 8.0
-    for a, b in zip(odoms, d.odometry, strict=True):
-        assert b.stamp == a.stamp and b.pose == pytest.approx(a.pose)
-        assert b.velocity == pytest.approx(a.velocity)
+    for oa, ob in zip(odoms, d.odometry, strict=True):
+        assert ob.stamp == oa.stamp and ob.pose == pytest.approx(oa.pose)
+        assert ob.velocity == pytest.approx(oa.velocity)
     assert np.allclose(d.truth_poses, poses)
     assert np.allclose(d.truth_stamps, [s.stamp for s in scans])
     assert [s.seq for s in d.scans] == list(range(30))
@@ -454,8 +454,7 @@ def test_real_laserazos() -> None:
         90.0
     )
     n_invalid = sum(
-        int(((s.flags if s.flags is not None else 0) & BEAM_INVALID).astype(bool).sum())
-        for s in d.scans
+        int(np.count_nonzero(s.flags & BEAM_INVALID)) for s in d.scans if s.flags is not None
     )
     assert n_invalid == 19234  # its NaN readings
     xy = np.array([o.pose[:2] for o in d.odometry])
