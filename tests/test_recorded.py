@@ -49,12 +49,9 @@ def test_replay_reproduces_the_live_session(tmp_path: Path) -> None:
         assert a.seq == b.seq and a.stamp == pytest.approx(b.stamp, abs=1e-9)
         np.testing.assert_array_equal(a.ranges, b.ranges)
         np.testing.assert_array_equal(a.angles, b.angles)
-    for a, b in zip(live_odos, odos, strict=False):
-        assert (
-            a.stamp == pytest.approx(b.stamp, abs=1e-9)
-            and a.pose == b.pose
-            and a.velocity == b.velocity
-        )
+    for oa, ob in zip(live_odos, odos, strict=False):
+        assert oa.stamp == pytest.approx(ob.stamp, abs=1e-9)
+        assert oa.pose == ob.pose and oa.velocity == ob.velocity
 
 
 def test_recording_contents(tmp_path: Path) -> None:
