@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from icploc.drivers.byteclock import ByteClock
 from icploc.types import (
@@ -380,7 +380,7 @@ def decode_scan(
 
 
 def encode_measured(
-    ranges_m: NDArray[np.float64] | list[float],
+    ranges_m: ArrayLike,
     *,
     unit_m: float = 0.01,
     status: int = 0x00,
