@@ -272,3 +272,12 @@ def test_sip_to_odometry(sim: DeviceRunner) -> None:
         odo = next(bot.odometry())
     assert isinstance(odo, Odometry)
     assert odo.velocity is not None and "battery_volts" in odo.extra
+
+
+def test_hostbaud_switch(sim: DeviceRunner) -> None:
+    dev = dev_of(sim)
+    with PowerBot(sim.port, switch_baudrate=38400) as bot:
+        assert dev.baudrate == 38400 and bot.ser is not None and bot.ser.baudrate == 38400
+        assert sim.transport.host_settings().baudrate == 38400  # type: ignore[attr-defined]
+        assert len(list(bot.sips(limit=20))) == 20
+        assert sim.line_mismatch_bytes == 0

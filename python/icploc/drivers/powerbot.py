@@ -184,15 +184,11 @@ class PowerBot:
             self.recorder.close()
 
     def reconnect(self) -> None:
-        """Close (best effort) and connect again, keeping the odometry continuous."""
+        """Close (best effort) and connect again. The odometry stays continuous: the
+        unwrapper keeps its last counters, so if the controller kept its pose the next
+        SIP continues where the last one ended."""
         self.close()
-        pose_units = (
-            self.decoder.unwrapper.x_units,
-            self.decoder.unwrapper.y_units,
-            self.decoder.unwrapper.th_units,
-        )
         self.connect()
-        self._reconnect_offset = pose_units  # informational; the controller keeps its own pose
 
     @property
     def connected(self) -> bool:
