@@ -242,7 +242,7 @@ def test_lost_after_inlier_collapse_and_relocalize_hook(
     assert Status.DEGRADED in statuses[:3]
     # put back into the lab at (1, -1, 0.3): the global search proposes it, tracking resumes
     truth = (1.0, -1.0, 0.3)
-    for k in range(cfg.localizer.recover_after + 1):
+    for k in range(cfg.localizer.recover_after + cfg.localizer.relocalize_every + 1):
         e = loc.update(scan_at(lab, truth, 5.0 + 0.1 * k), (0.0, 0.0, 0.0))
         if e.status is Status.TRACKING:
             break

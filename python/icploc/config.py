@@ -190,6 +190,8 @@ class LocalizerSection:
     recover_inlier_ratio: float = 0.7
     #: consecutive good fits needed to recover
     recover_after: int = 3
+    #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
+    relocalize_every: int = 4
     #: odometry gaps longer than this (s) are not interpolated across (a warning status)
     max_odometry_gap: float = 1.0
 
@@ -216,6 +218,7 @@ class LocalizerSection:
             "lost_after_low_inlier_scans",
             "lost_after_rejections",
             "recover_after",
+            "relocalize_every",
             "max_odometry_gap",
         )
 

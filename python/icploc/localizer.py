@@ -312,6 +312,7 @@ class Localizer:
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
         self._last_reloc_result: Any = None
+        self._lost_scans = 0
         lc = self.config.localizer
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         if pose is not None:
@@ -533,6 +534,7 @@ class Localizer:
         ):
             status = Status.LOST
             reason = reason or "lost"
+            self._lost_scans = 0
             cnt.good_in_row = 0
             self._recover_pose = None
         self.pose = pose
@@ -590,9 +592,12 @@ class Localizer:
     ) -> Estimate:
         self.pose = pred
         self.covariance = pred_cov
+        self._lost_scans += 1
+        every = self.config.localizer.relocalize_every
+        try_now = self._counters.good_in_row > 0 or (self._lost_scans - 1) % every == 0
         found = (
             self.relocalize(scan, points=pts)
-            if pts.shape[0] >= self.config.scan.min_points
+            if try_now and pts.shape[0] >= self.config.scan.min_points
             else None
         )
         if found is not None:
