@@ -162,3 +162,41 @@ class SimSession:
             stamps = np.array([t for t, _, _ in self.truth])
             i = int(np.argmin(np.abs(stamps - stamp)))
             return self.truth[i][1]
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m icploc.sim.session``: run a simulated PLS + PowerBot in a 10 x 8 m room
+    (with walking people) until Ctrl-C, printing the two ports to open."""
+    import argparse
+    import time
+
+    from icploc.sim.powerbot_device import waypoint_plan
+    from icploc.sim.world import World
+
+    p = argparse.ArgumentParser(description=main.__doc__)
+    p.add_argument("--people", type=int, default=2)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--fast", action="store_true", help="test mode: as fast as the host reads")
+    p.add_argument(
+        "--drive",
+        action="store_true",
+        help="follow a built-in square plan instead of host commands",
+    )
+    a = p.parse_args(argv)
+    world = World.box(10.0, 8.0)
+    world.add_random_people(a.people, seed=a.seed)
+    plan = waypoint_plan([(8.0, 0.5, 0.0), (3.14, 0.0, 0.5)] * 4) if a.drive else None
+    with SimSession(
+        world, start_pose=(1.5, 1.5, 0.0), plan=plan, realtime=not a.fast, seed=a.seed
+    ) as sim:
+        print(f"laser (SICK PLS):  {sim.laser_port}")
+        print(f"base  (PowerBot):  {sim.base_port}")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+
+
+if __name__ == "__main__":
+    main()
