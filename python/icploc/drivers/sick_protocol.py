@@ -13,6 +13,7 @@ Frame (§A.2)::
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -281,11 +282,16 @@ class ScanGeometry:
     flipped: bool = False  #: scanner mounted upside down: reverse the index->angle map
 
     def angles(self, n: int) -> NDArray[np.float64]:
-        if n < 2:
-            return np.zeros(n)
-        half = math.radians(self.fov_deg) / 2.0
-        a = np.linspace(-half, half, n)
-        return a[::-1].copy() if self.flipped else a
+        return _beam_angles(self.fov_deg, self.flipped, n).copy()
+
+
+@functools.lru_cache(maxsize=32)
+def _beam_angles(fov_deg: float, flipped: bool, n: int) -> NDArray[np.float64]:
+    if n < 2:
+        return np.zeros(n)
+    half = math.radians(fov_deg) / 2.0
+    a = np.linspace(-half, half, n)
+    return a[::-1].copy() if flipped else a
 
 
 def geometry_for_count(n: int, flipped: bool = False) -> ScanGeometry:
@@ -294,6 +300,27 @@ def geometry_for_count(n: int, flipped: bool = False) -> ScanGeometry:
     if n in (401, 201, 101):
         return ScanGeometry(100.0, flipped)
     return ScanGeometry(180.0, flipped)
+
+
+# flag bits 13..15 of a value word -> Scan flags
+_PLS_FLAGS = np.array(
+    [
+        (BEAM_DAZZLE if k & 1 else 0)
+        | (BEAM_FIELD_B if k & 2 else 0)
+        | (BEAM_FIELD_A if k & 4 else 0)
+        for k in range(8)
+    ],
+    dtype=np.uint8,
+)
+_LMS_FLAGS = np.array(
+    [
+        (BEAM_FIELD_A if k & 1 else 0)
+        | (BEAM_FIELD_B if k & 2 else 0)
+        | (BEAM_FIELD_C if k & 4 else 0)
+        for k in range(8)
+    ],
+    dtype=np.uint8,
+)
 
 
 @dataclass(frozen=True)
@@ -349,23 +376,20 @@ def decode_scan(
     if mv.partial:
         raise SickProtocolError("interlaced partial scans are not supported")
     v = mv.values
-    dist = (v & 0x1FFF).astype(np.int32)
-    top = (v >> 13).astype(np.uint8)
-    flags = np.zeros(mv.count, dtype=np.uint8)
-    if variant == "pls":
-        flags |= np.where(top & 1, BEAM_DAZZLE, 0).astype(np.uint8)
-        flags |= np.where(top & 2, BEAM_FIELD_B, 0).astype(np.uint8)
-        flags |= np.where(top & 4, BEAM_FIELD_A, 0).astype(np.uint8)
-    else:
-        flags |= np.where(top & 1, BEAM_FIELD_A, 0).astype(np.uint8)
-        flags |= np.where(top & 2, BEAM_FIELD_B, 0).astype(np.uint8)
-        flags |= np.where(top & 4, BEAM_FIELD_C, 0).astype(np.uint8)
+    dist = v & 0x1FFF
+    flags = (_PLS_FLAGS if variant == "pls" else _LMS_FLAGS)[v >> 13]
     special = dist >= CODE_VALUE_TOO_LARGE
     no_ret = special | (dist == 0)
-    flags |= np.where(no_ret, BEAM_NO_RETURN, 0).astype(np.uint8)
-    flags |= np.where(dist == CODE_DAZZLED, BEAM_DAZZLE, 0).astype(np.uint8)
-    err = special & (dist != CODE_NO_ECHO) & (dist != CODE_VALUE_TOO_LARGE) & (dist != CODE_DAZZLED)
-    flags |= np.where(err, BEAM_INVALID, 0).astype(np.uint8)
+    if no_ret.any():
+        flags[no_ret] |= BEAM_NO_RETURN
+        flags[dist == CODE_DAZZLED] |= BEAM_DAZZLE
+        err = (
+            special
+            & (dist != CODE_NO_ECHO)
+            & (dist != CODE_VALUE_TOO_LARGE)
+            & (dist != CODE_DAZZLED)
+        )
+        flags[err] |= BEAM_INVALID
     ranges = dist.astype(np.float64) * mv.unit_m
     ranges[no_ret] = np.inf
     geom = geometry or geometry_for_count(mv.count, flipped)
