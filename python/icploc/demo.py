@@ -82,11 +82,11 @@ def experiments(quick: bool = False) -> list[Experiment]:
         walk = worlds.lab_random_walk(length=8.0, seed=5)
         circles = worlds.circle_path(radius=1.2, laps=1)
     else:
-        walk = worlds.lab_random_walk(length=19.0, seed=3)
-        circles = worlds.circle_path(radius=1.25, laps=3)
+        walk = worlds.lab_random_walk(length=20.0, seed=13)  # a 20.7 m polyline
+        circles = worlds.circle_path(radius=1.4, laps=3)
     return [
         Experiment("random_walk", "Random motion (Table 3, Fig. 9)", walk, speed=1.5),
-        Experiment("circles", "Circle motion (Table 4, Fig. 10)", circles, speed=1.2),
+        Experiment("circles", "Circle motion (Table 4, Fig. 10)", circles, speed=1.5),
     ]
 
 

@@ -1,0 +1,58 @@
+"""End to end: the demo lab through the simulated PLS and PowerBot on pseudo-terminals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from icploc.cli import app
+from typer.testing import CliRunner
+
+
+@pytest.mark.slow
+def test_demo_quick_end_to_end(tmp_path: Path) -> None:
+    from icploc.demo import run_demo
+
+    results = run_demo(tmp_path, quick=True, people=3, seed=1)
+    assert [r.name for r in results] == ["random_walk", "circles"]
+    for r in results:
+        s = r.summary()
+        assert s["scans"] > 50
+        assert s["distance_m"] > 5.0
+        # through the real drivers, with glass and people: millimetres, not centimetres
+        assert s["median_error_m"] < 0.006, s
+        assert s["max_error_m"] < 0.025, s
+        assert s["max_heading_error_deg"] < 0.5, s
+        # and much better than the drifting odometry
+        assert s["localized_end_error_m"] < 0.02
+        assert s["odometry_end_error_m"] > 2 * s["localized_end_error_m"]
+        assert set(r.status) <= {"tracking", "degraded"}
+        assert r.files["plot"].stat().st_size > 10_000
+        assert len(r.files["trajectory"].read_text().splitlines()) == s["scans"]
+    md = (tmp_path / "results.md").read_text()
+    assert "End point, odometry" in md and "End point, truth" in md
+    assert "Random motion" in md and "Circle motion" in md
+
+
+def test_demo_paths_match_the_paper() -> None:
+    """The full demo drives a random walk of more than 20 m and circles, in the 7.5 m lab."""
+    import numpy as np
+    from icploc import worlds
+    from icploc.demo import experiments
+
+    walk, circles = experiments(quick=False)
+    length = float(np.sum(np.hypot(*np.diff(walk.path, axis=0).T)))
+    assert length > 20.0
+    assert np.allclose(walk.path[0], walk.path[-1])
+    lab = worlds.lab()
+    assert lab.walls.shape[0] > 4 and lab.glass.shape[0] == 1
+    for p in (walk.path, circles.path):
+        assert np.all(np.abs(p) < 3.0)  # stays inside the room, away from the walls
+    area = 7.5 * 7.5
+    assert area == pytest.approx(56.25)
+
+
+def test_demo_command_help() -> None:
+    r = CliRunner().invoke(app, ["demo", "--help"])
+    assert r.exit_code == 0
+    assert "--out" in r.output
