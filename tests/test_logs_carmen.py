@@ -473,3 +473,28 @@ def test_real_freiburg_course_csail_robotlaser1() -> None:
     assert math.degrees(d.scans[0].angles[0]) == pytest.approx(-90.0, abs=1e-3)
     assert math.degrees(d.scans[0].angles[1] - d.scans[0].angles[0]) == pytest.approx(0.5, abs=1e-3)
     assert d.info.has_truth
+
+
+def test_native_float_parser_hook(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the core provides parse_floats, the reader uses it (and still finds bad lines)."""
+    from icploc import _core
+
+    calls: list[int] = []
+
+    def fake(text: str) -> np.ndarray:
+        calls.append(len(text))
+        return np.fromstring(text, dtype=np.float64, sep=" ")
+
+    monkeypatch.setattr(_core, "parse_floats", fake, raising=False)
+    scans = _scans(10, 361)
+    p = tmp_path / "n.log"
+    write_carmen(p, scans, _odoms(10))
+    d = read_carmen(p)
+    assert calls and len(d.scans) == 10
+    assert np.array_equal(np.isinf(d.scans[3].ranges), np.isinf(scans[3].ranges))
+    lines = p.read_text().splitlines()
+    lines[5] = lines[5].replace(" ", " zz ", 1)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(LogFormatError) as ei:
+        read_carmen(p)
+    assert ei.value.line == 6

@@ -35,9 +35,10 @@ import math
 import os
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from icploc.logs._base import LogData, LogFormatError, LogInfo, log, repair_stamps
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
@@ -115,6 +116,13 @@ def _fast_matrix(heads: list[str], ncols: int) -> NDArray[np.float64] | None:
     if not heads:
         return np.zeros((0, ncols))
     text = "\n".join(heads)
+    native = _native_parser() if _ENGINE["name"] == "auto" else None
+    if native is not None:
+        try:
+            flat = np.asarray(native(text), dtype=np.float64)
+        except ValueError:
+            return None
+        return flat.reshape(len(heads), ncols) if flat.size == len(heads) * ncols else None
     try:
         import pandas as pd  # optional accelerator: ~2.5x faster than numpy.fromstring
     except ImportError:  # pragma: no cover - depends on the environment
@@ -149,6 +157,20 @@ def _fast_matrix(heads: list[str], ncols: int) -> NDArray[np.float64] | None:
     if flat.size != len(heads) * ncols:
         return None
     return flat.reshape(len(heads), ncols)
+
+
+def _native_parser() -> Callable[[str], Any] | None:
+    """``icploc._core.parse_floats(text) -> float64 array`` if the core provides it.
+
+    Contract: whitespace-separated decimal / exponent / ``nan`` / ``inf`` tokens, all of
+    them, in order, exact (round-trip) conversion; ``ValueError`` on any other token.
+    """
+    try:
+        from icploc import _core
+    except ImportError:  # pragma: no cover - the package needs the core anyway
+        return None
+    fn = getattr(_core, "parse_floats", None)
+    return fn if callable(fn) else None
 
 
 #: which matrix parser to use ("auto" or "numpy"); tests flip it to cover both paths
@@ -547,9 +569,10 @@ def read_carmen(
     flags_blocks: list[NDArray[np.uint8]] = []
     ranges_blocks: list[NDArray[np.float64]] = []
     for b in blocks:
-        r = b.ranges
+        r = np.ascontiguousarray(b.ranges)
         nan = np.isnan(r)
-        if nan.any() and nan_ranges == "error":
+        n_nan = int(np.count_nonzero(nan))
+        if n_nan and nan_ranges == "error":
             row = int(np.argwhere(nan)[0][0])
             raise LogFormatError(spath, "NaN range reading", b.idx[row] + 1)
         neg = r < 0
@@ -557,23 +580,27 @@ def read_carmen(
             row = int(np.argwhere(neg)[0][0])
             raise LogFormatError(spath, f"negative range reading {r[neg][0]!r}", b.idx[row] + 1)
         mr = b.max_range if math.isfinite(b.max_range) else math.inf
-        noret = ~nan & ((r == 0) | (r >= mr))
-        fl = np.zeros(r.shape, dtype=np.uint8)
-        fl[noret] |= BEAM_NO_RETURN
-        fl[nan] |= BEAM_INVALID
+        noret = (r == 0) | (r >= mr)  # NaN compares False
+        fl = noret.view(np.uint8) * np.uint8(BEAM_NO_RETURN)
+        bad = noret
+        if n_nan:
+            fl |= nan.view(np.uint8) * np.uint8(BEAM_INVALID)
+            bad = noret | nan
+            notes.append(f"{n_nan} NaN readings flagged invalid")
         if stuck_beams and r.shape[0] >= _STUCK_MIN_SCANS:
-            const = np.all(r == r[0], axis=0) & ~noret[0] & ~nan[0]
+            const = np.all(r == r[0], axis=0) & ~bad[0]
             if 0 < const.sum() < 0.1 * r.shape[1]:
-                fl[:, const] |= BEAM_INVALID
+                fl[:, const] |= np.uint8(BEAM_INVALID)
+                bad = bad.copy()
+                bad[:, const] = True
                 notes.append(
                     f"{int(const.sum())} beam(s) of {r.shape[1]} never change "
                     f"(index {', '.join(map(str, np.flatnonzero(const)[:5]))}): flagged invalid"
                 )
-        out = np.where(noret | nan | ((fl & BEAM_INVALID) != 0), np.inf, r)
+        if bad.any():
+            r[bad] = np.inf  # r is a copy of, or the parsed matrix itself: ours to change
         flags_blocks.append(fl)
-        ranges_blocks.append(out)
-        if int(nan.sum()):
-            notes.append(f"{int(nan.sum())} NaN readings flagged invalid")
+        ranges_blocks.append(r)
 
     # ---- one timeline in file order
     scan_line = (
@@ -700,8 +727,8 @@ def write_carmen(
     scans: Sequence[Scan],
     odoms: Iterable[Odometry] = (),
     *,
-    poses: NDArray[np.float64] | Sequence[Sequence[float]] | None = None,
-    scan_odometry: NDArray[np.float64] | Sequence[Sequence[float]] | None = None,
+    poses: ArrayLike | None = None,
+    scan_odometry: ArrayLike | None = None,
     fmt: str = "FLASER",
     no_return: float | None = None,
     precision: int | None = None,
