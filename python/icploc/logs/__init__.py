@@ -91,8 +91,13 @@ def _load_recorded(path: str, **opts: Any) -> LogData:
     mod = importlib.import_module(_RECORDED)
     scans: list[Scan] = []
     odoms: list[Odometry] = []
-    for msg in mod.read_recorded(path, **opts):
-        (scans if isinstance(msg, Scan) else odoms).append(msg)
+    try:
+        for msg in mod.read_recorded(path, **opts):
+            (scans if isinstance(msg, Scan) else odoms).append(msg)
+    except LogFormatError:
+        raise
+    except ValueError as exc:  # RecordingFormatError and the protocol errors are ValueErrors
+        raise LogFormatError(path, f"bad recording: {exc}") from exc
     scans.sort(key=lambda s: s.stamp)
     odoms.sort(key=lambda o: o.stamp)
     return LogData(info=_info_from(path, "recorded", scans, odoms), scans=scans, odometry=odoms)
@@ -130,9 +135,10 @@ def _load_rosbag(path: str, **opts: Any) -> LogData:
     return read_rosbag(path, **opts)
 
 
-register_format("recorded", _sniff_recorded, _load_recorded, (".icprec", ".rec"))
+# sniffing order: the cheap, dependency-free checks first
 register_format("rosbag", _sniff_rosbag, _load_rosbag, (".bag", ".db3", ".mcap"))
 register_format("carmen", is_carmen, read_carmen, (".log", ".log.gz", ".clf", ".clf.gz", ".gz"))
+register_format("recorded", _sniff_recorded, _load_recorded, (".icpraw",))
 
 
 def detect_format(path: str | os.PathLike[str]) -> str:

@@ -1,0 +1,99 @@
+"""The log registry: format detection, the recorded-bytes path, merged iteration."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from icploc.logs import FORMATS, LogFormatError, detect_format, load_log, merge_in_time, open_log
+from icploc.logs.carmen import flaser_angles, write_carmen
+from icploc.logs.rosbag import write_rosbag
+from icploc.types import Odometry, Scan
+
+HAVE_RECORDED = importlib.util.find_spec("icploc.logs.recorded") is not None
+
+
+def _scan(t: float) -> Scan:
+    return Scan(stamp=t, ranges=np.ones(180), angles=flaser_angles(180), max_range=8.0)
+
+
+def test_formats_registered() -> None:
+    assert {"carmen", "rosbag", "recorded"} <= set(FORMATS)
+
+
+def test_detect_each_format(tmp_path: Path) -> None:
+    c = tmp_path / "a.dat"
+    write_carmen(c, [_scan(1.0)], [])
+    b1 = tmp_path / "b.dat"
+    write_rosbag(b1, [_scan(1.0)], [], version=1)
+    b2 = tmp_path / "b2"
+    write_rosbag(b2, [_scan(1.0)], [], version=2)
+    assert detect_format(c) == "carmen"
+    assert detect_format(b1) == "rosbag"
+    assert detect_format(b2) == "rosbag"
+    with pytest.raises(FileNotFoundError):
+        detect_format(tmp_path / "missing.log")
+
+
+def test_format_override_and_unknown(tmp_path: Path) -> None:
+    c = tmp_path / "a.log"
+    write_carmen(c, [_scan(1.0)], [])
+    assert len(load_log(c, format="carmen").scans) == 1
+    with pytest.raises(ValueError, match="unknown log format 'nope'"):
+        load_log(c, format="nope")
+    with pytest.raises(TypeError):
+        open_log(c, no_such_option=1)
+
+
+@given(
+    s=st.lists(st.floats(0, 100, allow_nan=False), max_size=20),
+    o=st.lists(st.floats(0, 100, allow_nan=False), max_size=20),
+)
+def test_merge_in_time_is_sorted_and_stable(s: list[float], o: list[float]) -> None:
+    scans = [_scan(t) for t in sorted(s)]
+    odoms = [Odometry(stamp=t, pose=(0.0, 0.0, 0.0)) for t in sorted(o)]
+    out = list(merge_in_time(scans, odoms))
+    assert len(out) == len(s) + len(o)
+    st_ = [m.stamp for m in out]
+    assert st_ == sorted(st_)
+    for a, b in zip(out, out[1:], strict=False):  # odometry first on ties
+        if a.stamp == b.stamp:
+            assert not (isinstance(a, Scan) and isinstance(b, Odometry))
+
+
+@pytest.mark.skipif(not HAVE_RECORDED, reason="icploc.logs.recorded not written yet")
+def test_recorded_sessions_are_detected_and_read(tmp_path: Path) -> None:
+    from icploc.drivers import arcos_protocol as ap
+    from icploc.drivers.recording import Recorder
+
+    p = tmp_path / "session.bin"
+    with Recorder(p) as rec:
+        dev = rec.device("powerbot", {"driver": "powerbot", "subtype": "p3dx"}, 0.0)
+        for k in range(5):
+            raw = ap.RawSip(type=0x33, xpos=10 * k, ypos=0, thpos=0, lvel=0, rvel=0, battery=120,
+                            stall_bumpers=0, control=0, flags=0, compass=0, sonar=(),
+                            grip_state=0, anport=0, analog=0, digin=0, digout=0)  # fmt: skip
+            rec.rx(dev, 1.0 + 0.1 * k, ap.build_sip(raw))
+    assert detect_format(p) == "recorded"
+    d = open_log(p)
+    assert d.info.format == "recorded"
+    assert d.info.n_scans == 0 and d.info.n_odometry == 5
+    st_ = [m.stamp for m in d]
+    assert st_ == sorted(st_)
+    xs = [o.pose[0] for o in d.odometry]
+    assert xs == sorted(xs) and xs[-1] > xs[0]
+
+
+@pytest.mark.skipif(not HAVE_RECORDED, reason="icploc.logs.recorded not written yet")
+def test_corrupt_recording_is_a_log_format_error(tmp_path: Path) -> None:
+    from icploc.drivers.recording import MAGIC
+
+    p = tmp_path / "bad.icpraw"
+    p.write_bytes(MAGIC + b"\xff\xff\xff\x7f{")
+    with pytest.raises(LogFormatError) as ei:
+        open_log(p)
+    assert str(p) in str(ei.value)
