@@ -191,24 +191,25 @@ class _TrigCache:
 
     def __init__(self) -> None:
         self._angles: NDArray[np.float64] | None = None
-        self._key: tuple[int, float, float, float] | None = None
+        self._theta = 0.0
         self.cos: NDArray[np.float64] = np.zeros(0)
         self.sin: NDArray[np.float64] = np.zeros(0)
 
     def get(
         self, angles: NDArray[np.float64], theta: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        n = angles.shape[0]
-        key = (n, float(angles[0]) if n else 0.0, float(angles[-1]) if n else 0.0, theta)
-        if (
-            self._key != key
-            or self._angles is None
-            or (self._angles is not angles and not np.array_equal(self._angles, angles))
-        ):
+        prev = self._angles
+        if prev is not angles or self._theta != theta:
+            if (
+                prev is None
+                or self._theta != theta
+                or prev.shape != angles.shape
+                or not np.array_equal(prev, angles)
+            ):
+                self.cos = np.cos(angles + theta)
+                self.sin = np.sin(angles + theta)
             self._angles = angles
-            self._key = key
-            self.cos = np.cos(angles + theta)
-            self.sin = np.sin(angles + theta)
+            self._theta = theta
         return self.cos, self.sin
 
 
@@ -226,24 +227,25 @@ def prepare_scan(
     sc = config.scan
     r = scan.ranges
     hi = sc.max_range if sc.max_range > 0.0 else scan.max_range
-    if math.isfinite(hi):
+    if hi != math.inf:
         hi = hi * sc.max_range_margin
-    lo = max(sc.min_range, scan.min_range)
-    with np.errstate(invalid="ignore"):
-        ok = (r > lo) & (r < hi)  # NaN and inf compare False / inf < inf is False
+    lo = sc.min_range if sc.min_range > scan.min_range else scan.min_range
+    ok = r < hi  # NaN and inf compare False (inf < inf is False)
+    ok &= r > lo
     if scan.flags is not None:
         ok &= (scan.flags & _BAD_FLAGS) == 0
+    idx = ok.nonzero()[0]
     if sc.decimation > 1:
-        idx = np.flatnonzero(ok)[:: sc.decimation]
-    else:
-        idx = np.flatnonzero(ok)
+        idx = idx[:: sc.decimation]
     if trig is None:
         trig = _TrigCache()
     c, s = trig.get(scan.angles, sc.laser_theta)
     rr = r[idx]
     pts = np.empty((idx.shape[0], 2))
-    pts[:, 0] = rr * c[idx] + sc.laser_x
-    pts[:, 1] = rr * s[idx] + sc.laser_y
+    np.multiply(rr, c[idx], out=pts[:, 0])
+    np.multiply(rr, s[idx], out=pts[:, 1])
+    if sc.laser_x != 0.0 or sc.laser_y != 0.0:
+        pts += (sc.laser_x, sc.laser_y)
     return pts
 
 
@@ -312,6 +314,10 @@ class Localizer:
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
         self._last_reloc_result: Any = None
+        lc0 = self.config.localizer
+        self._cov_floor = np.diag(
+            [lc0.min_sigma_xy**2, lc0.min_sigma_xy**2, lc0.min_sigma_theta**2]
+        )
         self._lost_scans = 0
         lc = self.config.localizer
         pose = initial_pose if initial_pose is not None else lc.initial_pose
@@ -408,15 +414,20 @@ class Localizer:
         dist = math.hypot(d[0], d[1])
         rot = abs(d[2])
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        # Jacobians of compose(pose, d) w.r.t. pose and d
-        F = np.array(
-            [[1.0, 0.0, -s * d[0] - c * d[1]], [0.0, 1.0, c * d[0] - s * d[1]], [0.0, 0.0, 1.0]]
-        )
-        G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        # P' = F P F^T + G Q G^T with F = d(pose ⊕ d)/d(pose); Q is isotropic in x, y so
+        # G Q G^T = Q. Written out in floats: this runs for every scan.
+        a = -s * d[0] - c * d[1]
+        b = c * d[0] - s * d[1]
+        (p00, p01, p02), (_, p11, p12), (p20, p21, p22) = self.covariance.tolist()
+        r00, r01, r02 = p00 + a * p20, p01 + a * p21, p02 + a * p22
+        r11, r12 = p11 + b * p21, p12 + b * p22
         sxy = lc.odom_sigma_per_metre * dist
         sth = lc.odom_sigma_theta_per_radian * rot + lc.odom_sigma_theta_per_metre * dist
-        Q = np.diag([sxy * sxy + 1e-12, sxy * sxy + 1e-12, sth * sth + 1e-12])
-        cov = F @ self.covariance @ F.T + G @ Q @ G.T
+        qxy = sxy * sxy + 1e-12
+        c00 = r00 + a * r02 + qxy
+        c01 = r01 + b * r02
+        c11 = r11 + b * r12 + qxy
+        cov = np.array([[c00, c01, r02], [c01, c11, r12], [r02, r12, p22 + sth * sth + 1e-12]])
         return pred, cov, dist, rot
 
     def _match_index(self, pred: Pose) -> Any:
@@ -559,14 +570,11 @@ class Localizer:
     def _corrected_covariance(
         self, res: Any, pred_cov: NDArray[np.float64], degenerate: bool
     ) -> NDArray[np.float64]:
-        lc = self.config.localizer
-        cov = np.array(res.covariance, dtype=np.float64).reshape(3, 3)
-        if not np.all(np.isfinite(cov)):
-            cov = pred_cov.copy()
-        # floors: a covariance that is not zero
-        cov = 0.5 * (cov + cov.T)
-        floor = np.diag([lc.min_sigma_xy**2, lc.min_sigma_xy**2, lc.min_sigma_theta**2])
-        cov = cov + floor
+        cov = np.asarray(res.covariance, dtype=np.float64).reshape(3, 3)
+        if not np.isfinite(cov).all():
+            cov = pred_cov
+        # symmetric, and floored: a covariance that is never zero
+        cov = (cov + cov.T) * 0.5 + self._cov_floor
         if degenerate:
             dx, dy = res.degenerate_direction
             nrm = math.hypot(dx, dy) or 1.0
