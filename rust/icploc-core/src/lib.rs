@@ -16,6 +16,7 @@
 //! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
 
 pub mod error;
+pub mod global;
 pub mod icp;
 pub mod index;
 pub mod quaternion;

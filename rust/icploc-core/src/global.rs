@@ -1,0 +1,1012 @@
+//! Global localization: find the pose of a scan anywhere on the map, without a prior.
+//!
+//! Built once per map ([`GlobalLocalizer::new`]):
+//!
+//! * a distance field on a grid of `resolution` cells (distance from each cell centre to
+//!   the closest map point, from the k-d tree),
+//! * a likelihood grid `255·exp(−d²/2σ²)` (u8) and its max-pooled pyramid: level `h` holds,
+//!   at cell (i, j), the maximum over the 2ʰ × 2ʰ window starting there,
+//! * a free-space mask (cells at least `min_clearance` from every map point) and its
+//!   "any free cell in the window" pyramid.
+//!
+//! One search ([`GlobalLocalizer::search`]) is a branch-and-bound correlative search in
+//! the manner of Olson's multi-resolution scan matching and Cartographer's fast
+//! correlative matcher: for every heading (a `angle_step` lattice, optionally restricted
+//! to a range) the subsampled scan is rotated once into integer cell offsets; the
+//! translations form a quadtree whose node bound is the sum of the pooled likelihood under
+//! the points — an exact upper bound of every translation inside the node. Nodes are
+//! explored depth-first (best child first) in parallel over roots, and pruned when their
+//! bound falls below `accept_ratio` × the best leaf found so far (shared atomically) —
+//! so every leaf within that ratio of the best survives, not just the best one, which is
+//! what lets a symmetric or repetitive map show its alternatives.
+//!
+//! The surviving leaves are thinned (non-maximum suppression) to `max_candidates` seeds,
+//! each refined by point-to-line ICP ([`crate::icp::align`], in parallel) and re-scored on
+//! the full scan against the k-d tree (a Gaussian likelihood of the point distances) times
+//! one minus the fraction of beams that pass through a wall (negative information: the
+//! laser cannot see through walls). Refined duplicates are merged and the candidates
+//! ranked. The result is `ambiguous` when the best candidate and the best one distinct
+//! from it (farther than `distinct_distance` or `distinct_angle`) score within
+//! `ambiguity_margin` (relative) of each other: the caller must then confirm over the
+//! next scans (odometry) rather than pick one.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::Arc;
+
+use rayon::prelude::*;
+
+use crate::error::{IcpError, Result};
+use crate::icp::{align, IcpConfig, Metric};
+use crate::index::MapIndex;
+use crate::se2::{wrap_angle, Pose2};
+
+/// Grids larger than this many cells are refused (memory: ~ 8 bytes per cell per level).
+const MAX_CELLS: usize = 40_000_000;
+
+/// Settings of the global search. Distances in metres, angles in radians.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalConfig {
+    /// Heading lattice step.
+    pub angle_step: f64,
+    /// Scan points used by the coarse search (evenly subsampled).
+    pub max_points: usize,
+    /// σ of the coarse likelihood grid (fixed when the localizer is built).
+    pub sigma: f64,
+    /// Candidate positions must be at least this far from every map point.
+    pub min_clearance: f64,
+    /// Keep every coarse leaf scoring at least this fraction of the best, in (0, 1].
+    pub accept_ratio: f64,
+    /// Coarse leaves below this fraction of a perfect score are never kept, in [0, 1).
+    pub min_score: f64,
+    /// Coarse seeds refined by ICP (after non-maximum suppression).
+    pub max_candidates: usize,
+    /// Non-maximum suppression of seeds: seeds closer than this (and `seed_angle`) merge.
+    pub seed_distance: f64,
+    pub seed_angle: f64,
+    /// Pyramid depth: the coarsest node covers 2^levels × 2^levels cells.
+    pub levels: usize,
+    /// σ of the final (fine) likelihood.
+    pub score_sigma: f64,
+    /// A scan point closer than this to the map is an inlier.
+    pub inlier_distance: f64,
+    /// Two candidates are distinct when farther apart than this or `distinct_angle`.
+    pub distinct_distance: f64,
+    pub distinct_angle: f64,
+    /// Relative score margin under which the best two distinct candidates are ambiguous.
+    pub ambiguity_margin: f64,
+    /// Refinement ICP.
+    pub icp: IcpConfig,
+}
+
+impl Default for GlobalConfig {
+    fn default() -> Self {
+        Self {
+            angle_step: 2f64.to_radians(),
+            max_points: 96,
+            sigma: 0.15,
+            min_clearance: 0.2,
+            accept_ratio: 0.8,
+            min_score: 0.15,
+            max_candidates: 32,
+            seed_distance: 0.5,
+            seed_angle: 10f64.to_radians(),
+            levels: 6,
+            score_sigma: 0.05,
+            inlier_distance: 0.1,
+            distinct_distance: 0.5,
+            distinct_angle: 10f64.to_radians(),
+            ambiguity_margin: 0.1,
+            icp: IcpConfig {
+                metric: Metric::PointToLine,
+                max_iterations: 40,
+                max_correspondence_distance: 0.6,
+                min_correspondence_distance: 0.1,
+                threshold_decay: 0.7,
+                ..IcpConfig::default()
+            },
+        }
+    }
+}
+
+fn bad(field: &'static str, value: impl ToString, reason: &'static str) -> IcpError {
+    IcpError::InvalidConfig {
+        field,
+        value: value.to_string(),
+        reason,
+    }
+}
+
+impl GlobalConfig {
+    /// Check every value; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let pos = |v: f64| v > 0.0 && v.is_finite();
+        let nonneg = |v: f64| v >= 0.0 && v.is_finite();
+        if !(pos(self.angle_step) && self.angle_step <= std::f64::consts::PI) {
+            return Err(bad("angle_step", self.angle_step, "must be in (0, pi]"));
+        }
+        if self.max_points < 3 {
+            return Err(bad("max_points", self.max_points, "must be at least 3"));
+        }
+        if !pos(self.sigma) {
+            return Err(bad("sigma", self.sigma, "must be positive and finite"));
+        }
+        if !nonneg(self.min_clearance) {
+            return Err(bad(
+                "min_clearance",
+                self.min_clearance,
+                "must be non-negative and finite",
+            ));
+        }
+        if !(self.accept_ratio > 0.0 && self.accept_ratio <= 1.0) {
+            return Err(bad("accept_ratio", self.accept_ratio, "must be in (0, 1]"));
+        }
+        if !(0.0..1.0).contains(&self.min_score) {
+            return Err(bad("min_score", self.min_score, "must be in [0, 1)"));
+        }
+        if self.max_candidates == 0 {
+            return Err(bad("max_candidates", 0, "must be at least 1"));
+        }
+        if !nonneg(self.seed_distance) || !nonneg(self.seed_angle) {
+            return Err(bad(
+                "seed_distance",
+                format!("{}, {}", self.seed_distance, self.seed_angle),
+                "seed_distance and seed_angle must be non-negative and finite",
+            ));
+        }
+        if self.levels > 12 {
+            return Err(bad("levels", self.levels, "must be at most 12"));
+        }
+        if !pos(self.score_sigma) {
+            return Err(bad(
+                "score_sigma",
+                self.score_sigma,
+                "must be positive and finite",
+            ));
+        }
+        if !pos(self.inlier_distance) {
+            return Err(bad(
+                "inlier_distance",
+                self.inlier_distance,
+                "must be positive and finite",
+            ));
+        }
+        if !nonneg(self.distinct_distance) || !nonneg(self.distinct_angle) {
+            return Err(bad(
+                "distinct_distance",
+                format!("{}, {}", self.distinct_distance, self.distinct_angle),
+                "distinct_distance and distinct_angle must be non-negative and finite",
+            ));
+        }
+        if !(0.0..1.0).contains(&self.ambiguity_margin) {
+            return Err(bad(
+                "ambiguity_margin",
+                self.ambiguity_margin,
+                "must be in [0, 1)",
+            ));
+        }
+        self.icp.validate()
+    }
+}
+
+/// One ranked pose hypothesis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Candidate {
+    /// Sensor pose in the map frame (after ICP refinement).
+    pub pose: Pose2,
+    /// Final score in [0, 1]: mean Gaussian likelihood of the scan points' distances to the
+    /// map, times one minus the fraction of beams passing through walls.
+    pub score: f64,
+    /// Fraction of scan points within `inlier_distance` of the map.
+    pub inlier_ratio: f64,
+    /// Mean-square distance of the inliers (m²).
+    pub mse: f64,
+    /// Fraction of the checked beams that pass through a wall before their return.
+    pub see_through: f64,
+    /// Coarse (grid) score of the seed, in [0, 1].
+    pub coarse_score: f64,
+}
+
+/// The outcome of a search.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlobalResult {
+    /// Best first; distinct (duplicates from different seeds are merged).
+    pub candidates: Vec<Candidate>,
+    /// The best two distinct candidates are too close in score to choose.
+    pub ambiguous: bool,
+    /// Quadtree nodes and leaves scored by the coarse search.
+    pub nodes: usize,
+    /// Coarse leaves within `accept_ratio` of the best.
+    pub leaves: usize,
+    /// Headings searched.
+    pub headings: usize,
+    /// Seconds spent in the coarse search and in refinement + scoring.
+    pub coarse_time: f64,
+    pub refine_time: f64,
+}
+
+impl GlobalResult {
+    pub fn best(&self) -> Option<&Candidate> {
+        self.candidates.first()
+    }
+}
+
+/// A precomputed search structure for one map.
+pub struct GlobalLocalizer {
+    index: Arc<MapIndex>,
+    cfg: GlobalConfig,
+    res: f64,
+    x0: f64,
+    y0: f64,
+    w: usize,
+    h: usize,
+    /// Distance (m) from each cell centre to the nearest map point.
+    dist: Vec<f32>,
+    /// Pooled likelihood, level 0 = the likelihood itself.
+    pooled: Vec<Vec<u8>>,
+    /// Pooled "some cell of the window is free".
+    free: Vec<Vec<bool>>,
+}
+
+impl std::fmt::Debug for GlobalLocalizer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GlobalLocalizer")
+            .field("resolution", &self.res)
+            .field("origin", &(self.x0, self.y0))
+            .field("cells", &(self.w, self.h))
+            .field("levels", &self.pooled.len())
+            .finish()
+    }
+}
+
+#[derive(Clone, Copy)]
+struct Node {
+    bound: u32,
+    level: u8,
+    k: u32,
+    i: i32,
+    j: i32,
+}
+
+#[derive(Clone, Copy)]
+struct Leaf {
+    score: u32,
+    k: u32,
+    i: i32,
+    j: i32,
+}
+
+impl GlobalLocalizer {
+    /// Build the grids for `index` at `resolution` metres per cell.
+    pub fn new(index: Arc<MapIndex>, resolution: f64, cfg: GlobalConfig) -> Result<Self> {
+        cfg.validate()?;
+        if resolution <= 0.0 || !resolution.is_finite() {
+            return Err(IcpError::InvalidInput {
+                what: "resolution".into(),
+                reason: format!("must be positive and finite, got {resolution}"),
+            });
+        }
+        let [xmin, ymin, xmax, ymax] = index.bounds();
+        let wf = ((xmax - xmin) / resolution).floor() + 1.0;
+        let hf = ((ymax - ymin) / resolution).floor() + 1.0;
+        if !(wf.is_finite() && hf.is_finite()) || wf * hf > MAX_CELLS as f64 {
+            return Err(IcpError::InvalidInput {
+                what: "resolution".into(),
+                reason: format!(
+                    "a {:.1} m x {:.1} m map at {resolution} m needs {wf} x {hf} cells, more than {MAX_CELLS}",
+                    xmax - xmin,
+                    ymax - ymin
+                ),
+            });
+        }
+        let (w, h) = (wf as usize, hf as usize);
+        let (x0, y0) = (xmin, ymin);
+        let dist: Vec<f32> = (0..w * h)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|c| {
+                let (i, j) = (c % w, c / w);
+                let q = [
+                    x0 + (i as f64 + 0.5) * resolution,
+                    y0 + (j as f64 + 0.5) * resolution,
+                ];
+                index.nearest(q).0.sqrt() as f32
+            })
+            .collect();
+        let inv2s2 = 1.0 / (2.0 * cfg.sigma * cfg.sigma);
+        let base: Vec<u8> = dist
+            .iter()
+            .map(|&d| {
+                let d = d as f64;
+                (255.0 * (-d * d * inv2s2).exp()).round() as u8
+            })
+            .collect();
+        let free0: Vec<bool> = dist
+            .iter()
+            .map(|&d| d as f64 >= cfg.min_clearance)
+            .collect();
+        let mut pooled = vec![base];
+        let mut free = vec![free0];
+        for lvl in 1..=cfg.levels {
+            let s = 1usize << (lvl - 1);
+            let prev = &pooled[lvl - 1];
+            let prevf = &free[lvl - 1];
+            let (next, nextf): (Vec<u8>, Vec<bool>) = (0..w * h)
+                .into_par_iter()
+                .with_min_len(4096)
+                .map(|c| {
+                    let (i, j) = (c % w, c / w);
+                    let mut m = prev[c];
+                    let mut f = prevf[c];
+                    if i + s < w {
+                        m = m.max(prev[c + s]);
+                        f |= prevf[c + s];
+                    }
+                    if j + s < h {
+                        m = m.max(prev[c + s * w]);
+                        f |= prevf[c + s * w];
+                        if i + s < w {
+                            m = m.max(prev[c + s * w + s]);
+                            f |= prevf[c + s * w + s];
+                        }
+                    }
+                    (m, f)
+                })
+                .unzip();
+            pooled.push(next);
+            free.push(nextf);
+        }
+        Ok(Self {
+            index,
+            cfg,
+            res: resolution,
+            x0,
+            y0,
+            w,
+            h,
+            dist,
+            pooled,
+            free,
+        })
+    }
+
+    pub fn config(&self) -> &GlobalConfig {
+        &self.cfg
+    }
+
+    pub fn index(&self) -> &Arc<MapIndex> {
+        &self.index
+    }
+
+    pub fn resolution(&self) -> f64 {
+        self.res
+    }
+
+    /// Grid size in cells (width, height).
+    pub fn shape(&self) -> (usize, usize) {
+        (self.w, self.h)
+    }
+
+    /// Number of grid cells where a pose may be (clearance from the map).
+    pub fn free_cells(&self) -> usize {
+        self.free[0].iter().filter(|&&f| f).count()
+    }
+
+    /// Distance (m) from `p` to the map as stored in the grid (nearest cell); `None`
+    /// outside the grid.
+    pub fn distance_at(&self, p: [f64; 2]) -> Option<f64> {
+        let i = ((p[0] - self.x0) / self.res).floor();
+        let j = ((p[1] - self.y0) / self.res).floor();
+        if i >= 0.0 && j >= 0.0 && (i as usize) < self.w && (j as usize) < self.h {
+            Some(self.dist[j as usize * self.w + i as usize] as f64)
+        } else {
+            None
+        }
+    }
+
+    #[inline]
+    fn sum(&self, level: usize, offs: &[(i32, i32)], i: i32, j: i32) -> u32 {
+        let g = &self.pooled[level];
+        let (w, h) = (self.w as i32, self.h as i32);
+        // a window starting left of / below the grid: the window at 0 covers its in-grid
+        // part (and more), so it still bounds it
+        let lo = 1 - (1i32 << level);
+        let mut s = 0u32;
+        for &(ox, oy) in offs {
+            let (x, y) = (i + ox, j + oy);
+            if x >= lo && y >= lo && x < w && y < h {
+                s += g[(y.max(0) * w + x.max(0)) as usize] as u32;
+            }
+        }
+        s
+    }
+
+    /// Search the whole map (or `region` = (xmin, ymin, xmax, ymax) of the sensor
+    /// position, and `heading` = (min, max) radians, min ≤ max, at most 2π wide) for the
+    /// pose of `scan` (sensor-frame points).
+    pub fn search(
+        &self,
+        scan: &[[f64; 2]],
+        region: Option<[f64; 4]>,
+        heading: Option<(f64, f64)>,
+    ) -> Result<GlobalResult> {
+        crate::check_finite("scan", scan)?;
+        let t0 = std::time::Instant::now();
+        let cfg = &self.cfg;
+        let usable: Vec<[f64; 2]> = scan
+            .iter()
+            .copied()
+            .filter(|p| p[0] * p[0] + p[1] * p[1] > 1e-12)
+            .collect();
+        if usable.len() < cfg.icp.min_inliers.max(3) {
+            return Err(IcpError::TooFewPoints {
+                what: "scan".into(),
+                got: usable.len(),
+                min: cfg.icp.min_inliers.max(3),
+            });
+        }
+        // region in cells (inclusive)
+        let (ri0, rj0, ri1, rj1) = match region {
+            None => (0i32, 0i32, self.w as i32 - 1, self.h as i32 - 1),
+            Some(r) => {
+                if !r.iter().all(|v| v.is_finite()) || r[0] > r[2] || r[1] > r[3] {
+                    return Err(IcpError::InvalidInput {
+                        what: "region".into(),
+                        reason: format!(
+                            "must be finite (xmin, ymin, xmax, ymax) with xmin <= xmax and ymin <= ymax, got {r:?}"
+                        ),
+                    });
+                }
+                let i0 = ((r[0] - self.x0) / self.res).ceil().max(0.0);
+                let j0 = ((r[1] - self.y0) / self.res).ceil().max(0.0);
+                let i1 = ((r[2] - self.x0) / self.res)
+                    .floor()
+                    .min(self.w as f64 - 1.0);
+                let j1 = ((r[3] - self.y0) / self.res)
+                    .floor()
+                    .min(self.h as f64 - 1.0);
+                if i0 > i1 || j0 > j1 {
+                    return Err(IcpError::InvalidInput {
+                        what: "region".into(),
+                        reason: format!("{r:?} does not overlap the map grid"),
+                    });
+                }
+                (i0 as i32, j0 as i32, i1 as i32, j1 as i32)
+            }
+        };
+        let headings: Vec<f64> = match heading {
+            None => {
+                let n = (std::f64::consts::TAU / cfg.angle_step).round().max(1.0) as usize;
+                let step = std::f64::consts::TAU / n as f64;
+                (0..n).map(|k| wrap_angle(k as f64 * step)).collect()
+            }
+            Some((lo, hi)) => {
+                if !(lo.is_finite() && hi.is_finite() && lo <= hi)
+                    || hi - lo > std::f64::consts::TAU + 1e-9
+                {
+                    return Err(IcpError::InvalidInput {
+                        what: "heading".into(),
+                        reason: format!(
+                            "must be finite (min, max) with min <= max <= min + 2 pi, got ({lo}, {hi})"
+                        ),
+                    });
+                }
+                let n = ((hi - lo) / cfg.angle_step).ceil().max(0.0) as usize + 1;
+                let step = if n > 1 {
+                    (hi - lo) / (n - 1) as f64
+                } else {
+                    0.0
+                };
+                (0..n).map(|k| wrap_angle(lo + k as f64 * step)).collect()
+            }
+        };
+        // subsample the scan evenly
+        let m = usable.len().min(cfg.max_points);
+        let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
+        let inv = 1.0 / self.res;
+        let offsets: Vec<Vec<(i32, i32)>> = headings
+            .iter()
+            .map(|&th| {
+                let (s, c) = th.sin_cos();
+                sub.iter()
+                    .map(|p| {
+                        let x = c * p[0] - s * p[1];
+                        let y = s * p[0] + c * p[1];
+                        ((x * inv).floor() as i32, (y * inv).floor() as i32)
+                    })
+                    .collect()
+            })
+            .collect();
+        let top = cfg.levels;
+        let stride = 1i32 << top;
+        let in_region = |lvl: usize, i: i32, j: i32| -> bool {
+            let e = (1i32 << lvl) - 1;
+            i <= ri1 && i + e >= ri0 && j <= rj1 && j + e >= rj0
+        };
+        // roots: the coarsest level, all headings
+        let mut roots: Vec<Node> = Vec::new();
+        let mut j = (rj0 / stride) * stride;
+        while j <= rj1 {
+            let mut i = (ri0 / stride) * stride;
+            while i <= ri1 {
+                if self.free[top][(j as usize) * self.w + i as usize] && in_region(top, i, j) {
+                    for k in 0..headings.len() {
+                        roots.push(Node {
+                            bound: 0,
+                            level: top as u8,
+                            k: k as u32,
+                            i,
+                            j,
+                        });
+                    }
+                }
+                i += stride;
+            }
+            j += stride;
+        }
+        roots.par_iter_mut().for_each(|n| {
+            n.bound = self.sum(top, &offsets[n.k as usize], n.i, n.j);
+        });
+        roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
+        let full = 255 * m as u32;
+        let floor = (cfg.min_score * full as f64).ceil() as u32;
+        let best = AtomicU32::new(floor);
+        let ratio = cfg.accept_ratio;
+        let threshold = |b: u32| -> u32 { ((b as f64) * ratio).ceil() as u32 };
+        let (leaves, nodes): (Vec<Leaf>, usize) = roots
+            .par_iter()
+            .with_max_len(1)
+            .fold(
+                || (Vec::new(), 0usize, Vec::<Node>::new()),
+                |(mut leaves, mut nodes, mut stack), root| {
+                    nodes += 1;
+                    stack.clear();
+                    stack.push(*root);
+                    while let Some(n) = stack.pop() {
+                        let thr = threshold(best.load(Ordering::Relaxed)).max(floor);
+                        if n.bound < thr {
+                            continue;
+                        }
+                        let offs = &offsets[n.k as usize];
+                        if n.level == 0 {
+                            // bound == exact score at level 0
+                            leaves.push(Leaf {
+                                score: n.bound,
+                                k: n.k,
+                                i: n.i,
+                                j: n.j,
+                            });
+                            best.fetch_max(n.bound, Ordering::Relaxed);
+                            continue;
+                        }
+                        let lvl = n.level as usize - 1;
+                        let s = 1i32 << lvl;
+                        let mut kids: [Node; 4] = [n; 4];
+                        let mut nk = 0;
+                        for (a, b) in [(0, 0), (s, 0), (0, s), (s, s)] {
+                            let (ci, cj) = (n.i + a, n.j + b);
+                            if ci >= self.w as i32 || cj >= self.h as i32 {
+                                continue;
+                            }
+                            let ok = if lvl == 0 {
+                                ci >= ri0
+                                    && ci <= ri1
+                                    && cj >= rj0
+                                    && cj <= rj1
+                                    && self.free[0][cj as usize * self.w + ci as usize]
+                            } else {
+                                in_region(lvl, ci, cj)
+                                    && self.free[lvl][cj as usize * self.w + ci as usize]
+                            };
+                            if !ok {
+                                continue;
+                            }
+                            nodes += 1;
+                            let bound = self.sum(lvl, offs, ci, cj);
+                            if bound < thr {
+                                continue;
+                            }
+                            kids[nk] = Node {
+                                bound,
+                                level: lvl as u8,
+                                k: n.k,
+                                i: ci,
+                                j: cj,
+                            };
+                            nk += 1;
+                        }
+                        let kids = &mut kids[..nk];
+                        kids.sort_unstable_by_key(|c| c.bound);
+                        stack.extend_from_slice(kids);
+                    }
+                    (leaves, nodes, stack)
+                },
+            )
+            .map(|(l, n, _)| (l, n))
+            .reduce(
+                || (Vec::new(), 0),
+                |(mut a, na), (b, nb)| {
+                    a.extend(b);
+                    (a, na + nb)
+                },
+            );
+        let best_score = best.load(Ordering::Relaxed);
+        let keep = threshold(best_score).max(floor);
+        let mut leaves: Vec<Leaf> = leaves.into_iter().filter(|l| l.score >= keep).collect();
+        let n_leaves = leaves.len();
+        leaves.sort_unstable_by_key(|l| std::cmp::Reverse(l.score));
+        // non-maximum suppression into seeds
+        let mut seeds: Vec<(Pose2, f64)> = Vec::new();
+        for l in &leaves {
+            let p = Pose2::new(
+                self.x0 + l.i as f64 * self.res,
+                self.y0 + l.j as f64 * self.res,
+                headings[l.k as usize],
+            );
+            let close = seeds.iter().any(|(q, _)| {
+                (p.x - q.x).hypot(p.y - q.y) <= cfg.seed_distance
+                    && wrap_angle(p.theta - q.theta).abs() <= cfg.seed_angle
+            });
+            if !close {
+                seeds.push((p, l.score as f64 / full as f64));
+                if seeds.len() >= cfg.max_candidates {
+                    break;
+                }
+            }
+        }
+        let coarse_time = t0.elapsed().as_secs_f64();
+        // refine and re-score
+        let mut cands: Vec<Candidate> = seeds
+            .par_iter()
+            .with_max_len(1)
+            .filter_map(|&(p, coarse)| {
+                let r = align(&usable, &self.index, p, &cfg.icp).ok()?;
+                if !r.pose.is_finite() {
+                    return None;
+                }
+                let pose = r.pose.normalized();
+                Some(self.score_pose(&usable, pose, coarse))
+            })
+            .collect();
+        cands.sort_by(|a, b| b.score.total_cmp(&a.score));
+        let mut merged: Vec<Candidate> = Vec::new();
+        for c in cands {
+            let dup = merged.iter().any(|q| {
+                (c.pose.x - q.pose.x).hypot(c.pose.y - q.pose.y) <= 0.1
+                    && wrap_angle(c.pose.theta - q.pose.theta).abs() <= 2f64.to_radians()
+            });
+            if !dup {
+                merged.push(c);
+            }
+        }
+        let ambiguous = match merged.first() {
+            None => false,
+            Some(b) => merged[1..]
+                .iter()
+                .find(|c| self.distinct(&b.pose, &c.pose))
+                .is_some_and(|c| c.score >= b.score * (1.0 - cfg.ambiguity_margin)),
+        };
+        Ok(GlobalResult {
+            candidates: merged,
+            ambiguous,
+            nodes,
+            leaves: n_leaves,
+            headings: headings.len(),
+            coarse_time,
+            refine_time: t0.elapsed().as_secs_f64() - coarse_time,
+        })
+    }
+
+    /// Are two poses distinct hypotheses (farther apart than `distinct_distance` or
+    /// `distinct_angle`)?
+    pub fn distinct(&self, a: &Pose2, b: &Pose2) -> bool {
+        (a.x - b.x).hypot(a.y - b.y) > self.cfg.distinct_distance
+            || wrap_angle(a.theta - b.theta).abs() > self.cfg.distinct_angle
+    }
+
+    /// Score `scan` (sensor frame) at `pose` exactly (k-d tree) with the see-through
+    /// penalty; `coarse` is copied into the result.
+    pub fn score_pose(&self, scan: &[[f64; 2]], pose: Pose2, coarse: f64) -> Candidate {
+        let cfg = &self.cfg;
+        let inv2s2 = 1.0 / (2.0 * cfg.score_sigma * cfg.score_sigma);
+        let il2 = cfg.inlier_distance * cfg.inlier_distance;
+        let (mut lik, mut inl, mut sq) = (0.0, 0usize, 0.0);
+        let mut n = 0usize;
+        for p in scan {
+            let q = pose.transform(*p);
+            if !(q[0].is_finite() && q[1].is_finite()) {
+                continue;
+            }
+            n += 1;
+            let d2 = self.index.nearest(q).0;
+            lik += (-d2 * inv2s2).exp();
+            if d2 <= il2 {
+                inl += 1;
+                sq += d2;
+            }
+        }
+        let see_through = self.see_through(scan, pose);
+        let n = n.max(1) as f64;
+        Candidate {
+            pose,
+            score: (lik / n) * (1.0 - see_through),
+            inlier_ratio: inl as f64 / n,
+            mse: if inl > 0 { sq / inl as f64 } else { 0.0 },
+            see_through,
+            coarse_score: coarse,
+        }
+    }
+
+    /// Fraction of the beams (sensor origin to each scan point) that pass through a mapped
+    /// wall more than 0.3 m before the return.
+    pub fn see_through(&self, scan: &[[f64; 2]], pose: Pose2) -> f64 {
+        let step = self.res;
+        let spacing = self.index.spacing();
+        let thr = 0.5 * spacing + 0.5 * step + 0.75 * self.res;
+        let margin = 0.3f64.max(3.0 * self.cfg.inlier_distance);
+        let (mut checked, mut bad) = (0usize, 0usize);
+        for p in scan {
+            let r = p[0].hypot(p[1]);
+            if r <= 2.0 * margin || !r.is_finite() {
+                continue;
+            }
+            checked += 1;
+            let q = pose.transform(*p);
+            let (dx, dy) = ((q[0] - pose.x) / r, (q[1] - pose.y) / r);
+            let mut t = margin;
+            while t < r - margin {
+                if let Some(d) = self.distance_at([pose.x + dx * t, pose.y + dy * t]) {
+                    if d < thr {
+                        bad += 1;
+                        break;
+                    }
+                }
+                t += step;
+            }
+        }
+        if checked == 0 {
+            0.0
+        } else {
+            bad as f64 / checked as f64
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raycast::Segment;
+    use crate::testkit::{make_scan, office_segments, random_pose, sample_segments, Rng};
+    use std::time::Instant;
+
+    fn localizer(segs: &[Segment], res: f64) -> GlobalLocalizer {
+        let (p, n) = sample_segments(segs, 0.05);
+        let idx = Arc::new(MapIndex::new(p, Some(n)).unwrap());
+        GlobalLocalizer::new(idx, res, GlobalConfig::default()).unwrap()
+    }
+
+    fn close(a: Pose2, b: Pose2, d: f64, th: f64) -> bool {
+        (a.x - b.x).hypot(a.y - b.y) <= d && wrap_angle(a.theta - b.theta).abs() <= th
+    }
+
+    #[test]
+    fn office_random_starts() {
+        let segs = office_segments();
+        let g = localizer(&segs, 0.05);
+        let mut rng = Rng::new(11);
+        let n = 30;
+        let (mut best_ok, mut listed, mut confident_wrong) = (0, 0, 0);
+        let t0 = Instant::now();
+        for _ in 0..n {
+            let truth = random_pose(&mut rng);
+            let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.05, &mut rng);
+            let r = g.search(&scan, None, None).unwrap();
+            let b = r.best().unwrap();
+            let ok = close(b.pose, truth, 0.05, 1f64.to_radians());
+            best_ok += ok as usize;
+            listed += r
+                .candidates
+                .iter()
+                .any(|c| close(c.pose, truth, 0.05, 1f64.to_radians()))
+                as usize;
+            if !ok && !r.ambiguous {
+                confident_wrong += 1;
+                eprintln!(
+                    "wrong: truth {truth:?} best {b:?} next {:?}",
+                    r.candidates.get(1)
+                );
+            }
+            if !ok {
+                eprintln!(
+                    "miss: truth {truth:?} ambiguous {} leaves {} best {:?} listed at {:?}",
+                    r.ambiguous,
+                    r.leaves,
+                    b,
+                    r.candidates
+                        .iter()
+                        .position(|c| close(c.pose, truth, 0.05, 1f64.to_radians()))
+                );
+            }
+        }
+        eprintln!(
+            "office: best {best_ok}/{n}, listed {listed}/{n}, confident wrong {confident_wrong}, {:.1} ms/search",
+            t0.elapsed().as_secs_f64() * 1e3 / n as f64
+        );
+        // the office repeats its rooms: one scan is often ambiguous, never confidently wrong
+        assert!(best_ok >= n * 8 / 10, "best correct {best_ok}/{n}");
+        assert_eq!(listed, n, "truth listed {listed}/{n}");
+        assert_eq!(confident_wrong, 0);
+    }
+
+    #[test]
+    fn symmetric_room_is_ambiguous() {
+        // an 8 m x 5 m empty rectangle: (x, y, th) and (8 - x, 5 - y, th + pi) see the same
+        let segs: Vec<Segment> = vec![
+            [0.0, 0.0, 8.0, 0.0],
+            [8.0, 0.0, 8.0, 5.0],
+            [8.0, 5.0, 0.0, 5.0],
+            [0.0, 5.0, 0.0, 0.0],
+        ];
+        let g = localizer(&segs, 0.05);
+        let mut rng = Rng::new(3);
+        let truth = Pose2::new(2.7, 1.8, 0.4);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.005, 0.0, &mut rng);
+        let r = g.search(&scan, None, None).unwrap();
+        let mirror0 = Pose2::new(
+            8.0 - truth.x,
+            5.0 - truth.y,
+            wrap_angle(truth.theta + std::f64::consts::PI),
+        );
+        eprintln!(
+            "sym: leaves {} nodes {} free {} mirror {:?} truth {:?}",
+            r.leaves,
+            r.nodes,
+            g.free_cells(),
+            g.score_pose(&scan, mirror0, 0.0),
+            g.score_pose(&scan, truth, 0.0)
+        );
+        assert!(
+            r.ambiguous,
+            "{:?}",
+            &r.candidates[..2.min(r.candidates.len())]
+        );
+        let mirror = Pose2::new(
+            8.0 - truth.x,
+            5.0 - truth.y,
+            wrap_angle(truth.theta + std::f64::consts::PI),
+        );
+        for want in [truth, mirror] {
+            assert!(
+                r.candidates
+                    .iter()
+                    .take(4)
+                    .any(|c| close(c.pose, want, 0.05, 1f64.to_radians())),
+                "{want:?} not among {:?}",
+                r.candidates
+            );
+        }
+        // a heading range that excludes the mirror resolves it
+        let r = g.search(&scan, None, Some((0.0, 1.0))).unwrap();
+        assert!(close(
+            r.best().unwrap().pose,
+            truth,
+            0.05,
+            1f64.to_radians()
+        ));
+        // so does a region around the truth
+        let r = g.search(&scan, Some([1.5, 0.5, 4.0, 2.5]), None).unwrap();
+        assert!(close(
+            r.best().unwrap().pose,
+            truth,
+            0.05,
+            1f64.to_radians()
+        ));
+        assert!(!r.ambiguous);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let segs = office_segments();
+        let g = localizer(&segs, 0.1);
+        let mut rng = Rng::new(5);
+        let scan = make_scan(
+            &segs,
+            Pose2::new(3.0, 4.0, 0.0),
+            361,
+            30.0,
+            0.01,
+            0.0,
+            &mut rng,
+        );
+        assert!(matches!(
+            g.search(&[], None, None),
+            Err(IcpError::TooFewPoints { .. })
+        ));
+        let mut nan = scan.clone();
+        nan[4][1] = f64::NAN;
+        assert!(matches!(
+            g.search(&nan, None, None),
+            Err(IcpError::NonFinite { .. })
+        ));
+        assert!(g
+            .search(&scan, Some([100.0, 100.0, 120.0, 120.0]), None)
+            .is_err());
+        assert!(g.search(&scan, Some([5.0, 0.0, 1.0, 3.0]), None).is_err());
+        assert!(g
+            .search(&scan, Some([f64::NAN, 0.0, 1.0, 3.0]), None)
+            .is_err());
+        assert!(g.search(&scan, None, Some((1.0, 0.0))).is_err());
+        assert!(g.search(&scan, None, Some((0.0, 10.0))).is_err());
+        let idx = g.index().clone();
+        for res in [0.0, -1.0, f64::NAN, 1e-5] {
+            assert!(GlobalLocalizer::new(idx.clone(), res, GlobalConfig::default()).is_err());
+        }
+        let cfg = GlobalConfig {
+            accept_ratio: 0.0,
+            ..GlobalConfig::default()
+        };
+        assert!(matches!(
+            GlobalLocalizer::new(idx.clone(), 0.1, cfg),
+            Err(IcpError::InvalidConfig {
+                field: "accept_ratio",
+                ..
+            })
+        ));
+        // a single-heading search and a region with no free cell are fine
+        assert!(g.search(&scan, None, Some((0.5, 0.5))).is_ok());
+        let r = g.search(&scan, Some([6.0, 2.0, 6.0, 2.0]), None).unwrap();
+        assert!(r.candidates.is_empty());
+    }
+
+    /// A 40 m x 20 m building of identical rooms along two corridors (timing, printed).
+    #[test]
+    fn building_timing() {
+        let mut segs: Vec<Segment> = vec![
+            [0.0, 0.0, 40.0, 0.0],
+            [40.0, 0.0, 40.0, 20.0],
+            [40.0, 20.0, 0.0, 20.0],
+            [0.0, 20.0, 0.0, 0.0],
+        ];
+        for &y in &[7.0, 9.0, 11.0, 13.0] {
+            let mut x = 0.0;
+            while x < 40.0 {
+                segs.push([x, y, x + 3.0, y]);
+                x += 4.0;
+            }
+        }
+        let mut x = 4.0;
+        while x < 40.0 {
+            segs.push([x, 0.0, x, 7.0]);
+            segs.push([x, 13.0, x, 20.0]);
+            x += 4.0;
+        }
+        let t = Instant::now();
+        let g = localizer(&segs, 0.05);
+        let build = t.elapsed().as_secs_f64() * 1e3;
+        let mut rng = Rng::new(9);
+        let truth = Pose2::new(21.3, 10.2, 0.7);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.05, &mut rng);
+        let _ = g.search(&scan, None, None).unwrap();
+        let t = Instant::now();
+        let reps = 3;
+        let mut r = None;
+        for _ in 0..reps {
+            r = Some(g.search(&scan, None, None).unwrap());
+        }
+        let r = r.unwrap();
+        eprintln!(
+            "building {:?}: build {build:.0} ms, search {:.1} ms (coarse {:.1}, refine {:.1}), nodes {}, leaves {}, candidates {}, ambiguous {}",
+            g.shape(),
+            t.elapsed().as_secs_f64() * 1e3 / reps as f64,
+            r.coarse_time * 1e3,
+            r.refine_time * 1e3,
+            r.nodes,
+            r.leaves,
+            r.candidates.len(),
+            r.ambiguous
+        );
+        assert!(r
+            .candidates
+            .iter()
+            .any(|c| close(c.pose, truth, 0.05, 1f64.to_radians())));
+    }
+}
