@@ -158,6 +158,7 @@ def test_round_trip_robotlaser1(tmp_path: Path) -> None:
     assert np.allclose(d.truth_poses, poses)
     assert np.allclose([o.pose for o in d.odometry], robot)
     assert d.odometry[0].extra["source"] == "ROBOTLASER1"
+    assert any("offset from the robot pose" in n for n in d.info.notes)
 
 
 def test_writer_rejects_non_flaser_angles(tmp_path: Path) -> None:

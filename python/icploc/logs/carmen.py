@@ -534,6 +534,27 @@ def read_carmen(
         blocks.extend(_rawlaser_blocks(spath, lines, raw, False))
 
     notes: list[str] = []
+    if robot:
+        rb = [b for b in blocks[len(flaser_blocks) :] if b.velocity is not None]
+        lp = np.concatenate([b.reported for b in rb])
+        rp = np.concatenate([b.odom for b in rb])
+        c, s_ = np.cos(rp[:, 2]), np.sin(rp[:, 2])
+        dx, dy = lp[:, 0] - rp[:, 0], lp[:, 1] - rp[:, 1]
+        off = np.median(
+            np.column_stack(
+                (
+                    c * dx + s_ * dy,
+                    -s_ * dx + c * dy,
+                    np.remainder(lp[:, 2] - rp[:, 2] + np.pi, 2 * np.pi) - np.pi,
+                )
+            ),
+            axis=0,
+        )
+        if np.any(np.abs(off) > 1e-6):
+            notes.append(
+                f"ROBOTLASER1 laser pose is offset from the robot pose by "
+                f"({off[0]:.3f} m, {off[1]:.3f} m, {math.degrees(off[2]):.2f}°) (median)"
+            )
     # FLASER max range
     if flaser_blocks:
         if max_range is not None:
