@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from icploc.logs import FORMATS, LogFormatError, detect_format, load_log, merge_in_time, open_log
 from icploc.logs.carmen import flaser_angles, write_carmen
@@ -49,6 +49,7 @@ def test_format_override_and_unknown(tmp_path: Path) -> None:
         open_log(c, no_such_option=1)
 
 
+@settings(deadline=None)
 @given(
     s=st.lists(st.floats(0, 100, allow_nan=False), max_size=20),
     o=st.lists(st.floats(0, 100, allow_nan=False), max_size=20),
@@ -97,3 +98,18 @@ def test_corrupt_recording_is_a_log_format_error(tmp_path: Path) -> None:
     with pytest.raises(LogFormatError) as ei:
         open_log(p)
     assert str(p) in str(ei.value)
+
+
+def test_truth_and_odometry_trajectories(tmp_path: Path) -> None:
+    c = tmp_path / "t.log"
+    poses = np.array([[1.0, 2.0, 0.5], [1.5, 2.0, 0.6]])
+    odo = [Odometry(stamp=0.9 + 0.1 * k, pose=(0.1 * k, 0.0, 0.0)) for k in range(4)]
+    write_carmen(c, [_scan(1.0), _scan(1.2)], odo, poses=poses)
+    d = open_log(c)
+    tr = d.truth()
+    assert tr is not None and np.allclose(tr.poses, poses) and list(tr.stamps) == [1.0, 1.2]
+    ot = d.odometry_trajectory()
+    assert len(ot) == 4 and np.allclose(ot.xy[:, 0], [0.0, 0.1, 0.2, 0.3])
+    b = tmp_path / "b.bag"
+    write_rosbag(b, [_scan(1.0)], odo)
+    assert open_log(b).truth() is None

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.trajectory import Trajectory
 from icploc.types import Odometry, Scan
 
 log = logging.getLogger("icploc.logs")
@@ -104,6 +105,17 @@ class LogData:
 
     def __len__(self) -> int:
         return len(self.scans) + len(self.odometry)
+
+    def truth(self) -> Trajectory | None:
+        """The pose the log reports with each scan, as a trajectory (None if it has none)."""
+        if len(self.truth_stamps) == 0:
+            return None
+        return Trajectory(self.truth_stamps, self.truth_poses)
+
+    def odometry_trajectory(self) -> Trajectory:
+        """The odometry stream as a trajectory (in the odometry frame)."""
+        st, ps = self.odometry_arrays()
+        return Trajectory(st, ps)
 
     def odometry_arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Odometry as (stamps (M,), poses (M, 3))."""
