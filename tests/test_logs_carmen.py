@@ -111,6 +111,7 @@ def test_round_trip_flaser(
         assert ob.velocity == pytest.approx(oa.velocity)
     assert np.allclose(d.truth_poses, poses)
     assert np.allclose(d.truth_stamps, [s.stamp for s in scans])
+    assert np.allclose(d.scan_odometry, odo_at)  # exposed even though ODOM lines are used
     assert [s.seq for s in d.scans] == list(range(30))
     # open_log yields both kinds in time order, odometry first on equal stamps
     msgs = list(open_log(p))

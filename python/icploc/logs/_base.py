@@ -90,7 +90,8 @@ class LogData:
     """A whole log in memory: scans, odometry, optional reported poses, and the summary.
 
     ``truth_stamps`` / ``truth_poses`` (N, 3) are the pose the log reports with each scan
-    (CARMEN's corrected laser pose); they are empty when the log has none. Iterating yields
+    (CARMEN's corrected laser pose); they are empty when the log has none. ``scan_odometry``
+    (N, 3) is the odometry the log writes with each scan, if any. Iterating yields
     the scans and odometry merged in time order (odometry first on equal stamps).
     """
 
@@ -99,6 +100,9 @@ class LogData:
     odometry: list[Odometry]
     truth_stamps: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
     truth_poses: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    #: the odometry pose written with each scan (CARMEN FLASER ``odom_*`` / ROBOTLASER1
+    #: robot pose), (N, 3) aligned with ``scans``; empty when the format has none
+    scan_odometry: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
 
     def __iter__(self) -> Iterator[Scan | Odometry]:
         return merge_in_time(self.scans, self.odometry)

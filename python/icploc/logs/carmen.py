@@ -668,6 +668,9 @@ def read_carmen(
         -1, 3
     )
     has_truth = bool(len(truth_ps)) and bool(np.all(np.isfinite(truth_ps)))
+    scan_odo = np.array([blocks[r[2]].odom[r[3]] for r in rows], dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(scan_odo)):
+        scan_odo = np.zeros((0, 3))
 
     use = odometry
     if use == "auto":
@@ -731,6 +734,7 @@ def read_carmen(
         odometry=odoms,
         truth_stamps=truth_st if has_truth else np.zeros(0),
         truth_poses=truth_ps if has_truth else np.zeros((0, 3)),
+        scan_odometry=scan_odo,
     )
 
 
