@@ -500,3 +500,33 @@ def test_native_float_parser_hook(tmp_path: Path, monkeypatch: pytest.MonkeyPatc
     with pytest.raises(LogFormatError) as ei:
         read_carmen(p)
     assert ei.value.line == 6
+
+
+@settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    cut=st.integers(0, 10_000),
+    pos=st.integers(0, 10_000),
+    junk=st.sampled_from(
+        ["", "x", "nan", "-1", "1e400", " ", "\t\t", "3.5.5", "FLASER", "\n", "ODOM 1"]
+    ),
+)
+def test_mutated_logs_parse_or_raise_log_format_error(
+    tmp_path: Path, cut: int, pos: int, junk: str
+) -> None:
+    """Any damage to a log either still parses cleanly or gives a LogFormatError."""
+    p = tmp_path / "m.log"
+    write_carmen(p, _scans(4, 180), _odoms(6), precision=3)
+    text = p.read_text()
+    body = text[: min(cut, len(text))] if cut < len(text) else text
+    k = pos % (len(body) + 1)
+    p.write_text(body[:k] + junk + body[k:])
+    try:
+        d = read_carmen(p)
+    except LogFormatError as e:
+        assert str(p) in str(e)
+        return
+    for s in d.scans:
+        assert not np.isnan(s.ranges).any() and len(s) > 0
+    assert all(math.isfinite(o.stamp) and all(map(math.isfinite, o.pose)) for o in d.odometry)
