@@ -696,6 +696,53 @@ impl GlobalLocalizer {
         })
     }
 
+    /// Refine each of `poses` by ICP (the search's refinement settings, in parallel) and
+    /// score the result like a search candidate (`coarse_score` 0). A pose whose ICP fails
+    /// is scored where it stands. For tracking hypotheses from scan to scan.
+    pub fn refine(&self, scan: &[[f64; 2]], poses: &[Pose2]) -> Result<Vec<Candidate>> {
+        crate::check_finite("scan", scan)?;
+        self.check_poses(poses)?;
+        if scan.len() < self.cfg.icp.min_inliers.max(3) {
+            return Err(IcpError::TooFewPoints {
+                what: "scan".into(),
+                got: scan.len(),
+                min: self.cfg.icp.min_inliers.max(3),
+            });
+        }
+        Ok(poses
+            .par_iter()
+            .with_max_len(1)
+            .map(|&p| {
+                let q = align(scan, &self.index, p, &self.cfg.icp)
+                    .ok()
+                    .map(|r| r.pose.normalized())
+                    .filter(|q| q.is_finite())
+                    .unwrap_or(p);
+                self.score_pose(scan, q, 0.0)
+            })
+            .collect())
+    }
+
+    /// Score `scan` at each of `poses` (no refinement).
+    pub fn score(&self, scan: &[[f64; 2]], poses: &[Pose2]) -> Result<Vec<Candidate>> {
+        crate::check_finite("scan", scan)?;
+        self.check_poses(poses)?;
+        Ok(poses
+            .par_iter()
+            .map(|&p| self.score_pose(scan, p, 0.0))
+            .collect())
+    }
+
+    fn check_poses(&self, poses: &[Pose2]) -> Result<()> {
+        match poses.iter().position(|p| !p.is_finite()) {
+            Some(row) => Err(IcpError::NonFinite {
+                what: "poses".into(),
+                row,
+            }),
+            None => Ok(()),
+        }
+    }
+
     /// Are two poses distinct hypotheses (farther apart than `distinct_distance` or
     /// `distinct_angle`)?
     pub fn distinct(&self, a: &Pose2, b: &Pose2) -> bool {
@@ -955,6 +1002,29 @@ mod tests {
         assert!(g.search(&scan, None, Some((0.5, 0.5))).is_ok());
         let r = g.search(&scan, Some([6.0, 2.0, 6.0, 2.0]), None).unwrap();
         assert!(r.candidates.is_empty());
+    }
+
+    #[test]
+    fn refine_and_score() {
+        let segs = office_segments();
+        let g = localizer(&segs, 0.1);
+        let mut rng = Rng::new(8);
+        let truth = Pose2::new(3.0, 4.0, 0.3);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.0, &mut rng);
+        let poses = [Pose2::new(3.2, 3.85, 0.35), Pose2::new(20.0, 15.0, -1.0)];
+        let r = g.refine(&scan, &poses).unwrap();
+        assert_eq!(r.len(), 2);
+        assert!(
+            close(r[0].pose, truth, 0.03, 0.5f64.to_radians()),
+            "{:?}",
+            r[0]
+        );
+        assert!(r[0].score > 0.8 && r[0].inlier_ratio > 0.95);
+        assert!(r[1].score < 0.75 * r[0].score, "{:?}", r[1]);
+        let s = g.score(&scan, &[truth, Pose2::new(3.5, 4.0, 0.3)]).unwrap();
+        assert!(s[0].score > 0.8 && s[1].score < 0.3, "{s:?}");
+        assert!(g.score(&scan, &[Pose2::new(f64::NAN, 0.0, 0.0)]).is_err());
+        assert!(g.refine(&scan[..2], &poses).is_err());
     }
 
     /// A 40 m x 20 m building of identical rooms along two corridors (timing, printed).
