@@ -46,10 +46,10 @@ def ros_map(world: worlds.World, d: Path) -> Map:
 
 
 def aisle_path() -> np.ndarray:
-    # down aisle 1, around the end, back along aisle 2, around, down aisle 3 ... twice
-    lap = [(1.0, 1.25), (41.0, 1.25), (41.0, 3.75), (-1.0, 3.75), (-1.0, 6.25), (41.0, 6.25)]
-    back = [(41.0, 3.75), (-1.0, 3.75), (-1.0, 1.25)]
-    return np.array(lap + back + lap[1:])
+    # down aisle 1 (40 m), around the end, back along aisle 2, around, down aisle 3
+    return np.array(
+        [(1.0, 1.25), (41.0, 1.25), (41.0, 3.75), (-1.0, 3.75), (-1.0, 6.25), (41.0, 6.25)]
+    )
 
 
 def case_frames(name: str, seed: int) -> tuple[worlds.World, list[worlds.SimFrame]]:

@@ -136,7 +136,7 @@ class GatingSection:
     max_translation_jump_cap: float = 1.5
     max_rotation_jump_cap_deg: float = 45.0
     #: a fit with a smaller inlier ratio is rejected
-    min_inlier_ratio: float = 0.2
+    min_inlier_ratio: float = 0.12
     #: translational degeneracy (lambda_min / lambda_max) below which the fit is treated as
     #: a corridor: along the degenerate direction the odometry prediction is kept
     degeneracy_threshold: float = 0.02
@@ -178,7 +178,14 @@ class LocalizerSection:
     odom_sigma_per_metre: float = 0.05
     odom_sigma_theta_per_radian: float = 0.05
     odom_sigma_theta_per_metre: float = 0.02
-    #: floor on the reported position / heading standard deviation after a correction
+    #: process noise added at every scan even without motion (slip, a push): keeps the
+    #: filter responsive while standing still
+    process_sigma_xy: float = 0.002
+    process_sigma_theta: float = 0.002
+    #: fuse the ICP pose with the odometry prediction (Kalman update, ICP covariance
+    #: floored by min_sigma_*) instead of taking the ICP pose as it is
+    fuse_odometry: bool = True
+    #: floor on the ICP pose's standard deviation (its measurement noise) after a correction
     min_sigma_xy: float = 0.002
     min_sigma_theta: float = 0.001
     #: lost when the inlier ratio stays below ``lost_inlier_ratio`` for this many scans ...
@@ -205,6 +212,8 @@ class LocalizerSection:
             self, "initial_sigma_xy", "initial_sigma_theta", "min_sigma_xy", "min_sigma_theta"
         )
         for name in (
+            "process_sigma_xy",
+            "process_sigma_theta",
             "odom_sigma_per_metre",
             "odom_sigma_theta_per_radian",
             "odom_sigma_theta_per_metre",

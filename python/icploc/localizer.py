@@ -249,6 +249,21 @@ def prepare_scan(
     return pts
 
 
+def _fuse(
+    pred: Pose,
+    pred_cov: NDArray[np.float64],
+    meas: Pose,
+    meas_cov: NDArray[np.float64],
+) -> tuple[Pose, NDArray[np.float64]]:
+    """Kalman update of the odometry prediction with the ICP pose as the measurement."""
+    innov = np.array([meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])])
+    K = np.linalg.solve((pred_cov + meas_cov).T, pred_cov.T).T  # P (P + R)^-1
+    dx = K @ innov
+    cov = pred_cov - K @ pred_cov
+    cov = (cov + cov.T) * 0.5
+    return (pred[0] + float(dx[0]), pred[1] + float(dx[1]), wrap_angle(pred[2] + float(dx[2]))), cov
+
+
 def _as_index(map_: Any, config: LocalizerConfig) -> Any:
     """A ``MapIndex`` from a Map (``.index(spacing)``), a MapIndex, or (N, 2) points."""
     from icploc._core import MapIndex
@@ -315,6 +330,9 @@ class Localizer:
         self.last_estimate: Estimate | None = None
         self._last_reloc_result: Any = None
         lc0 = self.config.localizer
+        self._q_floor = np.diag(
+            [lc0.process_sigma_xy**2, lc0.process_sigma_xy**2, lc0.process_sigma_theta**2]
+        )
         self._cov_floor = np.diag(
             [lc0.min_sigma_xy**2, lc0.min_sigma_xy**2, lc0.min_sigma_theta**2]
         )
@@ -406,7 +424,7 @@ class Localizer:
         if odom is None or self._last_odom is None:
             if odom is not None:
                 self._last_odom = odom
-            return self.pose, self.covariance, 0.0, 0.0
+            return self.pose, self.covariance + self._q_floor, 0.0, 0.0
         d = between(self._last_odom, odom)
         self._last_odom = odom
         pose = self.pose
@@ -423,11 +441,12 @@ class Localizer:
         r11, r12 = p11 + b * p21, p12 + b * p22
         sxy = lc.odom_sigma_per_metre * dist
         sth = lc.odom_sigma_theta_per_radian * rot + lc.odom_sigma_theta_per_metre * dist
-        qxy = sxy * sxy + 1e-12
+        qxy = sxy * sxy + lc.process_sigma_xy**2
+        qth = sth * sth + lc.process_sigma_theta**2
         c00 = r00 + a * r02 + qxy
         c01 = r01 + b * r02
         c11 = r11 + b * r12 + qxy
-        cov = np.array([[c00, c01, r02], [c01, c11, r12], [r02, r12, p22 + sth * sth + 1e-12]])
+        cov = np.array([[c00, c01, r02], [c01, c11, r12], [r02, r12, p22 + qth]])
         return pred, cov, dist, rot
 
     def _match_index(self, pred: Pose) -> Any:
@@ -522,6 +541,8 @@ class Localizer:
                     accepted = True
                     pose = cand
                     cov = self._corrected_covariance(res, pred_cov, degenerate)
+                    if lc.fuse_odometry:
+                        pose, cov = _fuse(pred, pred_cov, cand, cov)
                     # the gate re-tightens after any accepted fix: after a degenerate one the
                     # along-axis part was taken from odometry, so no jump remains there
                     self._since_fix_dist = 0.0

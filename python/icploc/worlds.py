@@ -343,7 +343,7 @@ def simulate(
     max_range: float = 8.0,
     noise: float = 0.02,
     odom_scale_error: tuple[float, float] = (0.004, -0.003),
-    odom_noise: float = 0.01,
+    odom_noise: float = 0.003,
     laser_offset: Pose = (0.0, 0.0, 0.0),
     seed: int = 0,
     max_frames: int | None = None,
