@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from icploc.logs import LogFormatError, detect_format, open_log
 from icploc.logs.rosbag import is_rosbag, iter_ros1_raw, read_rosbag, write_rosbag
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
@@ -222,3 +224,34 @@ def test_real_ros1_demo_bag() -> None:
     for s in d.scans:
         assert not np.isnan(s.ranges).any()
         assert s.valid_mask().sum() > 100
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    flips=st.lists(st.tuples(st.integers(0, 10**6), st.integers(1, 255)), min_size=1, max_size=4)
+)
+def test_damaged_ros1_bags_parse_or_raise_log_format_error(
+    tmp_path: Path, flips: list[tuple[int, int]]
+) -> None:
+    scans, odoms = _data(3, beams=31)
+    p = tmp_path / "f.bag"
+    p.unlink(missing_ok=True)  # hypothesis reuses tmp_path across examples
+    write_rosbag(p, scans, odoms)
+    b = bytearray(p.read_bytes())
+    for pos, x in flips:
+        i = len(_MAGIC) + pos % (len(b) - len(_MAGIC))
+        b[i] ^= x
+    p.write_bytes(bytes(b))
+    try:
+        d = read_rosbag(p)
+    except LogFormatError as e:
+        assert str(p) in str(e)
+        return
+    for s in d.scans:
+        assert not np.isnan(s.ranges).any()
+        assert np.all(np.isfinite(s.angles))
+
+
+_MAGIC = b"#ROSBAG V2.0\n"

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from icploc.logs._base import LogData, LogFormatError, LogInfo, log, repair_stamps
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
-__all__ = ["is_rosbag", "iter_ros1_raw", "read_rosbag", "write_rosbag"]
+__all__ = ["TopicError", "is_rosbag", "iter_ros1_raw", "read_rosbag", "write_rosbag"]
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -103,10 +103,24 @@ def _records(
         i = j + 4 + dl
 
 
+class TopicError(ValueError):
+    """The requested topic is missing or has the wrong type."""
+
+
 def iter_ros1_raw(path: str | os.PathLike[str]) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, msgtype, record time ns, serialized message) for every message of a ROS 1
-    bag, read chunk by chunk in file order without using its index."""
+    bag, read chunk by chunk in file order without using its index. Any inconsistency is a
+    :class:`LogFormatError` naming the file."""
     spath = os.fspath(path)
+    try:
+        yield from _iter_ros1_raw(spath)
+    except LogFormatError:
+        raise
+    except (KeyError, IndexError, struct.error, ValueError, OSError, EOFError, ImportError) as exc:
+        raise LogFormatError(spath, f"corrupt ROS 1 bag: {type(exc).__name__}: {exc}") from exc
+
+
+def _iter_ros1_raw(spath: str) -> Iterator[tuple[str, str, int, bytes]]:
     with open(spath, "rb") as fh:
         data = fh.read()
     if not data.startswith(_ROS1_MAGIC):
@@ -174,11 +188,11 @@ def _choose(
     cands = {t: c for t, (m, c) in topics.items() if m == mtype}
     if want is not None:
         if want not in topics:
-            raise ValueError(
+            raise TopicError(
                 f"topic {want!r} not in bag (topics: {', '.join(sorted(topics)) or 'none'})"
             )
         if topics[want][0] != mtype:
-            raise ValueError(f"topic {want!r} has type {topics[want][0]}, expected {mtype}")
+            raise TopicError(f"topic {want!r} has type {topics[want][0]}, expected {mtype}")
         return want
     if not cands:
         return None
@@ -240,7 +254,7 @@ def read_rosbag(
             conns = [c for c in reader.connections if c.topic in (st, ot)]
             for c, t, raw in reader.messages(connections=conns):
                 entries.append((c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype)))
-    except (ValueError, LogFormatError):
+    except (TopicError, LogFormatError):
         raise
     except Exception as exc:  # noqa: BLE001 - rosbags raises AssertionError, ReaderError, ...
         if fmt != "rosbag1" or not is_rosbag(spath):
