@@ -23,9 +23,9 @@ __all__ = ["TrajLike", "plot_errors", "plot_run", "save_figure"]
 TrajLike = Trajectory | ArrayLike  #: a Trajectory or an (N, 2+) array of x, y[, theta]
 
 _STYLE: dict[str, dict[str, Any]] = {
-    "truth": {"color": "0.15", "lw": 1.6, "ls": "-", "label": "truth"},
-    "odometry": {"color": "tab:red", "lw": 1.2, "ls": "--", "label": "odometry"},
-    "localized": {"color": "tab:blue", "lw": 1.3, "ls": "-", "label": "localization"},
+    "truth": {"color": "0.1", "lw": 0.9, "ls": "-", "label": "truth", "zorder": 4},
+    "odometry": {"color": "tab:red", "lw": 1.1, "ls": "--", "label": "odometry", "zorder": 2},
+    "localized": {"color": "tab:blue", "lw": 1.8, "ls": "-", "label": "localization", "zorder": 3},
 }
 
 
@@ -138,8 +138,9 @@ def plot_run(
             continue
         ax.plot(xy[:, 0], xy[:, 1], **st)
         if mark_ends:
-            ax.plot(xy[0, 0], xy[0, 1], "o", color=st["color"], ms=6, mfc="none")
-            ax.plot(xy[-1, 0], xy[-1, 1], "s", color=st["color"], ms=6, mfc="none")
+            z = st.get("zorder", 2) + 0.5
+            ax.plot(xy[0, 0], xy[0, 1], "o", color=st["color"], ms=6, mfc="none", zorder=z)
+            ax.plot(xy[-1, 0], xy[-1, 1], "s", color=st["color"], ms=6, mfc="none", zorder=z)
     ax.set_aspect("equal", adjustable="datalim")
     ax.autoscale_view()
     ax.set_xlabel("x [m]")
