@@ -296,3 +296,28 @@ def test_visibility_culling_and_point_to_point(lab: worlds.World, lab_index: Map
     e = loc.update(scan_at(lab, (0.1, 0.05, 0.02), 0.1), (0.1, 0.0, 0.0))
     assert e.accepted
     assert e.pose == pytest.approx((0.1, 0.05, 0.02), abs=0.01)
+
+
+def test_kidnapped_robot_recovers_with_the_global_localizer(lab: worlds.World) -> None:
+    """Lost detection + the branch-and-bound global search plugged into the hook."""
+    from icploc import GlobalLocalizer
+    from icploc.localizer import global_search_from
+    from icploc.maps import Map
+
+    idx = Map.from_lines(lab.lines).index(0.05)
+    gl = GlobalLocalizer(idx, 0.05)
+    cfg = LocalizerConfig()
+    loc = Localizer(idx, cfg, initial_pose=(0.0, 0.0, 0.0), global_search=global_search_from(gl))
+    loc.update(scan_at(lab, (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0))
+    # carried to the other side of the room and turned round; odometry saw nothing
+    truth = (-1.5, 1.8, 2.5)
+    statuses = []
+    for k in range(cfg.localizer.lost_after_rejections + 12):
+        e = loc.update(scan_at(lab, truth, 0.1 * (k + 1), noise=0.01, seed=k), (0.0, 0.0, 0.0))
+        statuses.append(e.status)
+        if e.status is Status.TRACKING and k > 2:
+            break
+    assert Status.LOST in statuses
+    assert statuses[-1] is Status.TRACKING
+    assert math.hypot(e.x - truth[0], e.y - truth[1]) < 0.02
+    assert abs(wrap_angle(e.theta - truth[2])) < math.radians(1.0)

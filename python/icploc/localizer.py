@@ -44,7 +44,9 @@ __all__ = [
     "Localizer",
     "OdometryBuffer",
     "Status",
+    "global_search_from",
     "prepare_scan",
+    "run",
 ]
 
 
@@ -740,6 +742,24 @@ class Localizer:
             self._recover_pose = None
             return bp, best
         return None
+
+
+def global_search_from(global_localizer: Any, max_candidates: int = 4) -> GlobalSearch:
+    """Adapt an ``icploc.GlobalLocalizer`` (branch-and-bound over the whole map) to the
+    :class:`Localizer` ``global_search`` hook: its best distinct candidates become start
+    poses for the relocalization ICP. The scan points are in the robot base frame, so the
+    candidates are base poses."""
+
+    def search(
+        points: NDArray[np.float64],
+        index: Any,
+        prior: Pose,
+        covariance: NDArray[np.float64],
+    ) -> list[Pose]:
+        res = global_localizer.search(points)
+        return [tuple(c.pose) for c in list(res.candidates)[:max_candidates]]
+
+    return search
 
 
 def run(
