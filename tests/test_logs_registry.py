@@ -113,3 +113,18 @@ def test_truth_and_odometry_trajectories(tmp_path: Path) -> None:
     b = tmp_path / "b.bag"
     write_rosbag(b, [_scan(1.0)], odo)
     assert open_log(b).truth() is None
+
+
+def test_module_cli_prints_summaries(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from icploc.logs.__main__ import main
+
+    c = tmp_path / "a.log"
+    write_carmen(c, [_scan(1.0), _scan(2.0)], [])
+    assert main([str(c)]) == 0
+    out = capsys.readouterr().out
+    assert "2 × 180 beams" in out and "[carmen]" in out
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 3 1 2\n")
+    assert main([str(bad), str(tmp_path / "missing.log")]) == 1
+    err = capsys.readouterr().err
+    assert "bad.log:1" in err and "missing.log" in err
