@@ -75,10 +75,16 @@ fn bench_nearest(c: &mut Criterion) {
 
 fn bench_align(c: &mut Criterion) {
     let segs = office_segments();
-    for (name, err) in [("small", (0.3, 0.3, 10f64.to_radians())), ("large", (1.0, 0.5, 25f64.to_radians()))] {
+    for (name, err) in [
+        ("small", (0.3, 0.3, 10f64.to_radians())),
+        ("large", (1.0, 0.5, 25f64.to_radians())),
+    ] {
         let cs = cases(&segs, 200, err, 0.01, 0.2, 7);
         for metric in [Metric::PointToLine, Metric::PointToPoint] {
-            let cfg = IcpConfig { metric, ..IcpConfig::default() };
+            let cfg = IcpConfig {
+                metric,
+                ..IcpConfig::default()
+            };
             let mut g = c.benchmark_group(format!("align_{name}_{metric:?}"));
             for &n in &SIZES {
                 let (p, nrm) = map_of(n);

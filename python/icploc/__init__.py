@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from icploc._core import (
     EmptyMapError,
+    GlobalLocalizer,
     IcpConfig,
     IcpError,
     IcpResult,
@@ -19,6 +20,7 @@ from icploc.types import Odometry, Scan
 
 __all__ = [
     "EmptyMapError",
+    "GlobalLocalizer",
     "IcpConfig",
     "IcpError",
     "IcpResult",

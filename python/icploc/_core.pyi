@@ -29,7 +29,10 @@ Robust = Literal["none", "huber", "cauchy"]
 class IcpConfig:
     """ICP settings. Thresholds in metres. The correspondence threshold shrinks
     geometrically from ``max_correspondence_distance`` to ``min_correspondence_distance``
-    by ``threshold_decay`` per iteration (set them equal for the paper's fixed threshold)."""
+    by ``threshold_decay`` per iteration (set ``threshold_decay=1`` for the paper's fixed
+    threshold). ``mse_threshold`` is the paper's tau; ``mse_change`` the relative change of the
+    MSE below which it stops; ``heading_search`` (rad, 0 = off) tries start headings within
+    +-heading_search every ``heading_step`` with a short coarse ICP each, for large start errors."""
 
     metric: Metric
     max_iterations: int
@@ -44,6 +47,8 @@ class IcpConfig:
     step_tolerance: float
     min_inliers: int
     min_inlier_ratio: float
+    heading_search: float
+    heading_step: float
     def __init__(
         self,
         *,
@@ -60,6 +65,8 @@ class IcpConfig:
         step_tolerance: float = 1e-6,
         min_inliers: int = 10,
         min_inlier_ratio: float = 0.0,
+        heading_search: float = 0.0,
+        heading_step: float = 0.08726646259971647,
     ) -> None: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""
@@ -106,8 +113,21 @@ class IcpResult:
 class MapIndex:
     """An immutable k-d tree over 2D map points with optional unit normals."""
 
-    def __init__(self, points: ArrayLike, normals: ArrayLike | None = None) -> None: ...
+    def __init__(
+        self,
+        points: ArrayLike,
+        normals: ArrayLike | None = None,
+        cache_resolution: float | None = 0.02,
+    ) -> None:
+        """Build the k-d tree. ``cache_resolution`` (m): cell size of the lazily filled
+        nearest-point cache ICP uses for correspondences (answers exact to within a cell,
+        O(1) whatever the map size); ``None`` or 0 for exact k-d tree answers only."""
     def __len__(self) -> int: ...
+    @property
+    def cache_resolution(self) -> float | None: ...
+    @property
+    def spacing(self) -> float:
+        """Median nearest-neighbour spacing of the map points (m)."""
     @property
     def points(self) -> NDArray[np.float64]:
         """(N, 2) copy of the map points."""
@@ -164,3 +184,105 @@ def raycast(
 ) -> NDArray[np.float64]:
     """Range along each beam (angles in the sensor frame) from ``pose`` to the nearest of the
     (K, 4) segments [x1, y1, x2, y2]; inf where nothing is hit within ``max_range``."""
+
+class GlobalCandidate:
+    """One ranked pose hypothesis of a global search (ICP-refined, re-scored)."""
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """Sensor pose (x, y, theta) in the map frame."""
+    @property
+    def score(self) -> float:
+        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+    @property
+    def inlier_ratio(self) -> float: ...
+    @property
+    def mse(self) -> float:
+        """Mean-square distance of the inliers (m^2)."""
+    @property
+    def see_through(self) -> float:
+        """Fraction of beams passing through a mapped wall before their return."""
+    @property
+    def coarse_score(self) -> float: ...
+    def to_dict(self) -> dict[str, object]: ...
+
+class GlobalSearchResult:
+    """Ranked candidates of a global search; ``ambiguous`` when the best two distinct
+    candidates score within the ambiguity margin."""
+
+    @property
+    def candidates(self) -> list[GlobalCandidate]: ...
+    @property
+    def best(self) -> GlobalCandidate | None: ...
+    @property
+    def ambiguous(self) -> bool: ...
+    @property
+    def nodes(self) -> int: ...
+    @property
+    def leaves(self) -> int: ...
+    @property
+    def headings(self) -> int: ...
+    @property
+    def coarse_time(self) -> float: ...
+    @property
+    def refine_time(self) -> float: ...
+    def __len__(self) -> int: ...
+
+class GlobalLocalizer:
+    """Global localization on one map: a likelihood pyramid built once at ``resolution``,
+    then branch-and-bound searches over free positions and headings, the best seeds
+    refined by point-to-line ICP (GIL released)."""
+
+    def __init__(
+        self,
+        index: MapIndex,
+        resolution: float = 0.05,
+        *,
+        angle_step: float | None = None,
+        max_points: int = 96,
+        sigma: float = 0.15,
+        min_clearance: float = 0.2,
+        accept_ratio: float = 0.8,
+        min_score: float = 0.15,
+        max_candidates: int = 32,
+        levels: int = 6,
+        score_sigma: float = 0.05,
+        inlier_distance: float = 0.1,
+        distinct_distance: float = 0.5,
+        distinct_angle: float | None = None,
+        ambiguity_margin: float = 0.1,
+        icp_config: IcpConfig | None = None,
+    ) -> None: ...
+    def search(
+        self,
+        scan_xy: ArrayLike,
+        region: Sequence[float] | None = None,
+        heading: tuple[float, float] | None = None,
+    ) -> GlobalSearchResult:
+        """Find the pose of an (N, 2) sensor-frame scan; ``region`` (xmin, ymin, xmax, ymax)
+        bounds the position, ``heading`` (min, max) the heading in radians."""
+    def refine(self, scan_xy: ArrayLike, poses: ArrayLike) -> list[GlobalCandidate]:
+        """ICP-refine each of the (M, 3) poses and score it."""
+    def score(self, scan_xy: ArrayLike, poses: ArrayLike) -> list[GlobalCandidate]:
+        """Score the scan at each of the (M, 3) poses, no refinement."""
+    def distinct(
+        self, a: tuple[float, float, float], b: tuple[float, float, float]
+    ) -> bool: ...
+    def distance(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Grid distance (m) from each (N, 2) point to the map (nan outside the grid)."""
+    @property
+    def index(self) -> MapIndex: ...
+    @property
+    def resolution(self) -> float: ...
+    @property
+    def shape(self) -> tuple[int, int]: ...
+    @property
+    def free_cells(self) -> int: ...
+    @property
+    def angle_step(self) -> float: ...
+    @property
+    def ambiguity_margin(self) -> float: ...
+    @property
+    def distinct_distance(self) -> float: ...
+    @property
+    def distinct_angle(self) -> float: ...

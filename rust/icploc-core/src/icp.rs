@@ -62,6 +62,13 @@ pub struct IcpConfig {
     pub min_inliers: usize,
     /// A lower inlier ratio than this: stop, not converged.
     pub min_inlier_ratio: f64,
+    /// Half-range (rad) of a search over initial headings before the ICP proper, for
+    /// large start errors; 0 turns it off. Each heading θ₀ + k·`heading_step` within the
+    /// range gets a short coarse ICP on a subsample, and the ICP starts from the one with
+    /// the most pairs closer than `min_correspondence_distance`.
+    pub heading_search: f64,
+    /// Step of the heading search (rad).
+    pub heading_step: f64,
 }
 
 impl Default for IcpConfig {
@@ -76,10 +83,12 @@ impl Default for IcpConfig {
             robust: Robust::None,
             robust_scale: 0.05,
             mse_threshold: 1e-8,
-            mse_change: 1e-7,
-            step_tolerance: 1e-6,
+            mse_change: 1e-6,
+            step_tolerance: 1e-5,
             min_inliers: 10,
             min_inlier_ratio: 0.0,
+            heading_search: 0.0,
+            heading_step: 5f64.to_radians(),
         }
     }
 }
@@ -140,7 +149,11 @@ impl IcpConfig {
             ));
         }
         if !(self.trim_fraction > 0.0 && self.trim_fraction <= 1.0) {
-            return Err(bad("trim_fraction", self.trim_fraction, "must be in (0, 1]"));
+            return Err(bad(
+                "trim_fraction",
+                self.trim_fraction,
+                "must be in (0, 1]",
+            ));
         }
         if !pos(self.robust_scale) {
             return Err(bad(
@@ -175,6 +188,20 @@ impl IcpConfig {
                 "min_inliers",
                 self.min_inliers,
                 "must be at least 3 (a planar pose has three unknowns)",
+            ));
+        }
+        if !(self.heading_search >= 0.0 && self.heading_search <= std::f64::consts::PI) {
+            return Err(bad(
+                "heading_search",
+                self.heading_search,
+                "must be in [0, pi]",
+            ));
+        }
+        if !(self.heading_step > 0.0 && self.heading_step.is_finite()) {
+            return Err(bad(
+                "heading_step",
+                self.heading_step,
+                "must be positive and finite",
             ));
         }
         if !(0.0..=1.0).contains(&self.min_inlier_ratio) {
@@ -398,14 +425,23 @@ fn align_unchecked(
         .max((cfg.min_inlier_ratio * n as f64).ceil() as usize);
 
     let mut pose = initial.normalized();
+    if cfg.heading_search > 0.0 {
+        pose = heading_search(scan, index, pose, cfg, ws);
+    }
     let mut mse = f64::INFINITY;
+    let mut accel = Accelerator::new(scan);
     let mut iterations = 0;
     let mut termination = Termination::MaxIterations;
     ws.moved.resize(n, [0.0; 2]);
 
+    // The threshold shrinks one stage per iteration for point-to-line (which settles in one
+    // or two steps at any threshold); point-to-point creeps along walls, so its threshold
+    // shrinks only once it has settled at the current one (a step below 1 mm and 1 mrad):
+    // shrinking sooner strands it with too few pairs in a local minimum.
+    let mut stage = 0usize;
     for k in 0..cfg.max_iterations {
         iterations = k + 1;
-        let thr = cfg.threshold_at(k);
+        let thr = cfg.threshold_at(stage);
         let thr2 = thr * thr;
         let at_final = (thr - final_thr).abs() <= 1e-12 * final_thr.max(1.0);
 
@@ -415,7 +451,7 @@ fn align_unchecked(
         for (i, p) in scan.iter().enumerate() {
             let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
             ws.moved[i] = q;
-            let (d2, j) = index.nearest(q);
+            let (d2, j) = index.correspondence(q);
             if d2 <= thr2 {
                 ws.pairs.push(Pair {
                     i: i as u32,
@@ -456,7 +492,15 @@ fn align_unchecked(
                 }
                 let m = sum / ws.pairs.len() as f64;
                 match cc.solve() {
-                    Some(reg) => (Pose2::new(reg.t[0], reg.t[1], wrap_angle(reg.theta)), m),
+                    Some(reg) => {
+                        let mut np = Pose2::new(reg.t[0], reg.t[1], wrap_angle(reg.theta));
+                        if at_final {
+                            np = accel.step(np, registered_mse(scan, map, &ws.pairs, np));
+                        } else {
+                            accel.reset();
+                        }
+                        (np, m)
+                    }
                     None => (pose, m),
                 }
             }
@@ -479,7 +523,11 @@ fn align_unchecked(
                 let m = sum / ws.pairs.len() as f64;
                 let step = solve_step(&h, &g, thr);
                 (
-                    Pose2::new(pose.x + step[0], pose.y + step[1], wrap_angle(pose.theta + step[2])),
+                    Pose2::new(
+                        pose.x + step[0],
+                        pose.y + step[1],
+                        wrap_angle(pose.theta + step[2]),
+                    ),
                     m,
                 )
             }
@@ -487,6 +535,9 @@ fn align_unchecked(
 
         let dt = ((new_pose.x - pose.x).powi(2) + (new_pose.y - pose.y).powi(2)).sqrt();
         let dth = wrap_angle(new_pose.theta - pose.theta).abs();
+        if normals.is_some() || (dt < 1e-3 && dth < 1e-3) {
+            stage += 1;
+        }
         pose = new_pose;
         let prev_mse = std::mem::replace(&mut mse, cur_mse);
 
@@ -522,6 +573,186 @@ fn align_unchecked(
         degenerate_direction: direction,
         termination,
     }
+}
+
+/// Mean-square error of the pairs after moving the scan to `pose`.
+fn registered_mse(scan: &[[f64; 2]], map: &[[f64; 2]], pairs: &[Pair], pose: Pose2) -> f64 {
+    let (s, c) = pose.theta.sin_cos();
+    let mut sum = 0.0;
+    for pr in pairs {
+        let p = scan[pr.i as usize];
+        let x = map[pr.j as usize];
+        let dx = pose.x + c * p[0] - s * p[1] - x[0];
+        let dy = pose.y + s * p[0] + c * p[1] - x[1];
+        sum += dx * dx + dy * dy;
+    }
+    sum / pairs.len().max(1) as f64
+}
+
+/// Besl & McKay's accelerated ICP (their §IV-C): when the last registration steps point the
+/// same way in (x, y, L·θ) space, jump ahead along the step to where a line or parabola
+/// fitted to the last three errors says the error is least, at most 25 steps.
+struct Accelerator {
+    /// radius of gyration of the scan: the length that makes θ comparable to x, y
+    scale: f64,
+    hist: Vec<(Pose2, f64)>,
+}
+
+impl Accelerator {
+    fn new(scan: &[[f64; 2]]) -> Self {
+        let n = scan.len().max(1) as f64;
+        let (mx, my) = scan
+            .iter()
+            .fold((0.0, 0.0), |a, p| (a.0 + p[0] / n, a.1 + p[1] / n));
+        let r2 = scan
+            .iter()
+            .map(|p| (p[0] - mx).powi(2) + (p[1] - my).powi(2))
+            .sum::<f64>()
+            / n;
+        Self {
+            scale: r2.sqrt().max(1e-3),
+            hist: Vec::with_capacity(3),
+        }
+    }
+
+    fn reset(&mut self) {
+        self.hist.clear();
+    }
+
+    fn vec(&self, a: &Pose2, b: &Pose2) -> [f64; 3] {
+        [
+            b.x - a.x,
+            b.y - a.y,
+            self.scale * wrap_angle(b.theta - a.theta),
+        ]
+    }
+
+    /// Record the registered pose and its error; maybe return an extrapolated pose.
+    fn step(&mut self, pose: Pose2, err: f64) -> Pose2 {
+        if !err.is_finite() {
+            self.reset();
+            return pose;
+        }
+        self.hist.push((pose, err));
+        if self.hist.len() > 3 {
+            self.hist.remove(0);
+        }
+        if self.hist.len() < 3 {
+            return pose;
+        }
+        let (q0, e0) = self.hist[0];
+        let (q1, e1) = self.hist[1];
+        let (q2, e2) = self.hist[2];
+        let d1 = self.vec(&q0, &q1);
+        let d2 = self.vec(&q1, &q2);
+        let n1 = (d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]).sqrt();
+        let n2 = (d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]).sqrt();
+        if n1 < 1e-12 || n2 < 1e-12 {
+            return pose;
+        }
+        let cos = (d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]) / (n1 * n2);
+        if cos < 10f64.to_radians().cos() {
+            return pose;
+        }
+        // errors at arc positions v = -(n1 + n2), -n2, 0
+        let v = [-(n1 + n2), -n2, 0.0];
+        let e = [e0, e1, e2];
+        let vmax = 25.0 * n2;
+        // line by least squares: e = a v + b; zero crossing -b/a
+        let vm = (v[0] + v[1] + v[2]) / 3.0;
+        let em = (e[0] + e[1] + e[2]) / 3.0;
+        let sxy: f64 = (0..3).map(|i| (v[i] - vm) * (e[i] - em)).sum();
+        let sxx: f64 = (0..3).map(|i| (v[i] - vm) * (v[i] - vm)).sum();
+        let a = sxy / sxx;
+        let b = em - a * vm;
+        let v_lin = if a < 0.0 { -b / a } else { f64::NAN };
+        // parabola through the three points: vertex
+        let (x0, x1, x2) = (v[0], v[1], v[2]);
+        let den = (x0 - x1) * (x0 - x2) * (x1 - x2);
+        let pa = (x2 * (e1 - e0) + x1 * (e0 - e2) + x0 * (e2 - e1)) / den;
+        let pb = (x2 * x2 * (e0 - e1) + x1 * x1 * (e2 - e0) + x0 * x0 * (e1 - e2)) / den;
+        let v_par = if pa > 0.0 { -pb / (2.0 * pa) } else { f64::NAN };
+        let ok = |x: f64| x.is_finite() && x > 0.0;
+        let jump = if ok(v_par) && ok(v_lin) && v_par < v_lin {
+            v_par.min(vmax)
+        } else if ok(v_lin) {
+            v_lin.min(vmax)
+        } else if ok(v_par) {
+            v_par.min(vmax)
+        } else {
+            return pose;
+        };
+        let f = jump / n2;
+        self.reset();
+        Pose2::new(
+            pose.x + f * d2[0],
+            pose.y + f * d2[1],
+            wrap_angle(pose.theta + f * d2[2] / self.scale),
+        )
+    }
+}
+
+/// Try initial headings around `start`; return the start pose of the best short coarse ICP.
+fn heading_search(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    start: Pose2,
+    cfg: &IcpConfig,
+    ws: &mut Workspace,
+) -> Pose2 {
+    let stride = (scan.len() / 60).max(1);
+    let sub: Vec<[f64; 2]> = scan.iter().step_by(stride).copied().collect();
+    if sub.len() < 3 {
+        return start;
+    }
+    let coarse = IcpConfig {
+        max_iterations: 4,
+        min_correspondence_distance: (cfg.max_correspondence_distance * 0.25)
+            .max(cfg.min_correspondence_distance),
+        heading_search: 0.0,
+        min_inliers: 3,
+        min_inlier_ratio: 0.0,
+        trim_fraction: 1.0,
+        ..cfg.clone()
+    };
+    let score_d2 = {
+        let d = cfg.min_correspondence_distance.max(0.05);
+        d * d
+    };
+    let k = (cfg.heading_search / cfg.heading_step).round() as i64;
+    let mut best = (0usize, f64::INFINITY, start);
+    for h in -k..=k {
+        let p0 = Pose2::new(
+            start.x,
+            start.y,
+            wrap_angle(start.theta + h as f64 * cfg.heading_step),
+        );
+        let r = align_unchecked(&sub, index, p0, &coarse, ws);
+        let (s, c) = r.pose.theta.sin_cos();
+        let mut hits = 0usize;
+        let mut sum = 0.0;
+        for p in &sub {
+            let q = [
+                r.pose.x + c * p[0] - s * p[1],
+                r.pose.y + s * p[0] + c * p[1],
+            ];
+            let (d2, _) = index.correspondence(q);
+            if d2 <= score_d2 {
+                hits += 1;
+                sum += d2;
+            }
+        }
+        let mse = if hits > 0 {
+            sum / hits as f64
+        } else {
+            f64::INFINITY
+        };
+        // the start heading wins ties: (h == 0) is tried in order, strict improvement only
+        if hits > best.0 || (hits == best.0 && mse < best.1) {
+            best = (hits, mse, r.pose);
+        }
+    }
+    best.2
 }
 
 /// One damped Gauss–Newton step of the point-to-line cost; the translation is capped at
@@ -621,7 +852,11 @@ fn uncertainty(
     };
     let lmin = e2.eigenvalues[imin].max(0.0);
     let lmx = e2.eigenvalues[imax];
-    let degeneracy = if lmx > 0.0 { (lmin / lmx).clamp(0.0, 1.0) } else { 0.0 };
+    let degeneracy = if lmx > 0.0 {
+        (lmin / lmx).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let v = e2.eigenvectors.column(imin);
     let mut dir = [v[0], v[1]];
     if dir[0] < 0.0 || (dir[0] == 0.0 && dir[1] < 0.0) {

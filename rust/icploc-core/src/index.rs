@@ -1,6 +1,7 @@
 //! The map index: an immutable k-d tree (kiddo) over the map's 2D points, with unit normals.
 
 use std::num::NonZeroUsize;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
@@ -12,12 +13,55 @@ use crate::se2::{wrap_angle, Pose2};
 
 type Tree = ImmutableKdTree<f64, u32, 2, 32>;
 
+/// The tree is built in a frame turned by this angle (rad): maps are full of axis-aligned
+/// walls whose points share one coordinate exactly, which degrades a k-d tree badly
+/// (measured: 15 µs instead of 0.4 µs per query at 1M wall points). Distances do not
+/// change under a rotation, so queries are turned the same way and answers are exact.
+#[cfg(test)]
+const TREE_ANGLE: f64 = 0.618_033_988_749_894_9;
+const TREE_COS: f64 = 0.815_019_204_687_878_8; // cos(TREE_ANGLE)
+const TREE_SIN: f64 = 0.579_433_944_457_810_9; // sin(TREE_ANGLE)
+
+#[inline(always)]
+fn to_tree(p: [f64; 2]) -> [f64; 2] {
+    [
+        TREE_COS * p[0] - TREE_SIN * p[1],
+        TREE_SIN * p[0] + TREE_COS * p[1],
+    ]
+}
+
 /// Neighbours used to estimate a normal when none are given.
 const NORMAL_NEIGHBOURS: usize = 7;
 
+/// Default cell size of the nearest-point cache (m).
+pub const DEFAULT_CACHE_RESOLUTION: f64 = 0.02;
+/// The cache never holds more cells than this (the resolution is coarsened instead).
+const MAX_CACHE_CELLS: usize = 1 << 23;
+/// The cache covers the map's bounds plus this margin (m); farther queries use the tree.
+const CACHE_MARGIN: f64 = 2.0;
+
+/// A grid over the map that remembers, per cell, the k-d tree's answer for the cell's
+/// centre. Filled lazily (a cell is computed on its first query), so building a map index
+/// costs nothing extra; lock-free (a race only computes the same answer twice).
+struct NearestCache {
+    x0: f64,
+    y0: f64,
+    res: f64,
+    nx: usize,
+    ny: usize,
+    /// 0 = not computed yet, else map index + 1.
+    cells: Vec<AtomicU32>,
+}
+
 /// An immutable nearest-neighbour index over 2D map points, with optional unit normals.
+///
+/// Queries go to a kiddo k-d tree. ICP's correspondence search may go through an optional
+/// nearest-point cache (see [`MapIndex::with_cache`]) that answers with the closest map
+/// point of the query's cache cell centre: exact to within the cell size, and O(1) whatever
+/// the map's size.
 pub struct MapIndex {
     tree: Tree,
+    cache: Option<NearestCache>,
     points: Vec<[f64; 2]>,
     normals: OnceLock<Vec<[f64; 2]>>,
     normals_given: bool,
@@ -73,22 +117,103 @@ impl MapIndex {
             }
             let _ = normals_lock.set(n);
         }
-        let mut bounds = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut bounds = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for p in &points {
             bounds[0] = bounds[0].min(p[0]);
             bounds[1] = bounds[1].min(p[1]);
             bounds[2] = bounds[2].max(p[0]);
             bounds[3] = bounds[3].max(p[1]);
         }
-        let tree = Tree::new_from_slice(&points);
+        let turned: Vec<[f64; 2]> = points.iter().map(|p| to_tree(*p)).collect();
+        let tree = Tree::new_from_slice(&turned);
+        drop(turned);
         Ok(Self {
             tree,
+            cache: None,
             points,
             normals: normals_lock,
             normals_given,
             spacing: OnceLock::new(),
             bounds,
         })
+    }
+
+    /// Add a nearest-point cache of cell size `resolution` (m) for ICP correspondences;
+    /// `None` or 0 removes it (exact k-d tree answers only). The grid covers the map's
+    /// bounds plus 2 m and holds at most 2²³ cells (the resolution is coarsened to fit).
+    pub fn with_cache(mut self, resolution: Option<f64>) -> Result<Self> {
+        self.cache = match resolution.filter(|r| *r != 0.0) {
+            None => None,
+            Some(r) if !(r > 0.0 && r.is_finite()) => {
+                return Err(IcpError::InvalidConfig {
+                    field: "cache_resolution",
+                    value: r.to_string(),
+                    reason: "must be positive and finite (or 0/None for no cache)",
+                })
+            }
+            Some(r) => {
+                let [x0, y0, x1, y1] = self.bounds;
+                let (w, h) = (x1 - x0 + 2.0 * CACHE_MARGIN, y1 - y0 + 2.0 * CACHE_MARGIN);
+                let mut res = r;
+                if (w / res).ceil() * (h / res).ceil() > MAX_CACHE_CELLS as f64 {
+                    res = (w * h / MAX_CACHE_CELLS as f64).sqrt() * 1.01;
+                }
+                let nx = ((w / res).ceil() as usize).max(1);
+                let ny = ((h / res).ceil() as usize).max(1);
+                let mut cells = Vec::with_capacity(nx * ny);
+                cells.resize_with(nx * ny, || AtomicU32::new(0));
+                Some(NearestCache {
+                    x0: x0 - CACHE_MARGIN,
+                    y0: y0 - CACHE_MARGIN,
+                    res,
+                    nx,
+                    ny,
+                    cells,
+                })
+            }
+        };
+        Ok(self)
+    }
+
+    /// Cell size of the nearest-point cache, if any.
+    pub fn cache_resolution(&self) -> Option<f64> {
+        self.cache.as_ref().map(|c| c.res)
+    }
+
+    /// The correspondence query of ICP: through the cache when there is one (the closest
+    /// map point of the query's cell centre), else the exact k-d tree answer. Returns
+    /// (squared distance from `q` to the returned point, index).
+    #[inline]
+    pub fn correspondence(&self, q: [f64; 2]) -> (f64, usize) {
+        if let Some(c) = &self.cache {
+            let fx = (q[0] - c.x0) / c.res;
+            let fy = (q[1] - c.y0) / c.res;
+            if fx >= 0.0 && fy >= 0.0 && fx < c.nx as f64 && fy < c.ny as f64 {
+                let (ix, iy) = (fx as usize, fy as usize);
+                let cell = &c.cells[iy * c.nx + ix];
+                let v = cell.load(Ordering::Relaxed);
+                let j = if v != 0 {
+                    (v - 1) as usize
+                } else {
+                    let centre = [
+                        c.x0 + (ix as f64 + 0.5) * c.res,
+                        c.y0 + (iy as f64 + 0.5) * c.res,
+                    ];
+                    let (_, j) = self.nearest(centre);
+                    cell.store(j as u32 + 1, Ordering::Relaxed);
+                    j
+                };
+                let p = self.points[j];
+                let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+                return (d2, j);
+            }
+        }
+        self.nearest(q)
     }
 
     #[inline]
@@ -124,8 +249,13 @@ impl MapIndex {
     /// Closest map point: (squared distance, index).
     #[inline]
     pub fn nearest(&self, q: [f64; 2]) -> (f64, usize) {
-        let nn = self.tree.nearest_one::<SquaredEuclidean>(&q);
-        (nn.distance, nn.item as usize)
+        let nn = self.tree.nearest_one::<SquaredEuclidean>(&to_tree(q));
+        let j = nn.item as usize;
+        let p = self.points[j];
+        (
+            (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]),
+            j,
+        )
     }
 
     /// Indices of the points within `radius` of `center`, sorted ascending.
@@ -135,7 +265,7 @@ impl MapIndex {
         }
         let mut v: Vec<usize> = self
             .tree
-            .within_unsorted::<SquaredEuclidean>(&center, radius * radius)
+            .within_unsorted::<SquaredEuclidean>(&to_tree(center), radius * radius)
             .into_iter()
             .map(|nn| nn.item as usize)
             .collect();
@@ -156,7 +286,9 @@ impl MapIndex {
             let mut d: Vec<f64> = (0..n)
                 .step_by(step)
                 .map(|i| {
-                    let nn = self.tree.nearest_n::<SquaredEuclidean>(&self.points[i], k);
+                    let nn = self
+                        .tree
+                        .nearest_n::<SquaredEuclidean>(&to_tree(self.points[i]), k);
                     nn.last().map(|x| x.distance.sqrt()).unwrap_or(0.0)
                 })
                 .collect();
@@ -172,7 +304,7 @@ impl MapIndex {
         self.points
             .par_iter()
             .map(|p| {
-                let nn = self.tree.nearest_n::<SquaredEuclidean>(p, k);
+                let nn = self.tree.nearest_n::<SquaredEuclidean>(&to_tree(*p), k);
                 let m = nn.len() as f64;
                 let (mut mx, mut my) = (0.0, 0.0);
                 for x in &nn {
@@ -253,7 +385,7 @@ impl MapIndex {
         let mut zbuf = vec![f64::INFINITY; nbins];
         let cand = self
             .tree
-            .within_unsorted::<SquaredEuclidean>(&[pose.x, pose.y], max_range * max_range);
+            .within_unsorted::<SquaredEuclidean>(&to_tree([pose.x, pose.y]), max_range * max_range);
         // (index, range, bin of the bearing)
         let mut keep: Vec<(usize, f64, usize)> = Vec::with_capacity(cand.len());
         let full_circle = fov >= std::f64::consts::TAU - 1e-12;
@@ -266,7 +398,11 @@ impl MapIndex {
                 continue;
             }
             let bearing = wrap_angle(dy.atan2(dx) - pose.theta);
-            let h = if r > radius { (radius / r).asin() } else { half };
+            let h = if r > radius {
+                (radius / r).asin()
+            } else {
+                half
+            };
             let rel = bearing + half; // in [0, fov] when inside the view
             if !full_circle && (rel + h < 0.0 || rel - h > fov) {
                 continue;
@@ -330,6 +466,12 @@ mod tests {
     }
 
     #[test]
+    fn tree_rotation_constants_agree() {
+        assert!((TREE_ANGLE.cos() - TREE_COS).abs() < 1e-15);
+        assert!((TREE_ANGLE.sin() - TREE_SIN).abs() < 1e-15);
+    }
+
+    #[test]
     fn empty_map_is_an_error() {
         assert_eq!(MapIndex::new(vec![], None).unwrap_err(), IcpError::EmptyMap);
     }
@@ -362,6 +504,35 @@ mod tests {
             let p = pts[i];
             assert!(((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) - best).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn cache_answers_within_a_cell_of_exact() {
+        let pts = wall_points();
+        let exact = MapIndex::new(pts.clone(), None).unwrap();
+        let cached = MapIndex::new(pts, None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        assert_eq!(cached.cache_resolution(), Some(0.02));
+        let mut rng = crate::testkit::Rng::new(4);
+        for _ in 0..2000 {
+            let q = [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)];
+            let (d2e, _) = exact.nearest(q);
+            let (d2c, _) = cached.correspondence(q);
+            // the cell centre is within res·√2/2 of q: the answer is at most that farther
+            assert!(d2c.sqrt() <= d2e.sqrt() + 0.02 * std::f64::consts::SQRT_2 + 1e-12);
+        }
+        assert!(MapIndex::new(vec![[0.0, 0.0]], None)
+            .unwrap()
+            .with_cache(Some(-1.0))
+            .is_err());
+        assert!(MapIndex::new(vec![[0.0, 0.0]], None)
+            .unwrap()
+            .with_cache(Some(0.0))
+            .unwrap()
+            .cache_resolution()
+            .is_none());
     }
 
     #[test]
@@ -415,6 +586,8 @@ mod tests {
         let front = idx
             .visible(pose, std::f64::consts::PI, 30.0, None, 0.05, 0.002)
             .unwrap();
-        assert!(!front.iter().any(|&i| pts[i][0] == 0.0 && (pts[i][1] - 2.5).abs() < 1.0));
+        assert!(!front
+            .iter()
+            .any(|&i| pts[i][0] == 0.0 && (pts[i][1] - 2.5).abs() < 1.0));
     }
 }

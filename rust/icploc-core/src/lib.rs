@@ -15,6 +15,9 @@
 //! * [`raycast`]: ray casting against wall segments (simulation, visibility).
 //! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
 
+// `!(x > 0.0)` is deliberate throughout: unlike `x <= 0.0` it also rejects NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod error;
 pub mod global;
 pub mod icp;

@@ -138,12 +138,7 @@ mod tests {
         let pts = [[1.0, 0.0], [0.0, 2.0], [-1.5, 0.3], [2.0, -1.0], [0.3, 0.7]];
         let (s, c) = theta.sin_cos();
         pts.iter()
-            .map(|p| {
-                (
-                    *p,
-                    [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]],
-                )
-            })
+            .map(|p| (*p, [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]]))
             .collect()
     }
 
@@ -155,7 +150,10 @@ mod tests {
                 cc.add(p, x, 1.0);
             }
             let r = cc.solve().unwrap();
-            assert!((crate::se2::wrap_angle(r.theta - theta)).abs() < 1e-12, "{theta}");
+            assert!(
+                (crate::se2::wrap_angle(r.theta - theta)).abs() < 1e-12,
+                "{theta}"
+            );
             assert!((r.t[0] - 0.5).abs() < 1e-12 && (r.t[1] + 2.0).abs() < 1e-12);
             assert!(r.quaternion[0] >= 0.0);
         }

@@ -8,7 +8,10 @@ pub type Segment = [f64; 4];
 
 /// Check that segments are finite.
 pub fn check_segments(segments: &[Segment]) -> Result<()> {
-    match segments.iter().position(|s| s.iter().any(|v| !v.is_finite())) {
+    match segments
+        .iter()
+        .position(|s| s.iter().any(|v| !v.is_finite()))
+    {
         Some(row) => Err(IcpError::NonFinite {
             what: "segments".into(),
             row,

@@ -65,7 +65,12 @@ pub fn office_segments() -> Vec<Segment> {
     }
     // a diagonal wall and some furniture-like boxes (mapped)
     s.push([1.0, 14.0, 4.5, 18.5]);
-    for &(cx, cy, w) in &[(9.0, 4.0, 0.6), (15.0, 15.5, 0.8), (27.0, 5.0, 0.5), (20.5, 16.0, 1.2)] {
+    for &(cx, cy, w) in &[
+        (9.0, 4.0, 0.6),
+        (15.0, 15.5, 0.8),
+        (27.0, 5.0, 0.5),
+        (20.5, 16.0, 1.2),
+    ] {
         let h = w / 2.0;
         s.push([cx - h, cy - h, cx + h, cy - h]);
         s.push([cx + h, cy - h, cx + h, cy + h]);
@@ -145,7 +150,9 @@ pub fn make_scan(
     rng: &mut Rng,
 ) -> Vec<[f64; 2]> {
     let angles: Vec<f64> = (0..beams)
-        .map(|i| -std::f64::consts::FRAC_PI_2 + std::f64::consts::PI * i as f64 / (beams - 1) as f64)
+        .map(|i| {
+            -std::f64::consts::FRAC_PI_2 + std::f64::consts::PI * i as f64 / (beams - 1) as f64
+        })
         .collect();
     let ranges = raycast(segments, pose, &angles, max_range).expect("finite world");
     let mut out = Vec::with_capacity(beams);

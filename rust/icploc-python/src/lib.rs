@@ -9,7 +9,9 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
+};
 use pyo3::exceptions::{PyException, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
@@ -17,6 +19,8 @@ use pyo3::types::{PyDict, PyTuple, PyType};
 
 use icploc_core as core;
 use icploc_core::{IcpError as CoreError, Pose2};
+
+mod global;
 
 pyo3::create_exception!(
     icploc._core,
@@ -30,7 +34,12 @@ static EMPTY_MAP: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INVALID_CONFIG: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
 /// A class with several bases (e.g. IcpError and ValueError), made with `type()`.
-fn make_class(py: Python<'_>, name: &str, bases: Vec<Bound<'_, PyType>>, doc: &str) -> PyResult<Py<PyType>> {
+fn make_class(
+    py: Python<'_>,
+    name: &str,
+    bases: Vec<Bound<'_, PyType>>,
+    doc: &str,
+) -> PyResult<Py<PyType>> {
     let dict = PyDict::new(py);
     dict.set_item("__module__", "icploc._core")?;
     dict.set_item("__doc__", doc)?;
@@ -54,7 +63,8 @@ fn invalid_input(py: Python<'_>) -> &Py<PyType> {
 fn empty_map(py: Python<'_>) -> &Py<PyType> {
     EMPTY_MAP.get_or_init(py, || {
         let base = invalid_input(py).bind(py).clone();
-        make_class(py, "EmptyMapError", vec![base], "The map has no points.").expect("creating EmptyMapError")
+        make_class(py, "EmptyMapError", vec![base], "The map has no points.")
+            .expect("creating EmptyMapError")
     })
 }
 
@@ -128,7 +138,12 @@ impl Array<'_> {
     }
 }
 
-fn array2<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, cols: usize, what: &str) -> PyResult<Array<'py>> {
+fn array2<'py>(
+    py: Python<'py>,
+    obj: &Bound<'py, PyAny>,
+    cols: usize,
+    what: &str,
+) -> PyResult<Array<'py>> {
     let shape_err = |shape: &[usize]| {
         to_py(
             py,
@@ -143,7 +158,9 @@ fn array2<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, cols: usize, what: &str
         if a.shape()[1] != cols {
             return Err(shape_err(a.shape()));
         }
-        if a.as_slice().is_ok() {
+        // Borrow only C-order data: `as_slice` also accepts Fortran order, whose flat
+        // layout is column after column.
+        if a.is_c_contiguous() && a.as_slice().is_ok() {
             return Ok(Array::Borrowed(a));
         }
         return Ok(Array::Owned(a.as_array().iter().copied().collect()));
@@ -203,10 +220,15 @@ fn pose_arg<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, what: &str) -> PyResu
 
 fn mat3<'py>(py: Python<'py>, m: &[[f64; 3]; 3]) -> Bound<'py, PyArray2<f64>> {
     let v: Vec<f64> = m.iter().flatten().copied().collect();
-    Array2::from_shape_vec((3, 3), v).expect("3x3").into_pyarray(py)
+    Array2::from_shape_vec((3, 3), v)
+        .expect("3x3")
+        .into_pyarray(py)
 }
 
 // ---------------------------------------------------------------- MapIndex
+
+/// (distances, indices) of `MapIndex.nearest`.
+type Nearest<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>);
 
 /// An immutable k-d tree over 2D map points with optional unit normals.
 #[pyclass(name = "MapIndex", module = "icploc._core", frozen)]
@@ -217,8 +239,13 @@ struct PyMapIndex {
 #[pymethods]
 impl PyMapIndex {
     #[new]
-    #[pyo3(signature = (points, normals=None))]
-    fn new(py: Python<'_>, points: &Bound<'_, PyAny>, normals: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+    #[pyo3(signature = (points, normals=None, cache_resolution=core::index::DEFAULT_CACHE_RESOLUTION))]
+    fn new(
+        py: Python<'_>,
+        points: &Bound<'_, PyAny>,
+        normals: Option<&Bound<'_, PyAny>>,
+        cache_resolution: Option<f64>,
+    ) -> PyResult<Self> {
         let p = array2(py, points, 2, "map points")?;
         let n = match normals {
             Some(n) if !n.is_none() => Some(array2(py, n, 2, "map normals")?),
@@ -227,9 +254,11 @@ impl PyMapIndex {
         let pv = p.pairs().to_vec();
         let nv = n.as_ref().map(|a| a.pairs().to_vec());
         let idx = py
-            .detach(|| guarded(|| core::MapIndex::new(pv, nv)))
+            .detach(|| guarded(|| core::MapIndex::new(pv, nv)?.with_cache(cache_resolution)))
             .map_err(|e| to_py(py, e))?;
-        Ok(Self { inner: Arc::new(idx) })
+        Ok(Self {
+            inner: Arc::new(idx),
+        })
     }
 
     fn __len__(&self) -> usize {
@@ -239,9 +268,10 @@ impl PyMapIndex {
     fn __repr__(&self) -> String {
         let b = self.inner.bounds();
         format!(
-            "MapIndex({} points, normals={}, bounds=({:.3}, {:.3}, {:.3}, {:.3}))",
+            "MapIndex({} points, normals={}, cache_resolution={:?}, bounds=({:.3}, {:.3}, {:.3}, {:.3}))",
             self.inner.len(),
             if self.inner.has_normals() { "given" } else { "estimated" },
+            self.inner.cache_resolution(),
             b[0],
             b[1],
             b[2],
@@ -274,6 +304,12 @@ impl PyMapIndex {
         (b[0], b[1], b[2], b[3])
     }
 
+    /// Cell size of the nearest-point cache used by ICP (None: exact k-d tree answers).
+    #[getter]
+    fn cache_resolution(&self) -> Option<f64> {
+        self.inner.cache_resolution()
+    }
+
     /// Median nearest-neighbour spacing of the map points (m).
     #[getter]
     fn spacing(&self) -> f64 {
@@ -284,7 +320,7 @@ impl PyMapIndex {
         &self,
         py: Python<'py>,
         query: &Bound<'py, PyAny>,
-    ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<i64>>)> {
+    ) -> PyResult<Nearest<'py>> {
         let q = array2(py, query, 2, "query")?;
         let qs = q.pairs();
         core::check_finite("query", qs).map_err(|e| to_py(py, e))?;
@@ -308,7 +344,11 @@ impl PyMapIndex {
     ) -> PyResult<Bound<'py, PyArray1<i64>>> {
         let c = vector(py, center, "center")?;
         if c.len() != 2 || !c.iter().all(|v| v.is_finite()) {
-            return Err(input_err(py, "center", format!("expected 2 finite values, got {c:?}")));
+            return Err(input_err(
+                py,
+                "center",
+                format!("expected 2 finite values, got {c:?}"),
+            ));
         }
         if !(radius >= 0.0 && radius.is_finite()) {
             return Err(to_py(
@@ -321,7 +361,13 @@ impl PyMapIndex {
             ));
         }
         let inner = self.inner.clone();
-        let v: Vec<i64> = py.detach(|| inner.within([c[0], c[1]], radius).into_iter().map(|i| i as i64).collect());
+        let v: Vec<i64> = py.detach(|| {
+            inner
+                .within([c[0], c[1]], radius)
+                .into_iter()
+                .map(|i| i as i64)
+                .collect()
+        });
         Ok(v.into_pyarray(py))
     }
 
@@ -340,7 +386,18 @@ impl PyMapIndex {
         let pose = pose_arg(py, pose, "pose")?;
         let inner = self.inner.clone();
         let v = py
-            .detach(|| guarded(|| inner.visible(pose, fov, max_range, point_radius, tolerance, angular_resolution)))
+            .detach(|| {
+                guarded(|| {
+                    inner.visible(
+                        pose,
+                        fov,
+                        max_range,
+                        point_radius,
+                        tolerance,
+                        angular_resolution,
+                    )
+                })
+            })
             .map_err(|e| to_py(py, e))?;
         let v: Vec<i64> = v.into_iter().map(|i| i as i64).collect();
         Ok(v.into_pyarray(py))
@@ -349,7 +406,9 @@ impl PyMapIndex {
 
 fn pairs_to_array<'py>(py: Python<'py>, p: &[[f64; 2]]) -> Bound<'py, PyArray2<f64>> {
     let v: Vec<f64> = p.iter().flatten().copied().collect();
-    Array2::from_shape_vec((p.len(), 2), v).expect("N x 2").into_pyarray(py)
+    Array2::from_shape_vec((p.len(), 2), v)
+        .expect("N x 2")
+        .into_pyarray(py)
 }
 
 // ---------------------------------------------------------------- IcpConfig
@@ -371,6 +430,8 @@ struct PyIcpConfig {
     step_tolerance: f64,
     min_inliers: usize,
     min_inlier_ratio: f64,
+    heading_search: f64,
+    heading_step: f64,
 }
 
 impl Default for PyIcpConfig {
@@ -405,6 +466,8 @@ impl PyIcpConfig {
             step_tolerance: d.step_tolerance,
             min_inliers: d.min_inliers,
             min_inlier_ratio: d.min_inlier_ratio,
+            heading_search: d.heading_search,
+            heading_step: d.heading_step,
         }
     }
 
@@ -446,6 +509,8 @@ impl PyIcpConfig {
             step_tolerance: self.step_tolerance,
             min_inliers: self.min_inliers,
             min_inlier_ratio: self.min_inlier_ratio,
+            heading_search: self.heading_search,
+            heading_step: self.heading_step,
         };
         c.validate()?;
         Ok(c)
@@ -455,8 +520,14 @@ impl PyIcpConfig {
         vec![
             ("metric", format!("{:?}", self.metric)),
             ("max_iterations", self.max_iterations.to_string()),
-            ("max_correspondence_distance", self.max_correspondence_distance.to_string()),
-            ("min_correspondence_distance", self.min_correspondence_distance.to_string()),
+            (
+                "max_correspondence_distance",
+                self.max_correspondence_distance.to_string(),
+            ),
+            (
+                "min_correspondence_distance",
+                self.min_correspondence_distance.to_string(),
+            ),
             ("threshold_decay", self.threshold_decay.to_string()),
             ("trim_fraction", self.trim_fraction.to_string()),
             ("robust", format!("{:?}", self.robust)),
@@ -466,6 +537,8 @@ impl PyIcpConfig {
             ("step_tolerance", self.step_tolerance.to_string()),
             ("min_inliers", self.min_inliers.to_string()),
             ("min_inlier_ratio", self.min_inlier_ratio.to_string()),
+            ("heading_search", self.heading_search.to_string()),
+            ("heading_step", self.heading_step.to_string()),
         ]
     }
 }
@@ -476,7 +549,7 @@ impl PyIcpConfig {
     #[pyo3(signature = (*, metric="point_to_line", max_iterations=50, max_correspondence_distance=1.0,
         min_correspondence_distance=0.1, threshold_decay=0.6, trim_fraction=1.0, robust="none",
         robust_scale=0.05, mse_threshold=1e-8, mse_change=1e-7, step_tolerance=1e-6, min_inliers=10,
-        min_inlier_ratio=0.0))]
+        min_inlier_ratio=0.0, heading_search=0.0, heading_step=0.08726646259971647))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -493,6 +566,8 @@ impl PyIcpConfig {
         step_tolerance: f64,
         min_inliers: usize,
         min_inlier_ratio: f64,
+        heading_search: f64,
+        heading_step: f64,
     ) -> PyResult<Self> {
         let c = Self {
             metric: metric.into(),
@@ -508,6 +583,8 @@ impl PyIcpConfig {
             step_tolerance,
             min_inliers,
             min_inlier_ratio,
+            heading_search,
+            heading_step,
         };
         c.to_core().map_err(|e| to_py(py, e))?;
         Ok(c)
@@ -521,8 +598,14 @@ impl PyIcpConfig {
         let d = PyDict::new(py);
         d.set_item("metric", &self.metric)?;
         d.set_item("max_iterations", self.max_iterations)?;
-        d.set_item("max_correspondence_distance", self.max_correspondence_distance)?;
-        d.set_item("min_correspondence_distance", self.min_correspondence_distance)?;
+        d.set_item(
+            "max_correspondence_distance",
+            self.max_correspondence_distance,
+        )?;
+        d.set_item(
+            "min_correspondence_distance",
+            self.min_correspondence_distance,
+        )?;
         d.set_item("threshold_decay", self.threshold_decay)?;
         d.set_item("trim_fraction", self.trim_fraction)?;
         d.set_item("robust", &self.robust)?;
@@ -532,11 +615,17 @@ impl PyIcpConfig {
         d.set_item("step_tolerance", self.step_tolerance)?;
         d.set_item("min_inliers", self.min_inliers)?;
         d.set_item("min_inlier_ratio", self.min_inlier_ratio)?;
+        d.set_item("heading_search", self.heading_search)?;
+        d.set_item("heading_step", self.heading_step)?;
         Ok(d)
     }
 
     fn __repr__(&self) -> String {
-        let parts: Vec<String> = self.items().into_iter().map(|(k, v)| format!("{k}={v}")).collect();
+        let parts: Vec<String> = self
+            .items()
+            .into_iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect();
         format!("IcpConfig({})", parts.join(", "))
     }
 
@@ -733,7 +822,10 @@ fn raycast<'py>(
     let pose = pose_arg(py, pose, "pose")?;
     let ang = vector(py, angles, "angles")?;
     let f = seg.flat();
-    let segs: Vec<[f64; 4]> = f.chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+    let segs: Vec<[f64; 4]> = f
+        .chunks_exact(4)
+        .map(|c| [c[0], c[1], c[2], c[3]])
+        .collect();
     let r = py
         .detach(|| guarded(|| core::raycast::raycast(&segs, pose, &ang, max_range)))
         .map_err(|e| to_py(py, e))?;
@@ -754,5 +846,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(icp, m)?)?;
     m.add_function(wrap_pyfunction!(icp_batch, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
+    global::register(m)?;
     Ok(())
 }

@@ -1,0 +1,355 @@
+//! `icploc._core.GlobalLocalizer`: the global search of `icploc_core::global`, GIL
+//! released around every heavy call.
+
+use numpy::PyArray1;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use icploc_core::global::{Candidate, GlobalConfig, GlobalLocalizer, GlobalResult};
+use icploc_core::Pose2;
+
+use crate::{array2, guarded, input_err, to_py, PyIcpConfig, PyMapIndex};
+
+/// One ranked pose hypothesis of a global search.
+#[pyclass(name = "GlobalCandidate", module = "icploc._core", frozen)]
+#[derive(Clone)]
+pub struct PyCandidate {
+    inner: Candidate,
+}
+
+#[pymethods]
+impl PyCandidate {
+    #[getter]
+    fn pose(&self) -> (f64, f64, f64) {
+        let p = self.inner.pose;
+        (p.x, p.y, p.theta)
+    }
+    #[getter]
+    fn score(&self) -> f64 {
+        self.inner.score
+    }
+    #[getter]
+    fn inlier_ratio(&self) -> f64 {
+        self.inner.inlier_ratio
+    }
+    #[getter]
+    fn mse(&self) -> f64 {
+        self.inner.mse
+    }
+    #[getter]
+    fn see_through(&self) -> f64 {
+        self.inner.see_through
+    }
+    #[getter]
+    fn coarse_score(&self) -> f64 {
+        self.inner.coarse_score
+    }
+
+    fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        d.set_item("pose", self.pose())?;
+        d.set_item("score", self.inner.score)?;
+        d.set_item("inlier_ratio", self.inner.inlier_ratio)?;
+        d.set_item("mse", self.inner.mse)?;
+        d.set_item("see_through", self.inner.see_through)?;
+        d.set_item("coarse_score", self.inner.coarse_score)?;
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let p = self.inner.pose;
+        format!(
+            "GlobalCandidate(pose=({:.4}, {:.4}, {:.4}), score={:.4}, inlier_ratio={:.3}, mse={:.3e}, see_through={:.3})",
+            p.x, p.y, p.theta, self.inner.score, self.inner.inlier_ratio, self.inner.mse, self.inner.see_through
+        )
+    }
+}
+
+/// The outcome of one global search.
+#[pyclass(name = "GlobalSearchResult", module = "icploc._core", frozen)]
+pub struct PyGlobalResult {
+    inner: GlobalResult,
+}
+
+#[pymethods]
+impl PyGlobalResult {
+    #[getter]
+    fn candidates(&self) -> Vec<PyCandidate> {
+        self.inner
+            .candidates
+            .iter()
+            .map(|c| PyCandidate { inner: c.clone() })
+            .collect()
+    }
+    #[getter]
+    fn best(&self) -> Option<PyCandidate> {
+        self.inner.best().map(|c| PyCandidate { inner: c.clone() })
+    }
+    #[getter]
+    fn ambiguous(&self) -> bool {
+        self.inner.ambiguous
+    }
+    #[getter]
+    fn nodes(&self) -> usize {
+        self.inner.nodes
+    }
+    #[getter]
+    fn leaves(&self) -> usize {
+        self.inner.leaves
+    }
+    #[getter]
+    fn headings(&self) -> usize {
+        self.inner.headings
+    }
+    #[getter]
+    fn coarse_time(&self) -> f64 {
+        self.inner.coarse_time
+    }
+    #[getter]
+    fn refine_time(&self) -> f64 {
+        self.inner.refine_time
+    }
+    fn __len__(&self) -> usize {
+        self.inner.candidates.len()
+    }
+    fn __repr__(&self) -> String {
+        format!(
+            "GlobalSearchResult({} candidates, ambiguous={}, best={})",
+            self.inner.candidates.len(),
+            if self.inner.ambiguous {
+                "True"
+            } else {
+                "False"
+            },
+            self.best()
+                .map(|c| c.__repr__())
+                .unwrap_or_else(|| "None".into())
+        )
+    }
+}
+
+/// Global localization against one map: a likelihood pyramid built once, then
+/// branch-and-bound searches over positions and headings with ICP refinement.
+#[pyclass(name = "GlobalLocalizer", module = "icploc._core", frozen)]
+pub struct PyGlobalLocalizer {
+    inner: GlobalLocalizer,
+    index: Py<PyMapIndex>,
+}
+
+fn poses_arg(py: Python<'_>, obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<Pose2>> {
+    let a = array2(py, obj, 3, what)?;
+    Ok(a.flat()
+        .chunks_exact(3)
+        .map(|c| Pose2::new(c[0], c[1], c[2]))
+        .collect())
+}
+
+fn pair4(py: Python<'_>, obj: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult<Option<[f64; 4]>> {
+    match obj {
+        None => Ok(None),
+        Some(o) if o.is_none() => Ok(None),
+        Some(o) => {
+            let v: Vec<f64> = o.extract().map_err(|_| {
+                input_err(
+                    py,
+                    what,
+                    "expected 4 numbers (xmin, ymin, xmax, ymax)".into(),
+                )
+            })?;
+            if v.len() != 4 {
+                return Err(input_err(
+                    py,
+                    what,
+                    format!("expected 4 numbers, got {}", v.len()),
+                ));
+            }
+            Ok(Some([v[0], v[1], v[2], v[3]]))
+        }
+    }
+}
+
+#[pymethods]
+impl PyGlobalLocalizer {
+    #[new]
+    #[pyo3(signature = (
+        index, resolution=0.05, *, angle_step=None, max_points=96, sigma=0.15,
+        min_clearance=0.2, accept_ratio=0.8, min_score=0.15, max_candidates=32,
+        levels=6, score_sigma=0.05, inlier_distance=0.1, distinct_distance=0.5,
+        distinct_angle=None, ambiguity_margin=0.1, icp_config=None
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        index: Bound<'_, PyMapIndex>,
+        resolution: f64,
+        angle_step: Option<f64>,
+        max_points: usize,
+        sigma: f64,
+        min_clearance: f64,
+        accept_ratio: f64,
+        min_score: f64,
+        max_candidates: usize,
+        levels: usize,
+        score_sigma: f64,
+        inlier_distance: f64,
+        distinct_distance: f64,
+        distinct_angle: Option<f64>,
+        ambiguity_margin: f64,
+        icp_config: Option<PyRef<'_, PyIcpConfig>>,
+    ) -> PyResult<Self> {
+        let d = GlobalConfig::default();
+        let icp = match icp_config {
+            Some(c) => c.to_core().map_err(|e| to_py(py, e))?,
+            None => d.icp.clone(),
+        };
+        let cfg = GlobalConfig {
+            angle_step: angle_step.unwrap_or(d.angle_step),
+            max_points,
+            sigma,
+            min_clearance,
+            accept_ratio,
+            min_score,
+            max_candidates,
+            levels,
+            score_sigma,
+            inlier_distance,
+            distinct_distance,
+            distinct_angle: distinct_angle.unwrap_or(d.distinct_angle),
+            ambiguity_margin,
+            icp,
+            ..d
+        };
+        let idx = index.get().inner.clone();
+        let inner = py
+            .detach(|| guarded(|| GlobalLocalizer::new(idx, resolution, cfg)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(Self {
+            inner,
+            index: index.unbind(),
+        })
+    }
+
+    /// Search for the pose of `scan_xy` (N, 2 sensor-frame points); `region`: the sensor
+    /// position's (xmin, ymin, xmax, ymax), `heading`: (min, max) radians.
+    #[pyo3(signature = (scan_xy, region=None, heading=None))]
+    fn search(
+        &self,
+        py: Python<'_>,
+        scan_xy: &Bound<'_, PyAny>,
+        region: Option<&Bound<'_, PyAny>>,
+        heading: Option<(f64, f64)>,
+    ) -> PyResult<PyGlobalResult> {
+        let scan = array2(py, scan_xy, 2, "scan_xy")?;
+        let region = pair4(py, region, "region")?;
+        let s = scan.pairs();
+        let r = py
+            .detach(|| guarded(|| self.inner.search(s, region, heading)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(PyGlobalResult { inner: r })
+    }
+
+    /// Refine each (M, 3) pose by ICP and score it like a search candidate.
+    fn refine(
+        &self,
+        py: Python<'_>,
+        scan_xy: &Bound<'_, PyAny>,
+        poses: &Bound<'_, PyAny>,
+    ) -> PyResult<Vec<PyCandidate>> {
+        let scan = array2(py, scan_xy, 2, "scan_xy")?;
+        let poses = poses_arg(py, poses, "poses")?;
+        let s = scan.pairs();
+        let r = py
+            .detach(|| guarded(|| self.inner.refine(s, &poses)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(r.into_iter().map(|inner| PyCandidate { inner }).collect())
+    }
+
+    /// Score `scan_xy` at each (M, 3) pose without refinement.
+    fn score(
+        &self,
+        py: Python<'_>,
+        scan_xy: &Bound<'_, PyAny>,
+        poses: &Bound<'_, PyAny>,
+    ) -> PyResult<Vec<PyCandidate>> {
+        let scan = array2(py, scan_xy, 2, "scan_xy")?;
+        let poses = poses_arg(py, poses, "poses")?;
+        let s = scan.pairs();
+        let r = py
+            .detach(|| guarded(|| self.inner.score(s, &poses)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(r.into_iter().map(|inner| PyCandidate { inner }).collect())
+    }
+
+    /// Are two poses distinct hypotheses (farther apart than distinct_distance or
+    /// distinct_angle)?
+    fn distinct(&self, a: (f64, f64, f64), b: (f64, f64, f64)) -> bool {
+        self.inner
+            .distinct(&Pose2::new(a.0, a.1, a.2), &Pose2::new(b.0, b.1, b.2))
+    }
+
+    /// Distance (m) from each (N, 2) point to the map, from the grid (nan outside it).
+    fn distance<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let pts = array2(py, points, 2, "points")?;
+        let v: Vec<f64> = pts
+            .pairs()
+            .iter()
+            .map(|p| self.inner.distance_at(*p).unwrap_or(f64::NAN))
+            .collect();
+        Ok(PyArray1::from_vec(py, v))
+    }
+
+    #[getter]
+    fn index(&self, py: Python<'_>) -> Py<PyMapIndex> {
+        self.index.clone_ref(py)
+    }
+    #[getter]
+    fn resolution(&self) -> f64 {
+        self.inner.resolution()
+    }
+    #[getter]
+    fn shape(&self) -> (usize, usize) {
+        self.inner.shape()
+    }
+    #[getter]
+    fn free_cells(&self) -> usize {
+        self.inner.free_cells()
+    }
+    #[getter]
+    fn angle_step(&self) -> f64 {
+        self.inner.config().angle_step
+    }
+    #[getter]
+    fn ambiguity_margin(&self) -> f64 {
+        self.inner.config().ambiguity_margin
+    }
+    #[getter]
+    fn distinct_distance(&self) -> f64 {
+        self.inner.config().distinct_distance
+    }
+    #[getter]
+    fn distinct_angle(&self) -> f64 {
+        self.inner.config().distinct_angle
+    }
+
+    fn __repr__(&self) -> String {
+        let (w, h) = self.inner.shape();
+        format!(
+            "GlobalLocalizer(resolution={}, cells={}x{}, free_cells={})",
+            self.inner.resolution(),
+            w,
+            h,
+            self.inner.free_cells()
+        )
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyGlobalLocalizer>()?;
+    m.add_class::<PyGlobalResult>()?;
+    m.add_class::<PyCandidate>()?;
+    Ok(())
+}
