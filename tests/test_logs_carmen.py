@@ -295,6 +295,10 @@ def test_zero_stamped_odom_interpolated(tmp_path: Path) -> None:
     d = read_carmen(p)
     assert [o.stamp for o in d.odometry] == pytest.approx([1.0, 1.75, 2.0])
     assert d.info.stamps == "repaired"
+    assert not any("repeat the preceding laser pose" in n for n in d.info.notes)
+    lines[2] = "ODOM 0 0 0 0 0 0 0 h 0"  # a copy of the FLASER's reported pose, unstamped
+    p.write_text("\n".join(lines) + "\n")
+    assert any("1 unstamped ODOM lines repeat" in n for n in read_carmen(p).info.notes)
 
 
 def test_repair_stamps_monotone_scans() -> None:
@@ -426,6 +430,8 @@ def test_real_radish_logs_parse_clean(path: Path) -> None:
     assert d.info.has_truth and d.truth_poses.shape == (d.info.n_scans, 3)
     assert d.info.beams[0] in (180, 181, 360, 361)
     assert d.info.skipped.get("NEFF", 0) == d.info.n_scans
+    if path.name != "orebro-corrected.log.gz":
+        assert any("repeat the preceding laser pose" in n for n in d.info.notes)
 
 
 @pytest.mark.shared_data

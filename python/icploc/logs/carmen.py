@@ -641,6 +641,23 @@ def read_carmen(
     scan_t = fixed[:n_sc]
     odom_t = fixed[n_sc:]
 
+    # corrected logs (Radish) follow each laser message with an unstamped ODOM line that
+    # repeats the laser's reported pose: say so, the ODOM stream is then not raw odometry
+    if len(odo) and n_sc:
+        so = np.argsort(scan_line)
+        sl = scan_line[so]
+        rep_pose = np.concatenate([b.reported for b in blocks])[so]
+        oi = np.asarray(odom_idx, dtype=np.int64)
+        prev = np.searchsorted(sl, oi) - 1
+        has = (prev >= 0) & (odo[:, 6] == 0.0)
+        same = np.zeros(len(oi), dtype=bool)
+        same[has] = np.all(odo[has, :3] == rep_pose[prev[has]], axis=1)
+        if int(same.sum()):
+            notes.append(
+                f"{int(same.sum())} unstamped ODOM lines repeat the preceding laser pose "
+                "(a corrected log: its ODOM stream follows the corrected path, it is not raw odometry)"
+            )
+
     # ---- build objects (time order; file order on equal stamps)
     rows: list[tuple[float, int, int, int]] = []  # stamp, line, block, row
     k = 0
