@@ -1,0 +1,460 @@
+"""Global localization and kidnapped-robot recovery.
+
+The Rust :class:`icploc.GlobalLocalizer` finds ranked pose candidates for one scan
+anywhere on the map (branch-and-bound over positions and headings, ICP-refined) and says
+when the best two are too close to choose (``ambiguous``). One scan is often not enough —
+a symmetric room, a building of identical offices — so :class:`Relocalizer` keeps the
+plausible candidates as hypotheses, carries each through the odometry increments, refines
+and re-scores each on every new scan, adds whatever a fresh search finds, drops those that
+fall behind, and declares a lock only when one hypothesis has dominated every other
+distinct one (by a relative score margin), with a good fit, for ``confirm_scans``
+consecutive scans. While two hypotheses explain the scans equally well it keeps saying
+``ambiguous``: never a confident wrong lock.
+
+:class:`LostDetector` watches a tracking :class:`~icploc.localizer.Localizer`'s estimates
+(inlier-ratio collapse against its own recent history, rejected corrections) to declare
+``lost`` sooner than the localizer's own counters after a kidnapping.
+
+:func:`attach` plugs both into a Localizer through its relocalization hook: the
+localizer's ``relocalize`` is replaced (on that instance) by the hypothesis tracker, and
+its ``update`` watched by the detector. :func:`relocalize` is the one-shot form: search
+(and optionally confirm over the following scans with odometry).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icploc.se2 import Pose, between, compose, wrap_angle
+
+__all__ = [
+    "Hypothesis",
+    "LostDetector",
+    "RelocalizeConfig",
+    "RelocalizeResult",
+    "Relocalizer",
+    "attach",
+    "global_localizer",
+    "relocalize",
+]
+
+
+@dataclass(frozen=True)
+class RelocalizeConfig:
+    """Settings of the hypothesis tracker (scores are :class:`GlobalCandidate` scores)."""
+
+    #: grid resolution of the global search (m)
+    resolution: float = 0.05
+    #: hypotheses kept at most
+    max_hypotheses: int = 12
+    #: hypotheses (and new candidates) scoring below this fraction of the best are dropped
+    keep_ratio: float = 0.6
+    #: a confirming scan needs at least this score and inlier ratio
+    min_score: float = 0.45
+    min_inlier_ratio: float = 0.6
+    #: every other distinct hypothesis must score below (1 - dominance) x the best
+    dominance: float = 0.1
+    #: consecutive dominating, good scans (the search scan included) before a lock
+    confirm_scans: int = 2
+    #: run a fresh global search every n-th scan while not locked (1: every scan)
+    search_every: int = 1
+    #: scan points used per hypothesis refinement (evenly subsampled; 0: all)
+    max_points: int = 360
+
+    def validate(self) -> RelocalizeConfig:
+        if not (self.resolution > 0 and math.isfinite(self.resolution)):
+            raise ValueError(f"resolution must be positive, got {self.resolution}")
+        for name in ("max_hypotheses", "confirm_scans", "search_every"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        for name in ("keep_ratio", "min_score", "min_inlier_ratio", "dominance"):
+            v = float(getattr(self, name))
+            if not 0.0 <= v < 1.0:
+                raise ValueError(f"{name} must be in [0, 1), got {v}")
+        if self.max_points < 0:
+            raise ValueError(f"max_points must be >= 0, got {self.max_points}")
+        return self
+
+
+@dataclass
+class Hypothesis:
+    """One pose hypothesis followed through the scans."""
+
+    pose: Pose
+    score: float
+    inlier_ratio: float
+    id: int
+    age: int = 1  #: scans this hypothesis has been scored on
+    good: int = 0  #: consecutive scans with a good fit (score and inlier ratio)
+
+
+@dataclass(frozen=True)
+class RelocalizeResult:
+    """What the tracker thinks after one scan.
+
+    ``status``: ``"locked"`` (``pose`` verified), ``"ambiguous"`` (two or more distinct
+    hypotheses explain the scans about equally well), ``"confirming"`` (one dominates but
+    not for long enough yet), ``"searching"`` (no good hypothesis)."""
+
+    status: str
+    pose: Pose | None
+    score: float
+    inlier_ratio: float
+    hypotheses: tuple[Hypothesis, ...]
+    scans: int
+    search_time: float = 0.0  #: seconds spent in the global search for this scan
+    search_ambiguous: bool = False  #: the global search of this scan reported ambiguity
+
+    @property
+    def locked(self) -> bool:
+        return self.status == "locked"
+
+    @property
+    def ambiguous(self) -> bool:
+        return self.status == "ambiguous"
+
+
+def _index_of(map_: Any, spacing: float = 0.05) -> Any:
+    from icploc._core import MapIndex
+
+    if isinstance(map_, MapIndex):
+        return map_
+    if hasattr(map_, "index") and callable(map_.index):
+        return map_.index(spacing)
+    pts = np.asarray(map_, dtype=np.float64)
+    if pts.ndim == 2 and pts.shape[1] == 4:  # wall segments
+        return MapIndex(_sample_segments(pts, spacing))
+    return MapIndex(pts.reshape(-1, 2))
+
+
+def _sample_segments(segs: NDArray[np.float64], spacing: float) -> NDArray[np.float64]:
+    out = []
+    for x1, y1, x2, y2 in segs:
+        n = max(1, int(math.ceil(math.hypot(x2 - x1, y2 - y1) / spacing)))
+        t = np.linspace(0.0, 1.0, n + 1)
+        out.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
+    return np.vstack(out)
+
+
+def global_localizer(map_: Any, resolution: float = 0.05, **kwargs: Any) -> Any:
+    """A :class:`icploc.GlobalLocalizer` for ``map_``: a MapIndex, an ``icploc.Map``, an
+    (N, 2) array of points or a (K, 4) array of wall segments (sampled every 5 cm)."""
+    from icploc._core import GlobalLocalizer
+
+    return GlobalLocalizer(_index_of(map_), resolution, **kwargs)
+
+
+def _subsample(points: NDArray[np.float64], n: int) -> NDArray[np.float64]:
+    if n <= 0 or points.shape[0] <= n:
+        return points
+    k = np.linspace(0, points.shape[0] - 1, n).round().astype(np.int64)
+    return points[k]
+
+
+class Relocalizer:
+    """Multi-hypothesis global localization: :meth:`update` once per scan with the
+    odometry motion since the previous call (robot frame, ``between(odom_prev, odom_now)``)
+    until the result is ``locked``. ``points`` are scan points in the robot base frame.
+    ``region`` / ``heading`` restrict the searches (see :meth:`GlobalLocalizer.search`)."""
+
+    def __init__(
+        self,
+        map_: Any,
+        config: RelocalizeConfig | None = None,
+        *,
+        localizer: Any = None,
+        region: Sequence[float] | None = None,
+        heading: tuple[float, float] | None = None,
+        **global_kwargs: Any,
+    ) -> None:
+        self.config = (config or RelocalizeConfig()).validate()
+        self.glob = (
+            localizer
+            if localizer is not None
+            else global_localizer(map_, self.config.resolution, **global_kwargs)
+        )
+        self.region = tuple(region) if region is not None else None
+        self.heading = heading
+        self._ids = itertools.count()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every hypothesis (the next :meth:`update` searches afresh)."""
+        self.hypotheses: list[Hypothesis] = []
+        self.scans = 0
+        self._leader: int | None = None
+        self._streak = 0
+        self.last: RelocalizeResult | None = None
+
+    def _good(self, score: float, inlier_ratio: float) -> bool:
+        c = self.config
+        return score >= c.min_score and inlier_ratio >= c.min_inlier_ratio
+
+    def update(
+        self, points: NDArray[np.float64], motion: Sequence[float] | None = None
+    ) -> RelocalizeResult:
+        c = self.config
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        self.scans += 1
+        if pts.shape[0] < 10:
+            return self._result("searching", 0.0, False)
+        sub = np.ascontiguousarray(_subsample(pts, c.max_points))
+        # 1. carry the hypotheses through the odometry motion, refine and re-score them
+        hyps = self.hypotheses
+        if hyps:
+            if motion is not None:
+                m = (float(motion[0]), float(motion[1]), float(motion[2]))
+                for h in hyps:
+                    h.pose = compose(h.pose, m)
+            refined = self.glob.refine(sub, np.array([h.pose for h in hyps]))
+            for h, r in zip(hyps, refined, strict=True):
+                h.pose = (r.pose[0], r.pose[1], wrap_angle(r.pose[2]))
+                h.score, h.inlier_ratio = r.score, r.inlier_ratio
+                h.age += 1
+                h.good = h.good + 1 if self._good(h.score, h.inlier_ratio) else 0
+        # 2. a fresh search adds what the hypotheses do not cover yet
+        search_time = 0.0
+        search_amb = False
+        if not hyps or (self.scans - 1) % c.search_every == 0:
+            res = self.glob.search(pts, self.region, self.heading)
+            search_time = res.coarse_time + res.refine_time
+            search_amb = res.ambiguous
+            for cand in res.candidates:
+                p = (cand.pose[0], cand.pose[1], wrap_angle(cand.pose[2]))
+                if any(not self.glob.distinct(p, h.pose) for h in hyps):
+                    continue
+                hyps.append(
+                    Hypothesis(
+                        pose=p,
+                        score=cand.score,
+                        inlier_ratio=cand.inlier_ratio,
+                        id=next(self._ids),
+                        good=1 if self._good(cand.score, cand.inlier_ratio) else 0,
+                    )
+                )
+        # 3. merge hypotheses that converged onto each other, drop the weak ones
+        hyps.sort(key=lambda h: (h.score, h.age), reverse=True)
+        merged: list[Hypothesis] = []
+        for h in hyps:
+            twin = next((q for q in merged if not self.glob.distinct(h.pose, q.pose)), None)
+            if twin is None:
+                merged.append(h)
+            elif h.age > twin.age:  # keep the longer history, the better pose
+                twin.age, twin.good, twin.id = h.age, max(h.good, twin.good), h.id
+        best = merged[0] if merged else None
+        if best is not None:
+            merged = [h for h in merged if h.score >= c.keep_ratio * best.score]
+        self.hypotheses = merged[: c.max_hypotheses]
+        return self._decide(search_time, search_amb)
+
+    def _decide(self, search_time: float, search_amb: bool) -> RelocalizeResult:
+        c = self.config
+        hyps = self.hypotheses
+        if not hyps or not self._good(hyps[0].score, hyps[0].inlier_ratio):
+            self._leader, self._streak = None, 0
+            return self._result("searching", search_time, search_amb)
+        best = hyps[0]
+        rival = next((h for h in hyps[1:] if h.score >= (1.0 - c.dominance) * best.score), None)
+        if rival is not None:
+            self._leader, self._streak = None, 0
+            return self._result("ambiguous", search_time, search_amb)
+        if self._leader == best.id:
+            self._streak += 1
+        else:
+            self._leader, self._streak = best.id, 1
+        if self._streak >= c.confirm_scans and best.good >= c.confirm_scans:
+            return self._result("locked", search_time, search_amb)
+        return self._result("confirming", search_time, search_amb)
+
+    def _result(self, status: str, search_time: float, search_amb: bool) -> RelocalizeResult:
+        best = self.hypotheses[0] if self.hypotheses else None
+        r = RelocalizeResult(
+            status=status,
+            pose=best.pose if best is not None else None,
+            score=best.score if best is not None else 0.0,
+            inlier_ratio=best.inlier_ratio if best is not None else 0.0,
+            hypotheses=tuple(replace(h) for h in self.hypotheses),
+            scans=self.scans,
+            search_time=search_time,
+            search_ambiguous=search_amb,
+        )
+        self.last = r
+        return r
+
+
+def relocalize(
+    scan: Any,
+    map_: Any,
+    *,
+    motions: Iterable[Sequence[float]] = (),
+    scans: Iterable[Any] = (),
+    config: RelocalizeConfig | None = None,
+    localizer: Any = None,
+    region: Sequence[float] | None = None,
+    heading: tuple[float, float] | None = None,
+) -> RelocalizeResult:
+    """Global localization of ``scan`` ((N, 2) robot-frame points, or an
+    :class:`icploc.Scan`) on ``map_`` (see :func:`global_localizer`; pass a prebuilt
+    ``localizer=`` to reuse its grids). With ``scans`` and ``motions`` (the odometry motion
+    from the previous scan to each of them) the top hypotheses are tracked until one
+    dominates; the result of the first scan that locks (or of the last scan) is returned.
+    Check ``result.status``: only ``"locked"`` is a verified pose."""
+    r = Relocalizer(map_, config, localizer=localizer, region=region, heading=heading)
+    res = r.update(_points(scan))
+    for s, m in zip(scans, motions, strict=False):
+        if res.locked:
+            break
+        res = r.update(_points(s), m)
+    return res
+
+
+def _points(scan: Any) -> NDArray[np.float64]:
+    from icploc.types import Scan
+
+    if isinstance(scan, Scan):
+        from icploc.config import LocalizerConfig
+        from icploc.localizer import prepare_scan
+
+        return prepare_scan(scan, LocalizerConfig())
+    return np.asarray(scan, dtype=np.float64).reshape(-1, 2)
+
+
+# -- lost detection ----------------------------------------------------------------------------
+
+
+@dataclass
+class LostDetector:
+    """Declare a tracking localizer lost from its estimates: a scan is *suspect* when its
+    correction was rejected, or its inlier ratio collapsed below ``collapse`` x the median
+    of the recent good scans (or below ``min_inlier_ratio``); ``suspects`` suspect scans
+    among the last ``window`` mean lost. ``observe`` returns True when it fires."""
+
+    window: int = 5
+    suspects: int = 4
+    collapse: float = 0.6
+    min_inlier_ratio: float = 0.3
+    history: int = 25
+    _recent: deque[bool] = field(default_factory=deque)
+    _good: deque[float] = field(default_factory=deque)
+
+    def reset(self) -> None:
+        self._recent.clear()
+        self._good.clear()
+
+    def suspect(self, inlier_ratio: float, accepted: bool) -> bool:
+        ref = float(np.median(self._good)) if len(self._good) >= 3 else 1.0
+        return (
+            (not accepted)
+            or inlier_ratio < self.min_inlier_ratio
+            or inlier_ratio < self.collapse * ref
+        )
+
+    def observe(self, estimate: Any) -> bool:
+        from icploc.localizer import Status
+
+        if estimate.status is Status.LOST:
+            self.reset()
+            return False
+        ir = float(estimate.inlier_ratio)
+        bad = self.suspect(ir, bool(estimate.accepted))
+        self._recent.append(bad)
+        while len(self._recent) > self.window:
+            self._recent.popleft()
+        if not bad:
+            self._good.append(ir)
+            while len(self._good) > self.history:
+                self._good.popleft()
+        if sum(self._recent) >= self.suspects:
+            self.reset()
+            return True
+        return False
+
+
+# -- Localizer integration ---------------------------------------------------------------------
+
+
+@dataclass
+class _Attached:
+    relocalizer: Relocalizer
+    detector: LostDetector | None
+    last_odom: Pose | None = None
+    results: list[RelocalizeResult] = field(default_factory=list)
+
+
+def attach(
+    localizer: Any,
+    relocalizer: Relocalizer | None = None,
+    *,
+    detector: LostDetector | None = None,
+    detect: bool = True,
+) -> Relocalizer:
+    """Plug global relocalization into ``localizer`` (an :class:`icploc.localizer.Localizer`):
+    its ``relocalize`` hook (called while ``lost``) runs the multi-hypothesis
+    :class:`Relocalizer` with the odometry increments between calls and returns the pose
+    (with an ICP result for the covariance) only once locked; with ``detect`` its
+    ``update`` is watched by a :class:`LostDetector` that switches it to ``lost`` early
+    (a kidnapping). A localizer without an initial pose then localizes globally.
+    Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
+    from icploc.localizer import Status
+
+    rel = relocalizer or Relocalizer(localizer.index)
+    state = _Attached(rel, (detector or LostDetector()) if detect else None)
+    loc = localizer
+
+    def hook(scan: Any, points: NDArray[np.float64] | None = None) -> tuple[Pose, Any] | None:
+        from icploc._core import IcpError, icp
+        from icploc.localizer import prepare_scan
+
+        pts = prepare_scan(scan, loc.config, loc._trig) if points is None else points
+        odom = getattr(loc, "_last_odom", None)
+        motion = None
+        if odom is not None and state.last_odom is not None and rel.hypotheses:
+            motion = between(state.last_odom, odom)
+        state.last_odom = odom
+        res = rel.update(pts, motion)
+        state.results.append(res)
+        if len(state.results) > 100:
+            del state.results[:-100]
+        if res.status in ("confirming", "ambiguous"):
+            # keep being called every scan while hypotheses are being confirmed
+            loc._counters.good_in_row = max(1, loc._counters.good_in_row)
+        else:
+            loc._counters.good_in_row = 0
+        if res.pose is not None:
+            loc.pose = res.pose  # follow the leading hypothesis while confirming
+        if not res.locked or res.pose is None:
+            return None
+        try:
+            fit = icp(pts, loc.index, res.pose, loc.icp_config)
+        except IcpError:
+            return None
+        loc._last_reloc_result = fit
+        rel.reset()
+        state.last_odom = None
+        loc._counters.good_in_row = 0
+        return (fit.pose[0], fit.pose[1], wrap_angle(fit.pose[2])), fit
+
+    orig_update = loc.update
+
+    def update(scan: Any, odometry: Any = None) -> Any:
+        est = orig_update(scan, odometry)
+        det = state.detector
+        if det is not None and det.observe(est):
+            loc.reset(loc.pose, loc.covariance, Status.LOST)
+            rel.reset()
+            state.last_odom = None
+        return est
+
+    loc.relocalize = hook
+    loc.update = update
+    loc.relocalizer = rel
+    return rel
