@@ -16,7 +16,8 @@ follows the corrected path; see ../shared/data/MANIFEST.md). So, honestly stated
   neighbours (``Map.from_points``);
 * odometry is synthesised from the corrected motion between localized scans with drift:
   +1 % distance scale, 0.5°/m heading bias, 1 cm/√m and 0.25°/√m random walk (seeded);
-* the localizer starts at the first corrected pose and runs with default settings;
+* the localizer starts at the first corrected pose and runs with default settings, except
+  the range limit (the same for map and scans, ``--max-range``) and ``--metric``;
 * ATE = position error against the corrected poses (both in the map frame, no alignment).
 
 Logs without usable stamps are fine: odometry is handed to each scan directly.
@@ -88,7 +89,9 @@ def drifting_odometry(poses: NDArray[np.float64], seed: int) -> list[tuple[float
     return odo
 
 
-def evaluate(path: Path, split: str, seed: int = 0, max_range: float = 30.0) -> dict[str, Any]:
+def evaluate(
+    path: Path, split: str, seed: int = 0, max_range: float = 30.0, metric: str = "point_to_line"
+) -> dict[str, Any]:
     t0 = time.perf_counter()
     data = open_log(path)
     scans = list(data.scans)
@@ -107,7 +110,8 @@ def evaluate(path: Path, split: str, seed: int = 0, max_range: float = 30.0) -> 
         loc_idx = np.arange(n // 2, n)
     m = build_map([scans[i] for i in map_idx], truth[map_idx], max_range, 0.05)
     t_load = time.perf_counter() - t0
-    cfg = LocalizerConfig()
+    # localize with the same range limit the map was built with
+    cfg = LocalizerConfig().replace(scan={"max_range": max_range}, icp={"metric": metric})
     P_true = truth[loc_idx]
     odo = drifting_odometry(P_true, seed)
     loc = Localizer(m, cfg, initial_pose=tuple(P_true[0]))
@@ -156,6 +160,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--split", choices=["alternate", "halves"], default="alternate")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--metric", choices=["point_to_line", "point_to_point"], default="point_to_line"
+    )
+    ap.add_argument(
+        "--max-range", type=float, default=30.0, help="range limit for map and scans (m)"
+    )
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     if not args.data.exists():
@@ -167,14 +177,17 @@ def main(argv: list[str] | None = None) -> int:
         if not args.names or any(n in p.name for n in args.names)
     ]
     rows = []
-    print(f"split: {args.split}; odometry synthesised with drift from the corrected motion\n")
+    print(
+        f"split: {args.split}; ICP {args.metric}; range limit {args.max_range} m; "
+        "odometry synthesised with drift from the corrected motion\n"
+    )
     print(
         "| log | scans | distance | ATE rmse | median | p95 | max | max heading | odometry ATE rmse | status | scans/s |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|")
     for p in logs:
         try:
-            r = evaluate(p, args.split, args.seed)
+            r = evaluate(p, args.split, args.seed, args.max_range, args.metric)
         except Exception as e:  # report and go on: one bad log must not hide the others
             r = {"log": p.name, "error": f"{type(e).__name__}: {e}"}
         rows.append(r)

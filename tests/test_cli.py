@@ -133,3 +133,19 @@ def test_run_needs_ports_unless_simulated() -> None:
     r = runner.invoke(app, ["run"])
     assert r.exit_code != 0
     assert "--map and --laser are required" in r.output
+
+
+@pytest.mark.slow
+def test_run_simulate_live_path(tmp_path: Path) -> None:
+    """`icploc run --simulate`: the live path (drivers, threads, one clock) on ptys."""
+    out, rec = tmp_path / "live.tum", tmp_path / "live.icpraw"
+    r = runner.invoke(
+        app, ["run", "--simulate", "--duration", "4", "--out", str(out), "--record", str(rec)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "error vs simulator truth" in r.output
+    rows = out.read_text().splitlines()
+    assert len(rows) > 20
+    assert rec.stat().st_size > 10_000
+    median_mm = float(r.output.split("median ")[1].split(" mm")[0])
+    assert median_mm < 10.0

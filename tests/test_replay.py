@@ -151,6 +151,6 @@ def test_replay_recorded_raw_bytes_session(tmp_path: Path) -> None:
     assert res.scans >= len(live.estimates) - 2
     T = truth_at(truth, res.stamps)
     err = np.hypot(*(res.poses[:, :2] - T[:, :2]).T)
-    assert np.median(err) < 0.01 and err.max() < 0.05
+    assert np.median(err) < 0.01 and err.max() < 0.08
     assert res.status_counts.get("lost", 0) == 0
     assert math.isfinite(res.rate)

@@ -60,6 +60,12 @@ class IcpSection:
     min_inliers: int = 10
     min_inlier_ratio: float = 0.0
 
+    #: open the first correspondence threshold to cover the odometry prediction's
+    #: uncertainty (this many sigmas), up to the cap (m); for sparse logs with big steps
+    adaptive_correspondence: bool = True
+    correspondence_sigmas: float = 3.0
+    max_correspondence_cap: float = 2.0
+
     def validate(self) -> None:
         _positive(
             self, "max_iterations", "max_correspondence_distance", "min_correspondence_distance"
@@ -79,7 +85,10 @@ class IcpSection:
         """The ``icploc.IcpConfig`` for the Rust core."""
         from icploc._core import IcpConfig
 
-        return IcpConfig(**dataclasses.asdict(self))
+        kw = dataclasses.asdict(self)
+        for k in ("adaptive_correspondence", "correspondence_sigmas", "max_correspondence_cap"):
+            del kw[k]
+        return IcpConfig(**kw)
 
 
 @dataclass

@@ -23,6 +23,7 @@ candidate poses that are refined with ``icploc.icp_batch``.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import os
 import time
@@ -331,6 +332,7 @@ class Localizer:
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
         self._last_reloc_result: Any = None
+        self._icp_configs: dict[float, Any] = {}
         lc0 = self.config.localizer
         self._q_floor = np.diag(
             [lc0.process_sigma_xy**2, lc0.process_sigma_xy**2, lc0.process_sigma_theta**2]
@@ -469,11 +471,39 @@ class Localizer:
         normals = None if self._map_normals is None else self._map_normals[idx]
         return MapIndex(self._map_points[idx], normals)
 
-    def _run_icp(self, pts: NDArray[np.float64], pred: Pose) -> Any:
+    def _icp_config_for(self, pts: NDArray[np.float64], pred_cov: NDArray[np.float64]) -> Any:
+        """The ICP settings for this scan: the first correspondence threshold opens up to
+        cover the prediction's uncertainty (``icp.correspondence_sigmas`` standard
+        deviations of position plus heading times the median range), capped at
+        ``icp.max_correspondence_cap``; quantised so configs are reused."""
+        ic = self.config.icp
+        if not ic.adaptive_correspondence:
+            return self.icp_config
+        sxy = math.sqrt(max(pred_cov[0, 0] + pred_cov[1, 1], 0.0))
+        sth = math.sqrt(max(pred_cov[2, 2], 0.0))
+        if pts.shape[0]:
+            r = pts[:: max(1, pts.shape[0] // 16)]
+            rng = float(np.median(np.hypot(r[:, 0], r[:, 1])))
+        else:
+            rng = 0.0
+        want = ic.correspondence_sigmas * (sxy + rng * sth)
+        if want <= ic.max_correspondence_distance:
+            return self.icp_config
+        d = min(ic.max_correspondence_cap, math.ceil(want / 0.1) * 0.1)
+        cfg = self._icp_configs.get(d)
+        if cfg is None:
+            cfg = dataclasses.replace(ic, max_correspondence_distance=d).to_icp_config()
+            self._icp_configs[d] = cfg
+        return cfg
+
+    def _run_icp(
+        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64] | None = None
+    ) -> Any:
         from icploc._core import IcpError, icp
 
+        cfg = self.icp_config if pred_cov is None else self._icp_config_for(pts, pred_cov)
         try:
-            return icp(pts, self._match_index(pred), pred, self.icp_config)
+            return icp(pts, self._match_index(pred), pred, cfg)
         except IcpError:
             return None
 
@@ -504,7 +534,7 @@ class Localizer:
         lc = self.config.localizer
         cnt = self._counters
         n = pts.shape[0]
-        res = self._run_icp(pts, pred) if n >= self.config.scan.min_points else None
+        res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
         reason = ""
         pose = pred
         cov = pred_cov
