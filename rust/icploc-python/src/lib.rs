@@ -316,11 +316,7 @@ impl PyMapIndex {
         self.inner.spacing()
     }
 
-    fn nearest<'py>(
-        &self,
-        py: Python<'py>,
-        query: &Bound<'py, PyAny>,
-    ) -> PyResult<Nearest<'py>> {
+    fn nearest<'py>(&self, py: Python<'py>, query: &Bound<'py, PyAny>) -> PyResult<Nearest<'py>> {
         let q = array2(py, query, 2, "query")?;
         let qs = q.pairs();
         core::check_finite("query", qs).map_err(|e| to_py(py, e))?;
