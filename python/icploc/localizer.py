@@ -370,6 +370,7 @@ class Localizer:
         self.status = status
         c = self._counters
         c.rejections_in_row = c.low_inliers_in_row = c.good_in_row = 0
+        self._lost_scans = 0
         # a fresh pose is uncertain: open the gate as if we had driven a while
         self._since_fix_dist = lc.initial_sigma_xy / max(
             self.config.gating.translation_jump_per_metre, 1e-9
