@@ -1,0 +1,248 @@
+"""Global localization (issue 6): the Rust search through the binding, the multi-hypothesis
+relocalizer, lost detection and the Localizer integration, in generated worlds."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from icploc import GlobalLocalizer, InvalidConfigError, InvalidInputError, worlds
+from icploc.config import LocalizerConfig
+from icploc.localizer import Localizer, Status, prepare_scan
+from icploc.relocalize import (
+    LostDetector,
+    RelocalizeConfig,
+    Relocalizer,
+    attach,
+    global_localizer,
+    relocalize,
+)
+from icploc.se2 import between, compose
+from icploc.types import Odometry, Scan
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benches"))
+import global_bench as gb  # noqa: E402
+
+SENSOR = gb.Sensor()
+CFG = LocalizerConfig()
+LAB_BOX = (-3.5, -3.5, 3.5, 3.5)
+
+
+@pytest.fixture(scope="module")
+def lab() -> worlds.World:
+    return worlds.lab(people=2)
+
+
+@pytest.fixture(scope="module")
+def lab_glob(lab: worlds.World) -> GlobalLocalizer:
+    return global_localizer(lab.lines, 0.05)
+
+
+def close(a, b, d: float = 0.05, th: float = math.radians(1.0)) -> bool:
+    e, t = gb.err(a, b)
+    return e <= d and t <= th
+
+
+def points_at(world: worlds.World, pose, rng, t: float = 0.0) -> np.ndarray:
+    return prepare_scan(gb.scan_at(world, pose, t, SENSOR, rng), CFG)
+
+
+def test_search_lists_the_truth_from_random_starts(lab, lab_glob) -> None:
+    rng = np.random.default_rng(21)
+    for _ in range(10):
+        truth = gb.free_start(lab, rng, LAB_BOX)
+        res = lab_glob.search(points_at(lab, truth, rng))
+        assert len(res) >= 1 and res.best is not None
+        assert any(close(c.pose, truth) for c in res.candidates), (truth, res)
+        if not res.ambiguous:
+            assert close(res.best.pose, truth), (truth, res.best)
+        scores = [c.score for c in res.candidates]
+        assert scores == sorted(scores, reverse=True)
+        assert 0.0 <= res.best.score <= 1.0 and res.best.inlier_ratio > 0.8
+
+
+def test_relocalizer_locks_within_five_scans_and_never_wrong(lab, lab_glob) -> None:
+    r = gb.lock_trials(lab, LAB_BOX, 12, 5, SENSOR, lab_glob)
+    assert r["confident_wrong"] == 0
+    assert r["imprecise"] == 0
+    assert r["locked_correct"] >= 10, r
+
+
+def rectangle() -> worlds.World:
+    return worlds.World("box", np.array(worlds._rect(0.0, 0.0, 8.0, 5.0)))
+
+
+def test_symmetric_room_reports_ambiguity_and_never_locks() -> None:
+    room = rectangle()
+    g = global_localizer(room.lines, 0.05)
+    rng = np.random.default_rng(2)
+    truth = (2.6, 1.7, 0.5)
+    mirror = (8.0 - truth[0], 5.0 - truth[1], truth[2] - math.pi)
+    res = g.search(points_at(room, truth, rng))
+    assert res.ambiguous
+    top = res.candidates[:4]
+    assert any(close(c.pose, truth) for c in top) and any(close(c.pose, mirror) for c in top)
+    # the robot drives on; both hypotheses keep explaining every scan: never a lock
+    rel = Relocalizer(None, localizer=g)
+    pose, prev = truth, None
+    for _ in range(8):
+        motion = between(prev, pose) if prev is not None else None
+        out = rel.update(points_at(room, pose, rng), motion)
+        assert not out.locked
+        prev, pose = pose, compose(pose, (0.05, 0.0, 0.02))
+    assert out.status == "ambiguous"
+    assert any(close(h.pose, prev, 0.1, 0.03) for h in out.hypotheses)
+    # a region that excludes the mirror resolves it
+    res = g.search(points_at(room, truth, rng), region=(0.5, 0.5, 4.0, 2.5))
+    assert not res.ambiguous and close(res.best.pose, truth)
+    # so does a heading range
+    res = g.search(points_at(room, truth, rng), heading=(0.0, 1.0))
+    assert close(res.best.pose, truth)
+
+
+def test_one_shot_relocalize_with_following_scans(lab, lab_glob) -> None:
+    rng = np.random.default_rng(8)
+    start = (-1.0, 0.5, 0.3)
+    frames = gb.drive(lab, start, 5, SENSOR, rng)
+    pts = [prepare_scan(s, CFG) for _, s in frames]
+    motions = [between(frames[k][0], frames[k + 1][0]) for k in range(4)]
+    res = relocalize(pts[0], None, scans=pts[1:], motions=motions, localizer=lab_glob)
+    assert res.locked
+    assert close(res.pose, frames[res.scans - 1][0])
+    # a Scan object is accepted too
+    res = relocalize(frames[0][1], lab.lines)
+    assert res.status in ("confirming", "locked") and close(res.pose, start)
+
+
+def test_localizer_without_initial_pose_localizes_globally(lab, lab_glob) -> None:
+    rng = np.random.default_rng(4)
+    start = (1.2, -0.8, 2.0)
+    frames = gb.drive(lab, start, 12, SENSOR, rng)
+    loc = Localizer(lab_glob.index, CFG)
+    assert loc.status is Status.LOST
+    attach(loc, Relocalizer(None, localizer=lab_glob))
+    odo = (0.0, 0.0, 0.0)
+    prev = None
+    first_tracking = None
+    for k, (truth, scan) in enumerate(frames):
+        if prev is not None:
+            odo = compose(odo, between(prev, truth))
+        prev = truth
+        est = loc.update(scan, Odometry(stamp=scan.stamp, pose=odo))
+        if est.status is Status.TRACKING and first_tracking is None:
+            first_tracking = k
+            assert close(est.pose, truth), (est.pose, truth)
+    assert first_tracking is not None and first_tracking < 5
+    assert close(loc.pose, frames[-1][0])
+
+
+def _kidnap(world, glob, a, b, before: int, after: int, seed: int) -> tuple[int | None, int | None]:
+    rng = np.random.default_rng(seed)
+    fa = gb.drive(world, a, before, SENSOR, rng)
+    fb = gb.drive(world, b, after, SENSOR, rng)
+    loc = Localizer(glob.index, CFG, initial_pose=a)
+    attach(loc, Relocalizer(None, localizer=glob))
+    odo = (0.0, 0.0, 0.0)
+    prev = None
+    lost_at = recovered = None
+    for k, (truth, s) in enumerate(fa + fb):
+        if prev is not None and k != before:  # the carry: odometry feels nothing
+            odo = compose(odo, between(prev, truth))
+        prev = truth
+        t = k / SENSOR.rate
+        scan = Scan(stamp=t, ranges=s.ranges, angles=s.angles, flags=s.flags, max_range=30.0)
+        est = loc.update(scan, Odometry(stamp=t, pose=odo))
+        if k < before:
+            assert est.status is not Status.LOST and close(est.pose, truth, 0.1, 0.05)
+            continue
+        if est.status is Status.LOST and lost_at is None:
+            lost_at = k - before
+        if est.status is Status.TRACKING:
+            # tracking after the carry is never tracking a wrong pose for long
+            if not close(est.pose, truth, 0.3, 0.05):
+                assert k - before < 6, (k - before, est.pose, truth)
+            elif close(est.pose, truth) and recovered is None:
+                recovered = k - before + 1
+    return lost_at, recovered
+
+
+def test_kidnap_in_the_middle_of_a_run(lab, lab_glob) -> None:
+    a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)  # carried 5.4 m and turned
+    assert math.hypot(b[0] - a[0], b[1] - a[1]) >= 5.0
+    lost_at, recovered = _kidnap(lab, lab_glob, a, b, before=20, after=30, seed=3)
+    assert lost_at is not None and lost_at <= 10
+    assert recovered is not None and recovered <= 20
+
+
+def test_periodic_building_is_never_a_confident_wrong_lock() -> None:
+    bld = gb.building(periodic=True)
+    g = global_localizer(bld.walls, 0.05)
+    r = gb.lock_trials(bld, (0.0, 0.0, 40.0, 20.0), 6, 9, SENSOR, g)
+    assert r["confident_wrong"] == 0, r
+
+
+def test_lost_detector_fires_on_collapse_not_on_noise() -> None:
+    det = LostDetector()
+
+    def est(ir: float, ok: bool = True) -> SimpleNamespace:
+        return SimpleNamespace(inlier_ratio=ir, accepted=ok, status=Status.TRACKING)
+
+    for ir in (0.95, 0.9, 0.93, 0.7, 0.92, 0.94, 0.9, 0.88):
+        assert not det.observe(est(ir))
+    fired = [det.observe(est(0.3, ok)) for ok in (True, False, False, True)]
+    assert fired == [False, False, False, True]
+    # one bad scan among good ones does not fire
+    for ir in (0.9, 0.91, 0.2, 0.9, 0.9, 0.92):
+        assert not det.observe(est(ir))
+
+
+def test_bad_input_raises() -> None:
+    room = rectangle()
+    g = global_localizer(room.lines, 0.1)
+    rng = np.random.default_rng(1)
+    pts = points_at(room, (2.0, 2.0, 0.0), rng)
+    with pytest.raises(InvalidInputError):
+        g.search(np.zeros((0, 2)))
+    bad = pts.copy()
+    bad[3, 0] = np.nan
+    with pytest.raises(InvalidInputError):
+        g.search(bad)
+    with pytest.raises(InvalidInputError):
+        g.search(pts, region=(50.0, 50.0, 60.0, 60.0))
+    with pytest.raises(InvalidInputError):
+        g.search(pts, region=(1.0, 2.0))
+    with pytest.raises(InvalidInputError):
+        g.search(pts, heading=(1.0, 0.0))
+    with pytest.raises(InvalidInputError):
+        g.search(np.zeros((5, 3)))
+    with pytest.raises(InvalidInputError):
+        g.score(pts, np.array([[np.nan, 0.0, 0.0]]))
+    with pytest.raises(InvalidInputError):
+        GlobalLocalizer(g.index, 0.0)
+    with pytest.raises(InvalidConfigError):
+        GlobalLocalizer(g.index, 0.1, accept_ratio=1.5)
+    with pytest.raises(ValueError):
+        RelocalizeConfig(confirm_scans=0).validate()
+    with pytest.raises(ValueError):
+        RelocalizeConfig(dominance=1.0).validate()
+    # too few points: a result saying "searching", not an exception
+    rel = Relocalizer(None, localizer=g)
+    assert rel.update(pts[:3]).status == "searching"
+
+
+def test_binding_surface() -> None:
+    room = rectangle()
+    g = GlobalLocalizer(global_localizer(room.lines, 0.1).index, 0.1, max_candidates=4)
+    assert g.shape[0] > 0 and g.free_cells > 0 and g.resolution == 0.1
+    assert "GlobalLocalizer" in repr(g)
+    d = g.distance(np.array([[4.0, 2.5], [0.0, 0.0], [100.0, 0.0]]))
+    assert abs(d[0] - 2.5) < 0.1 and d[1] < 0.1 and np.isnan(d[2])
+    assert g.distinct((0, 0, 0), (1, 0, 0)) and not g.distinct((0, 0, 0), (0.1, 0, 0.01))
+    rng = np.random.default_rng(0)
+    res = g.search(points_at(room, (3.0, 2.0, 0.2), rng))
+    assert len(res.candidates) <= 4 and res.headings == 180 and res.nodes > 0
+    assert set(res.best.to_dict()) >= {"pose", "score", "inlier_ratio", "mse", "see_through"}
