@@ -176,6 +176,10 @@ def icp_batch(
     """Align many (scan, initial pose) pairs in parallel with the GIL released. ``initial_poses``
     is (M, 3); ``scans`` has M entries, or one entry used for every pose (multi-start)."""
 
+def parse_floats(text: str) -> NDArray[np.float64]:
+    """Every whitespace-separated token of ``text`` as float64 (decimal, exponent, nan, inf),
+    in order, exact; :class:`InvalidInputError` naming the first token that is not a number."""
+
 def raycast(
     segments: ArrayLike,
     pose: Sequence[float],

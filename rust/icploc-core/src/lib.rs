@@ -26,6 +26,7 @@ pub mod quaternion;
 pub mod raycast;
 pub mod se2;
 pub mod testkit;
+pub mod text;
 
 pub use error::{IcpError, Result};
 pub use icp::{align, align_batch, IcpConfig, IcpResult, Metric, Robust, Termination};

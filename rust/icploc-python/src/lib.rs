@@ -828,6 +828,15 @@ fn raycast<'py>(
     Ok(r.into_pyarray(py))
 }
 
+/// Parse whitespace-separated floats (decimal, exponent, nan, inf) from text, exactly.
+#[pyfunction]
+fn parse_floats<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let v = py
+        .detach(|| guarded(|| core::text::parse_floats(text)))
+        .map_err(|e| to_py(py, e))?;
+    Ok(v.into_pyarray(py))
+}
+
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -842,6 +851,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(icp, m)?)?;
     m.add_function(wrap_pyfunction!(icp_batch, m)?)?;
     m.add_function(wrap_pyfunction!(raycast, m)?)?;
+    m.add_function(wrap_pyfunction!(parse_floats, m)?)?;
     global::register(m)?;
     Ok(())
 }
