@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
 from icploc.live import tum_row
-from icploc.localizer import Estimate, Localizer, run
+from icploc.localizer import Estimate, Localizer, Status, run
 from icploc.types import Odometry, Scan
 
 __all__ = ["ReplayResult", "load_map", "parse_pose", "read_tum", "replay"]
@@ -191,10 +191,12 @@ def replay(
     plot: str | Path | None = None,
     on_progress: Callable[[int, int], None] | None = None,
     log_options: dict[str, Any] | None = None,
+    global_localize: bool = False,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
-    else ``config.localizer.initial_pose``, else the first odometry pose, else the origin."""
+    else ``config.localizer.initial_pose``, else none: global localization
+    (:func:`icploc.relocalize.attach`), also forced by ``global_localize=True``."""
     cfg = config or LocalizerConfig()
     t0 = time.perf_counter()
     name = str(log) if isinstance(log, (str, Path)) else "<memory>"
@@ -217,20 +219,22 @@ def replay(
         t_true = np.asarray(t_true, dtype=np.float64)
         p_true = np.asarray(p_true, dtype=np.float64).reshape(-1, 3)
 
-    if initial_pose is None:
+    if initial_pose is None and not global_localize:
         if t_true is not None and len(t_true):
             k = int(np.argmin(np.abs(t_true - scans[0].stamp)))
             initial_pose = tuple(p_true[k])  # type: ignore[index]
         elif cfg.localizer.initial_pose is not None:
             initial_pose = cfg.localizer.initial_pose
-        elif odoms:
-            initial_pose = odoms[0].pose
-        else:
-            initial_pose = (0.0, 0.0, 0.0)
 
     m = load_map(map_)
     t1 = time.perf_counter()
     loc = Localizer(m, cfg, initial_pose=initial_pose)
+    if initial_pose is None:
+        from icploc.relocalize import attach
+
+        if loc.status is not Status.LOST:  # global_localize over a configured pose
+            loc.reset(loc.pose, loc.covariance, Status.LOST)
+        attach(loc)
     n = len(scans)
     done = [0]
     step = max(1, n // 200)
