@@ -61,9 +61,9 @@ class RelocalizeConfig:
     min_score: float = 0.45
     min_inlier_ratio: float = 0.6
     #: every other distinct hypothesis must score below (1 - dominance) x the best
-    dominance: float = 0.1
+    dominance: float = 0.03
     #: consecutive dominating, good scans (the search scan included) before a lock
-    confirm_scans: int = 2
+    confirm_scans: int = 3
     #: run a fresh global search every n-th scan while not locked (1: every scan)
     search_every: int = 1
     #: scan points used per hypothesis refinement (evenly subsampled; 0: all)
