@@ -543,7 +543,10 @@ def render_markdown(result: dict[str, Any]) -> str:
     lines.append("## icploc vs peers: 2D scan-to-map ICP\n")
     lines.append(f"Machine: {result['machine']}. Command: `{result['command']}`. "
                  f"Poses per cell: {result['poses']} (Open3D and small_gicp GICP at 1M points: {result['big_map_poses']}, they take 0.5–2 s per alignment there). "
-                 "Success = within 2 cm and 0.5°. Times are medians per alignment.\n")  # fmt: skip
+                 "Success = within 2 cm and 0.5°. Times are medians per alignment. "
+                 f"icploc native module built {result.get('icploc_build')}.\n")  # fmt: skip
+    if result.get("warning"):
+        lines.append(f"**Warning: {result['warning']}.**\n")
     lines.append("| threads | map pts | start | method | build ms | ms/align | med. err mm | med. err ° | success | icploc p2l is ×faster |")
     lines.append("|---|---:|---|---|---:|---:|---:|---:|---:|---:|")
     key = lambda r: (r["threads"], r["size"], r["start"])  # noqa: E731
@@ -613,6 +616,19 @@ def render_markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def icploc_build_stamp() -> str | None:
+    """Modification time of the installed native module (to catch a rebuild mid-run)."""
+    try:
+        import importlib.util
+
+        spec = importlib.util.find_spec("icploc._core")
+        if spec is None or spec.origin is None:
+            return None
+        return time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(Path(spec.origin).stat().st_mtime))
+    except Exception:
+        return None
+
+
 def machine_description() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -667,6 +683,7 @@ def main(argv: list[str] | None = None) -> int:
         "sizes": args.sizes,
         "modes": [],
     }
+    result["icploc_build"] = icploc_build_stamp()
     with tempfile.TemporaryDirectory() as tmp:
         for mode in modes:
             path = Path(tmp) / f"{mode}.json"
@@ -683,6 +700,10 @@ def main(argv: list[str] | None = None) -> int:
             if "replay" in res:
                 result["replay"] = res.pop("replay")
             result["modes"].append(res)
+    after = icploc_build_stamp()
+    if after != result["icploc_build"]:
+        result["warning"] = f"icploc was rebuilt during the run ({result['icploc_build']} -> {after})"
+        print("WARNING: " + result["warning"], file=sys.stderr)
     md = render_markdown(result)
     print(md)
     out = Path(args.out)
