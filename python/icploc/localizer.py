@@ -258,13 +258,54 @@ def _fuse(
     meas: Pose,
     meas_cov: NDArray[np.float64],
 ) -> tuple[Pose, NDArray[np.float64]]:
-    """Kalman update of the odometry prediction with the ICP pose as the measurement."""
-    innov = np.array([meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])])
-    K = np.linalg.solve((pred_cov + meas_cov).T, pred_cov.T).T  # P (P + R)^-1
-    dx = K @ innov
-    cov = pred_cov - K @ pred_cov
-    cov = (cov + cov.T) * 0.5
-    return (pred[0] + float(dx[0]), pred[1] + float(dx[1]), wrap_angle(pred[2] + float(dx[2]))), cov
+    """Kalman update of the odometry prediction with the ICP pose as the measurement:
+    K = P (P + R)^-1, x = x_pred + K (z - x_pred), P' = (I - K) P. In floats (3x3, per scan)."""
+    P = pred_cov.tolist()
+    R = meas_cov.tolist()
+    s00, s01, s02 = P[0][0] + R[0][0], P[0][1] + R[0][1], P[0][2] + R[0][2]
+    s11, s12, s22 = P[1][1] + R[1][1], P[1][2] + R[1][2], P[2][2] + R[2][2]
+    # inverse of the symmetric S by cofactors
+    c00 = s11 * s22 - s12 * s12
+    c01 = s02 * s12 - s01 * s22
+    c02 = s01 * s12 - s02 * s11
+    det = s00 * c00 + s01 * c01 + s02 * c02
+    if not det > 0.0 or not math.isfinite(det):
+        return meas, meas_cov
+    c11 = s00 * s22 - s02 * s02
+    c12 = s01 * s02 - s00 * s12
+    c22 = s00 * s11 - s01 * s01
+    inv = 1.0 / det
+    Si = (
+        (c00 * inv, c01 * inv, c02 * inv),
+        (c01 * inv, c11 * inv, c12 * inv),
+        (c02 * inv, c12 * inv, c22 * inv),
+    )
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P
+    (i00, i01, i02), (_, i11, i12), (_, _, i22) = Si
+    k00 = p00 * i00 + p01 * i01 + p02 * i02
+    k01 = p00 * i01 + p01 * i11 + p02 * i12
+    k02 = p00 * i02 + p01 * i12 + p02 * i22
+    k10 = p01 * i00 + p11 * i01 + p12 * i02
+    k11 = p01 * i01 + p11 * i11 + p12 * i12
+    k12 = p01 * i02 + p11 * i12 + p12 * i22
+    k20 = p02 * i00 + p12 * i01 + p22 * i02
+    k21 = p02 * i01 + p12 * i11 + p22 * i12
+    k22 = p02 * i02 + p12 * i12 + p22 * i22
+    v0, v1, v2 = meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])
+    dx = (
+        k00 * v0 + k01 * v1 + k02 * v2,
+        k10 * v0 + k11 * v1 + k12 * v2,
+        k20 * v0 + k21 * v1 + k22 * v2,
+    )
+    # (I - K) P, symmetric
+    q00 = p00 - (k00 * p00 + k01 * p01 + k02 * p02)
+    q01 = p01 - (k00 * p01 + k01 * p11 + k02 * p12)
+    q02 = p02 - (k00 * p02 + k01 * p12 + k02 * p22)
+    q11 = p11 - (k10 * p01 + k11 * p11 + k12 * p12)
+    q12 = p12 - (k10 * p02 + k11 * p12 + k12 * p22)
+    q22 = p22 - (k20 * p02 + k21 * p12 + k22 * p22)
+    cov = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    return (pred[0] + dx[0], pred[1] + dx[1], wrap_angle(pred[2] + dx[2])), cov
 
 
 def _as_index(map_: Any, config: LocalizerConfig) -> Any:
@@ -480,8 +521,11 @@ class Localizer:
         ic = self.config.icp
         if not ic.adaptive_correspondence:
             return self.icp_config
-        sxy = math.sqrt(max(pred_cov[0, 0] + pred_cov[1, 1], 0.0))
-        sth = math.sqrt(max(pred_cov[2, 2], 0.0))
+        (p00, _, _), (_, p11, _), (_, _, p22) = pred_cov.tolist()
+        sxy = math.sqrt(max(p00 + p11, 0.0))
+        sth = math.sqrt(max(p22, 0.0))
+        if ic.correspondence_sigmas * (sxy + 30.0 * sth) <= ic.max_correspondence_distance:
+            return self.icp_config  # the common case: small steps, checked without the ranges
         if pts.shape[0]:
             r = pts[:: max(1, pts.shape[0] // 16)]
             rng = float(np.median(np.hypot(r[:, 0], r[:, 1])))
