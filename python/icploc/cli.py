@@ -171,7 +171,7 @@ def run_cmd(
         )
 
     if simulate:
-        res, truth = live.run_simulated(config=cfg, out=out, record=record, on_estimate=show,
+        res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
                                         map_=str(map_path) if map_path else None, timeout=duration or 120.0)  # fmt: skip
         import numpy as np
 
