@@ -228,6 +228,7 @@ def test_map_index_queries(world):
     assert len(w) == np.sum(np.linalg.norm(pts - [2.0, 0.0], axis=1) <= 0.2)
     assert idx.bounds == (0.0, 0.0, 12.0, 8.0)
     assert idx.has_normals
+    assert idx.cache_resolution == 0.02
     assert math.isclose(idx.spacing, 0.05, rel_tol=1e-6)
 
 

@@ -8,6 +8,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from typing_extensions import Self, final
 
 __version__: str
 
@@ -26,6 +27,7 @@ class InvalidConfigError(IcpError, ValueError):
 Metric = Literal["point_to_point", "point_to_line"]
 Robust = Literal["none", "huber", "cauchy"]
 
+@final
 class IcpConfig:
     """ICP settings. Thresholds in metres. The correspondence threshold shrinks
     geometrically from ``max_correspondence_distance`` to ``min_correspondence_distance``
@@ -49,8 +51,8 @@ class IcpConfig:
     min_inlier_ratio: float
     heading_search: float
     heading_step: float
-    def __init__(
-        self,
+    def __new__(
+        cls,
         *,
         metric: Metric = "point_to_line",
         max_iterations: int = 50,
@@ -67,11 +69,12 @@ class IcpConfig:
         min_inlier_ratio: float = 0.0,
         heading_search: float = 0.0,
         heading_step: float = 0.08726646259971647,
-    ) -> None: ...
+    ) -> Self: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""
     def to_dict(self) -> dict[str, object]: ...
 
+@final
 class IcpResult:
     """What one ICP alignment did."""
 
@@ -110,15 +113,16 @@ class IcpResult:
         max_iterations or too_few_inliers."""
     def to_dict(self) -> dict[str, object]: ...
 
+@final
 class MapIndex:
     """An immutable k-d tree over 2D map points with optional unit normals."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         points: ArrayLike,
         normals: ArrayLike | None = None,
         cache_resolution: float | None = 0.02,
-    ) -> None:
+    ) -> Self:
         """Build the k-d tree. ``cache_resolution`` (m): cell size of the lazily filled
         nearest-point cache ICP uses for correspondences (answers exact to within a cell,
         O(1) whatever the map size); ``None`` or 0 for exact k-d tree answers only."""
@@ -189,6 +193,7 @@ def raycast(
     """Range along each beam (angles in the sensor frame) from ``pose`` to the nearest of the
     (K, 4) segments [x1, y1, x2, y2]; inf where nothing is hit within ``max_range``."""
 
+@final
 class GlobalCandidate:
     """One ranked pose hypothesis of a global search (ICP-refined, re-scored)."""
 
@@ -210,6 +215,7 @@ class GlobalCandidate:
     def coarse_score(self) -> float: ...
     def to_dict(self) -> dict[str, object]: ...
 
+@final
 class GlobalSearchResult:
     """Ranked candidates of a global search; ``ambiguous`` when the best two distinct
     candidates score within the ambiguity margin."""
@@ -232,13 +238,14 @@ class GlobalSearchResult:
     def refine_time(self) -> float: ...
     def __len__(self) -> int: ...
 
+@final
 class GlobalLocalizer:
     """Global localization on one map: a likelihood pyramid built once at ``resolution``,
     then branch-and-bound searches over free positions and headings, the best seeds
     refined by point-to-line ICP (GIL released)."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         index: MapIndex,
         resolution: float = 0.05,
         *,
@@ -256,7 +263,7 @@ class GlobalLocalizer:
         distinct_angle: float | None = None,
         ambiguity_margin: float = 0.1,
         icp_config: IcpConfig | None = None,
-    ) -> None: ...
+    ) -> Self: ...
     def search(
         self,
         scan_xy: ArrayLike,

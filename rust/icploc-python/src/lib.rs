@@ -239,7 +239,7 @@ struct PyMapIndex {
 #[pymethods]
 impl PyMapIndex {
     #[new]
-    #[pyo3(signature = (points, normals=None, cache_resolution=core::index::DEFAULT_CACHE_RESOLUTION))]
+    #[pyo3(signature = (points, normals=None, cache_resolution=Some(0.02)))]
     fn new(
         py: Python<'_>,
         points: &Bound<'_, PyAny>,
