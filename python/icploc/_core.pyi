@@ -121,7 +121,7 @@ class MapIndex:
         cls,
         points: ArrayLike,
         normals: ArrayLike | None = None,
-        cache_resolution: float | None = 0.02,
+        cache_resolution: float | None = ...,
     ) -> Self:
         """Build the k-d tree. ``cache_resolution`` (m): cell size of the lazily filled
         nearest-point cache ICP uses for correspondences (answers exact to within a cell,
