@@ -68,6 +68,16 @@ class RelocalizeConfig:
     search_every: int = 1
     #: scan points used per hypothesis refinement (evenly subsampled; 0: all)
     max_points: int = 360
+    #: weight of the see-through penalty (beams crossing mapped walls) in the tracker's
+    #: score, in [0, 1]: glass and map errors let real beams through mapped lines, so it
+    #: is softened (the search itself applies it in full)
+    see_through_weight: float = 0.5
+    #: a rival whose inlier ratio beats the best's by more than this also blocks a lock
+    inlier_margin: float = 0.02
+    #: a confirming scan sees through mapped walls with at most this fraction of beams
+    max_see_through: float = 0.6
+    #: hypotheses closer than this to the map (inside a wall) or off the grid are dropped
+    min_clearance: float = 0.1
 
     def validate(self) -> RelocalizeConfig:
         if not (self.resolution > 0 and math.isfinite(self.resolution)):
@@ -75,7 +85,9 @@ class RelocalizeConfig:
         for name in ("max_hypotheses", "confirm_scans", "search_every"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        for name in ("keep_ratio", "min_score", "min_inlier_ratio", "dominance"):
+        if not 0.0 <= self.see_through_weight <= 1.0:
+            raise ValueError(f"see_through_weight must be in [0, 1], got {self.see_through_weight}")
+        for name in ("keep_ratio", "min_score", "min_inlier_ratio", "dominance", "inlier_margin"):
             v = float(getattr(self, name))
             if not 0.0 <= v < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {v}")
@@ -92,6 +104,7 @@ class Hypothesis:
     score: float
     inlier_ratio: float
     id: int
+    see_through: float = 0.0  #: fraction of beams crossing mapped walls (last scan)
     age: int = 1  #: scans this hypothesis has been scored on
     good: int = 0  #: consecutive scans with a good fit (score and inlier ratio)
 
@@ -194,9 +207,20 @@ class Relocalizer:
         self._streak = 0
         self.last: RelocalizeResult | None = None
 
-    def _good(self, score: float, inlier_ratio: float) -> bool:
+    def _score(self, cand: Any) -> float:
+        """The tracker's score of a GlobalCandidate: its likelihood with a softened
+        see-through penalty."""
+        st = float(cand.see_through)
+        raw = float(cand.score) / (1.0 - st) if st < 1.0 else 0.0
+        return raw * (1.0 - self.config.see_through_weight * st)
+
+    def _good(self, score: float, inlier_ratio: float, see_through: float = 0.0) -> bool:
         c = self.config
-        return score >= c.min_score and inlier_ratio >= c.min_inlier_ratio
+        return (
+            score >= c.min_score
+            and inlier_ratio >= c.min_inlier_ratio
+            and see_through <= c.max_see_through
+        )
 
     def update(
         self, points: NDArray[np.float64], motion: Sequence[float] | None = None
@@ -218,9 +242,10 @@ class Relocalizer:
             refined = self.glob.refine(sub, np.array([h.pose for h in hyps]))
             for h, r in zip(hyps, refined, strict=True):
                 h.pose = (r.pose[0], r.pose[1], wrap_angle(r.pose[2]))
-                h.score, h.inlier_ratio = r.score, r.inlier_ratio
+                h.score, h.inlier_ratio = self._score(r), r.inlier_ratio
+                h.see_through = r.see_through
                 h.age += 1
-                h.good = h.good + 1 if self._good(h.score, h.inlier_ratio) else 0
+                h.good = h.good + 1 if self._good(h.score, h.inlier_ratio, h.see_through) else 0
         # 2. a fresh search adds what the hypotheses do not cover yet
         search_time = 0.0
         search_amb = False
@@ -235,13 +260,20 @@ class Relocalizer:
                 hyps.append(
                     Hypothesis(
                         pose=p,
-                        score=cand.score,
+                        score=self._score(cand),
                         inlier_ratio=cand.inlier_ratio,
+                        see_through=cand.see_through,
                         id=next(self._ids),
-                        good=1 if self._good(cand.score, cand.inlier_ratio) else 0,
+                        good=1
+                        if self._good(self._score(cand), cand.inlier_ratio, cand.see_through)
+                        else 0,
                     )
                 )
-        # 3. merge hypotheses that converged onto each other, drop the weak ones
+        # 3. drop hypotheses inside walls or off the map, merge those that converged onto
+        # each other, drop the weak ones
+        if hyps:
+            d = self.glob.distance(np.array([h.pose[:2] for h in hyps], dtype=np.float64))
+            hyps = [h for h, dist in zip(hyps, d, strict=True) if dist >= c.min_clearance]
         hyps.sort(key=lambda h: (h.score, h.age), reverse=True)
         merged: list[Hypothesis] = []
         for h in hyps:
@@ -259,11 +291,19 @@ class Relocalizer:
     def _decide(self, search_time: float, search_amb: bool) -> RelocalizeResult:
         c = self.config
         hyps = self.hypotheses
-        if not hyps or not self._good(hyps[0].score, hyps[0].inlier_ratio):
+        if not hyps or not self._good(hyps[0].score, hyps[0].inlier_ratio, hyps[0].see_through):
             self._leader, self._streak = None, 0
             return self._result("searching", search_time, search_amb)
         best = hyps[0]
-        rival = next((h for h in hyps[1:] if h.score >= (1.0 - c.dominance) * best.score), None)
+        rival = next(
+            (
+                h
+                for h in hyps[1:]
+                if h.score >= (1.0 - c.dominance) * best.score
+                or h.inlier_ratio > best.inlier_ratio + c.inlier_margin
+            ),
+            None,
+        )
         if rival is not None:
             self._leader, self._streak = None, 0
             return self._result("ambiguous", search_time, search_amb)
@@ -450,6 +490,7 @@ def attach(
         det = state.detector
         if det is not None and det.observe(est):
             loc.reset(loc.pose, loc.covariance, Status.LOST)
+            loc._lost_scans = 0  # relocalize on the next scan, not n scans later
             rel.reset()
             state.last_odom = None
         return est
