@@ -664,6 +664,11 @@ impl GlobalLocalizer {
                     return None;
                 }
                 let pose = r.pose.normalized();
+                // refinement may slide a seed into a wall or off the grid: not a pose
+                let clear = self.distance_at([pose.x, pose.y])?;
+                if clear < 0.5 * cfg.min_clearance {
+                    return None;
+                }
                 Some(self.score_pose(&usable, pose, coarse))
             })
             .collect();
@@ -850,6 +855,10 @@ mod tests {
             let b = r.best().unwrap();
             let ok = close(b.pose, truth, 0.05, 1f64.to_radians());
             best_ok += ok as usize;
+            for c in &r.candidates {
+                let d = g.distance_at([c.pose.x, c.pose.y]).unwrap();
+                assert!(d >= 0.1, "candidate in a wall: {c:?}");
+            }
             listed += r
                 .candidates
                 .iter()
