@@ -48,7 +48,8 @@ def test_handshake_open_enable_and_1000_sips(sim: DeviceRunner) -> None:
     with PowerBot(sim.port) as bot:
         assert (bot.name, bot.robot_type, bot.subtype) == ("PowerBot", "Pioneer", "powerbot")
         assert bot.params.dist_conv == 0.5813
-        assert dev.connected and dev.sips_on and dev.robot.enabled
+        # the device handles ENABLE on its own thread: give it time under load
+        assert wait_for(lambda: dev.connected and dev.sips_on and dev.robot.enabled)
         cmds = [(c.cmd, c.arg) for c in dev.commands]
         assert cmds[:6] == [
             (0, None),
