@@ -90,7 +90,12 @@ def drifting_odometry(poses: NDArray[np.float64], seed: int) -> list[tuple[float
 
 
 def evaluate(
-    path: Path, split: str, seed: int = 0, max_range: float = 30.0, metric: str = "point_to_line"
+    path: Path,
+    split: str,
+    seed: int = 0,
+    max_range: float = 30.0,
+    metric: str = "point_to_line",
+    relocalize: bool = False,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     data = open_log(path)
@@ -115,6 +120,10 @@ def evaluate(
     P_true = truth[loc_idx]
     odo = drifting_odometry(P_true, seed)
     loc = Localizer(m, cfg, initial_pose=tuple(P_true[0]))
+    if relocalize:  # lost detection + global multi-hypothesis relocalization
+        from icploc.relocalize import attach
+
+        attach(loc)
     est = []
     t1 = time.perf_counter()
     bad = 0
@@ -187,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|")
     for p in logs:
         try:
-            r = evaluate(p, args.split, args.seed, args.max_range, args.metric)
+            r = evaluate(p, args.split, args.seed, args.max_range, args.metric, args.relocalize)
         except Exception as e:  # report and go on: one bad log must not hide the others
             r = {"log": p.name, "error": f"{type(e).__name__}: {e}"}
         rows.append(r)
