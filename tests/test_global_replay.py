@@ -114,3 +114,16 @@ def test_kidnap_in_the_middle_of_a_replayed_run(lab_run: dict) -> None:
     # once back, it stays with the truth
     for e, p in after[back:]:
         assert _err(e.pose, p)[0] < 0.1
+
+
+def test_a_crowd_is_not_a_kidnapping() -> None:
+    """12 people circling the robot collapse the inlier ratio (the lost detector fires) but
+    no pose elsewhere explains the scans convincingly: tracking goes on, nothing is lost."""
+    w = worlds.crowd(people=12)
+    path = worlds.tour_path(worlds.lab_random_walk(20.0, seed=13), laps=2)
+    frames = list(worlds.simulate(w, path, seed=1, noise=0.02, speed=0.6, max_frames=700))
+    loc = Localizer(Map.from_lines(w.lines), LocalizerConfig(), initial_pose=frames[0].truth)
+    attach(loc)
+    ests = run(loc, _items(frames))
+    assert all(e.status is not Status.LOST for e in ests)
+    assert max(_err(e.pose, f.truth)[0] for e, f in zip(ests, frames, strict=True)) < 0.05

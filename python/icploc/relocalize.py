@@ -436,13 +436,17 @@ def attach(
     *,
     detector: LostDetector | None = None,
     detect: bool = True,
+    lost_margin: float = 0.3,
 ) -> Relocalizer:
     """Plug global relocalization into ``localizer`` (an :class:`icploc.localizer.Localizer`):
     its ``relocalize`` hook (called while ``lost``) runs the multi-hypothesis
     :class:`Relocalizer` with the odometry increments between calls and returns the pose
     (with an ICP result for the covariance) only once locked; with ``detect`` its
     ``update`` is watched by a :class:`LostDetector` that switches it to ``lost`` early
-    (a kidnapping). A localizer without an initial pose then localizes globally.
+    (a kidnapping) — after a check: a global search must find a distinct pose that
+    explains the scan clearly better (tracked pose's score < (1 - ``lost_margin``) x the
+    best) than the tracked pose, else it was a crowd or a glitch, not a kidnapping.
+    A localizer without an initial pose then localizes globally.
     Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
     from icploc.localizer import Status
 
@@ -485,10 +489,28 @@ def attach(
 
     orig_update = loc.update
 
+    def elsewhere(scan: Any) -> bool:
+        """Does a distinct pose explain ``scan`` clearly better than the tracked one?"""
+        from icploc.localizer import prepare_scan
+
+        pts = prepare_scan(scan, loc.config, loc._trig)
+        if pts.shape[0] < 10:
+            return False
+        here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([loc.pose]))[0]
+        best = rel.glob.search(pts, rel.region, rel.heading).best
+        if best is None or not rel.glob.distinct(here.pose, best.pose):
+            return False
+        # the better pose must be a convincing fit itself: a crowd around the robot makes
+        # the tracked pose look poor, and lets people's outlines fit walls elsewhere
+        # somewhat — never well
+        if best.inlier_ratio < 0.85 or best.see_through > 0.25:
+            return False
+        return rel._score(here) < (1.0 - lost_margin) * rel._score(best)
+
     def update(scan: Any, odometry: Any = None) -> Any:
         est = orig_update(scan, odometry)
         det = state.detector
-        if det is not None and det.observe(est):
+        if det is not None and det.observe(est) and elsewhere(scan):
             loc.reset(loc.pose, loc.covariance, Status.LOST)
             loc._lost_scans = 0  # relocalize on the next scan, not n scans later
             rel.reset()
