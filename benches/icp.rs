@@ -3,8 +3,7 @@
 //! (180°, 0.5°, 1 cm noise, 20% of beams on unmapped obstacles) against an office map of
 //! 1k / 10k / 100k / 1M points from an initial error of (0.3 m, 0.3 m, 10°).
 //! Before timing each map size it prints the success rate (within 2 cm and 0.5°) and the
-//! median of one cold pass (the nearest-point cache filling up); criterion then times
-//! repeated passes over the same 200 cases (a robot staying in one building: warm cache).
+//! median time of one pass over the 200 cases; criterion then times repeated passes.
 //! From the large start error (1.0 m, 0.5 m, 25°) the heading search (±30°, 10° steps) is on.
 
 use std::hint::black_box;

@@ -123,7 +123,7 @@ class MapIndex:
         normals: ArrayLike | None = None,
         cache_resolution: float | None = ...,
     ) -> Self:
-        """Build the k-d tree. ``cache_resolution`` (m): cell size of the lazily filled
+        """Build the k-d tree. ``cache_resolution`` (m): cell size of the precomputed
         nearest-point cache ICP uses for correspondences (answers exact to within a cell,
         O(1) whatever the map size); ``None`` or 0 for exact k-d tree answers only."""
     def __len__(self) -> int: ...

@@ -1,7 +1,6 @@
 //! The map index: an immutable k-d tree (kiddo) over the map's 2D points, with unit normals.
 
 use std::num::NonZeroUsize;
-use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::OnceLock;
 
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
@@ -40,17 +39,90 @@ const MAX_CACHE_CELLS: usize = 1 << 23;
 /// The cache covers the map's bounds plus this margin (m); farther queries use the tree.
 const CACHE_MARGIN: f64 = 2.0;
 
-/// A grid over the map that remembers, per cell, the k-d tree's answer for the cell's
-/// centre. Filled lazily (a cell is computed on its first query), so building a map index
-/// costs nothing extra; lock-free (a race only computes the same answer twice).
+/// A grid over the map holding, per cell, the map point closest to the cell's centre:
+/// the "closest point transform" of the map, computed once by seeding each cell with the
+/// points inside it and propagating seeds in two raster passes (a vector distance
+/// transform). Queries are then one array read, whatever the map's size or density.
 struct NearestCache {
     x0: f64,
     y0: f64,
     res: f64,
     nx: usize,
     ny: usize,
-    /// 0 = not computed yet, else map index + 1.
-    cells: Vec<AtomicU32>,
+    /// map index of the closest point to each cell centre
+    cells: Vec<u32>,
+}
+
+impl NearestCache {
+    fn build(points: &[[f64; 2]], x0: f64, y0: f64, res: f64, nx: usize, ny: usize) -> Self {
+        const NONE: u32 = u32::MAX;
+        let mut cells = vec![NONE; nx * ny];
+        let centre =
+            |ix: usize, iy: usize| [x0 + (ix as f64 + 0.5) * res, y0 + (iy as f64 + 0.5) * res];
+        let d2 = |c: [f64; 2], j: u32| {
+            let p = points[j as usize];
+            (p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1])
+        };
+        // seeds: every point claims its own cell (the one nearest the centre wins)
+        for (j, p) in points.iter().enumerate() {
+            let fx = (p[0] - x0) / res;
+            let fy = (p[1] - y0) / res;
+            if !(fx >= 0.0 && fy >= 0.0 && fx < nx as f64 && fy < ny as f64) {
+                continue;
+            }
+            let (ix, iy) = (fx as usize, fy as usize);
+            let k = iy * nx + ix;
+            let c = centre(ix, iy);
+            if cells[k] == NONE || d2(c, j as u32) < d2(c, cells[k]) {
+                cells[k] = j as u32;
+            }
+        }
+        // propagate: each cell takes a neighbour's seed when that seed is closer
+        let relax = |cells: &mut Vec<u32>, ix: usize, iy: usize, nxi: isize, nyi: isize| {
+            if nxi < 0 || nyi < 0 || nxi >= nx as isize || nyi >= ny as isize {
+                return;
+            }
+            let s = cells[nyi as usize * nx + nxi as usize];
+            if s == NONE {
+                return;
+            }
+            let k = iy * nx + ix;
+            let c = centre(ix, iy);
+            if cells[k] == NONE || d2(c, s) < d2(c, cells[k]) {
+                cells[k] = s;
+            }
+        };
+        for iy in 0..ny {
+            for ix in 0..nx {
+                let (x, y) = (ix as isize, iy as isize);
+                for (dx, dy) in [(-1, 0), (-1, -1), (0, -1), (1, -1)] {
+                    relax(&mut cells, ix, iy, x + dx, y + dy);
+                }
+            }
+            for ix in (0..nx).rev() {
+                relax(&mut cells, ix, iy, ix as isize + 1, iy as isize);
+            }
+        }
+        for iy in (0..ny).rev() {
+            for ix in (0..nx).rev() {
+                let (x, y) = (ix as isize, iy as isize);
+                for (dx, dy) in [(1, 0), (1, 1), (0, 1), (-1, 1)] {
+                    relax(&mut cells, ix, iy, x + dx, y + dy);
+                }
+            }
+            for ix in 0..nx {
+                relax(&mut cells, ix, iy, ix as isize - 1, iy as isize);
+            }
+        }
+        Self {
+            x0,
+            y0,
+            res,
+            nx,
+            ny,
+            cells,
+        }
+    }
 }
 
 /// An immutable nearest-neighbour index over 2D map points, with optional unit normals.
@@ -58,7 +130,7 @@ struct NearestCache {
 /// Queries go to a kiddo k-d tree. ICP's correspondence search may go through an optional
 /// nearest-point cache (see [`MapIndex::with_cache`]) that answers with the closest map
 /// point of the query's cache cell centre: exact to within the cell size, and O(1) whatever
-/// the map's size.
+/// the map's size or density.
 pub struct MapIndex {
     tree: Tree,
     cache: Option<NearestCache>,
@@ -145,7 +217,8 @@ impl MapIndex {
 
     /// Add a nearest-point cache of cell size `resolution` (m) for ICP correspondences;
     /// `None` or 0 removes it (exact k-d tree answers only). The grid covers the map's
-    /// bounds plus 2 m and holds at most 2²³ cells (the resolution is coarsened to fit).
+    /// bounds plus 2 m and holds at most 2²³ cells (the resolution is coarsened to fit);
+    /// it is computed here, in two raster passes (tens of ms for an office floor).
     pub fn with_cache(mut self, resolution: Option<f64>) -> Result<Self> {
         self.cache = match resolution.filter(|r| *r != 0.0) {
             None => None,
@@ -165,16 +238,14 @@ impl MapIndex {
                 }
                 let nx = ((w / res).ceil() as usize).max(1);
                 let ny = ((h / res).ceil() as usize).max(1);
-                let mut cells = Vec::with_capacity(nx * ny);
-                cells.resize_with(nx * ny, || AtomicU32::new(0));
-                Some(NearestCache {
-                    x0: x0 - CACHE_MARGIN,
-                    y0: y0 - CACHE_MARGIN,
+                Some(NearestCache::build(
+                    &self.points,
+                    x0 - CACHE_MARGIN,
+                    y0 - CACHE_MARGIN,
                     res,
                     nx,
                     ny,
-                    cells,
-                })
+                ))
             }
         };
         Ok(self)
@@ -194,20 +265,7 @@ impl MapIndex {
             let fx = (q[0] - c.x0) / c.res;
             let fy = (q[1] - c.y0) / c.res;
             if fx >= 0.0 && fy >= 0.0 && fx < c.nx as f64 && fy < c.ny as f64 {
-                let (ix, iy) = (fx as usize, fy as usize);
-                let cell = &c.cells[iy * c.nx + ix];
-                let v = cell.load(Ordering::Relaxed);
-                let j = if v != 0 {
-                    (v - 1) as usize
-                } else {
-                    let centre = [
-                        c.x0 + (ix as f64 + 0.5) * c.res,
-                        c.y0 + (iy as f64 + 0.5) * c.res,
-                    ];
-                    let (_, j) = self.nearest(centre);
-                    cell.store(j as u32 + 1, Ordering::Relaxed);
-                    j
-                };
+                let j = c.cells[fy as usize * c.nx + fx as usize] as usize;
                 let p = self.points[j];
                 let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
                 return (d2, j);
