@@ -185,6 +185,10 @@ def plot(r: DemoResult, world: Any, path: Path) -> Path:
             ax.plot([x1, x2], [y1, y2], color="k", lw=1.5)
         for x1, y1, x2, y2 in world.glass:
             ax.plot([x1, x2], [y1, y2], color="tab:cyan", lw=3, label="glass")
+        for k, person in enumerate(world.people):
+            loop = np.vstack([person.path, person.path[:1]])
+            ax.plot(loop[:, 0], loop[:, 1], color="tab:orange", lw=0.6, ls=":",
+                    label="people walking" if k == 0 else None)  # fmt: skip
         ax.plot(r.truth[:, 0], r.truth[:, 1], color="0.6", lw=1, ls="--", label="truth")
         ax.plot(traj[:, 0], traj[:, 1], color=color, lw=1.2, label=label)
         ax.plot(*r.truth[0, :2], "go", label="start")
