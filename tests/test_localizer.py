@@ -183,10 +183,11 @@ def corridor(length: float = 200.0, width: float = 2.0) -> worlds.World:
     )
 
 
-def test_corridor_follows_odometry_along_and_icp_across() -> None:
+@pytest.mark.parametrize("metric", ["point_to_line", "point_to_point"])
+def test_corridor_follows_odometry_along_and_icp_across(metric: str) -> None:
     w = corridor()
     idx = sample_lines(w.lines)
-    cfg = LocalizerConfig()
+    cfg = LocalizerConfig().replace(icp={"metric": metric})
     loc = Localizer(idx, cfg, initial_pose=(0.0, 1.0, 0.0))
     e = loc.update(scan_at(w, (0.0, 1.0, 0.0)), (0.0, 0.0, 0.0))
     # truth moves 1.10 m along and 0.06 m across; odometry says 1.00 m straight ahead
