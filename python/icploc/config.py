@@ -208,7 +208,8 @@ class LocalizerSection:
     recover_after: int = 3
     #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
     relocalize_every: int = 4
-    #: odometry gaps longer than this (s) are not interpolated across (a warning status)
+    #: a scan newer than the newest odometry sample is predicted by extrapolating at the last
+    #: odometry velocity for at most min(0.25 s, this) seconds, then the pose is held
     max_odometry_gap: float = 1.0
 
     def validate(self) -> None:
