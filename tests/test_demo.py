@@ -21,7 +21,9 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
         assert s["distance_m"] > 5.0
         # through the real drivers, with glass and people: millimetres, not centimetres
         assert s["median_error_m"] < 0.006, s
-        assert s["max_error_m"] < 0.025, s
+        # (max: a scan stamped late by a starved host is compared with the truth of a later
+        # moment; at 1.5 m/s 20 ms are 3 cm, so the bound leaves room for a loaded CI box)
+        assert s["max_error_m"] < 0.05, s
         assert s["max_heading_error_deg"] < 0.5, s
         # and much better than the drifting odometry
         assert s["localized_end_error_m"] < 0.02
