@@ -104,12 +104,15 @@ def speed(d: Path, n_scans: int = 3000, decimation: int = 1) -> dict[str, Any]:
     frames = list(worlds.simulate(w, path, seed=5, noise=0.02, max_frames=n_scans, beams=361))
     log = d / "lab361.log"
     write_carmen(
-        log, [f.scan for f in frames], [f.odometry for f in frames], poses=[f.truth for f in frames]
+        log,
+        [f.scan for f in frames],
+        [f.odometry for f in frames],
+        poses=[f.truth for f in frames],
+        scan_odometry=[f.odometry.pose for f in frames],
     )
     m = ros_map(w, d)
-    m.index(
-        0.05
-    )  # build (and cache) the index outside the timed region, as a robot does at start-up
+    # build (and cache) the index outside the timed region, as a robot does at start-up
+    m.index(0.05)
     cfg = LocalizerConfig().replace(scan={"decimation": decimation})
     best: Any = None
     for _ in range(2):

@@ -41,7 +41,12 @@ def carmen_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     w = worlds.lab(people=1)
     frames = list(worlds.simulate(w, worlds.lab_random_walk(5.0, seed=2), seed=1, max_frames=120))
     log = d / "run.log.gz"
-    write_carmen(log, [f.scan for f in frames], [f.odometry for f in frames])
+    write_carmen(
+        log,
+        [f.scan for f in frames],
+        [f.odometry for f in frames],
+        scan_odometry=[f.odometry.pose for f in frames],
+    )
     truth = d / "truth.tum"
     truth.write_text("".join(tum_row(f.scan.stamp, f.truth) for f in frames))
     return {

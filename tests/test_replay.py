@@ -32,6 +32,7 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "truth": truth,
         "map": map_yaml,
         "poses": np.array([f.truth for f in frames]),
+        "odo_poses": np.array([f.odometry.pose for f in frames]),
     }
 
 
@@ -39,13 +40,24 @@ def _write(fmt: str, run: dict) -> Path:
     d: Path = run["dir"]
     if fmt == "carmen":
         p = d / "run.log"
-        write_carmen(p, run["scans"], run["odoms"], poses=run["poses"])
+        write_carmen(
+            p, run["scans"], run["odoms"], poses=run["poses"], scan_odometry=run["odo_poses"]
+        )
     elif fmt == "carmen_gz":
         p = d / "run.log.gz"
-        write_carmen(p, run["scans"], run["odoms"], poses=run["poses"])
+        write_carmen(
+            p, run["scans"], run["odoms"], poses=run["poses"], scan_odometry=run["odo_poses"]
+        )
     elif fmt == "robotlaser1":
         p = d / "run_rl.log"
-        write_carmen(p, run["scans"], run["odoms"], poses=run["poses"], fmt="ROBOTLASER1")
+        write_carmen(
+            p,
+            run["scans"],
+            run["odoms"],
+            poses=run["poses"],
+            scan_odometry=run["odo_poses"],
+            fmt="ROBOTLASER1",
+        )
     elif fmt in ("rosbag1", "rosbag2"):
         from icploc.logs.rosbag import write_rosbag
 
@@ -154,3 +166,21 @@ def test_replay_recorded_raw_bytes_session(tmp_path: Path) -> None:
     assert np.median(err) < 0.01 and err.max() < 0.08
     assert res.status_counts.get("lost", 0) == 0
     assert math.isfinite(res.rate)
+
+
+def test_replay_prefers_the_odometry_recorded_with_each_scan(sim_run: dict, tmp_path: Path) -> None:
+    """CARMEN logs carry odometry in every laser line; an ODOM stream (here: a robot that
+    never moved) is used only when asked for."""
+    from icploc.types import Odometry
+
+    still = [Odometry(o.stamp, (0.0, 0.0, 0.0)) for o in sim_run["odoms"]]
+    log = tmp_path / "two_odometries.log"
+    write_carmen(
+        log, sim_run["scans"], still, poses=sim_run["poses"], scan_odometry=sim_run["odo_poses"]
+    )
+    auto = replay(log, sim_run["map"], truth=sim_run["truth"])
+    stream = replay(log, sim_run["map"], truth=sim_run["truth"], odometry="stream")
+    assert auto.metrics["ate_median_m"] < 0.008
+    assert stream.metrics["ate_rmse_m"] > 2 * auto.metrics["ate_rmse_m"]
+    with pytest.raises(ValueError, match="odometry must be"):
+        replay(log, sim_run["map"], odometry="wheels")

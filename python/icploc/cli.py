@@ -111,6 +111,9 @@ def replay(
     ] = None,
     config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
+    odometry: Annotated[
+        str, typer.Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
+    ] = "auto",
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
@@ -131,11 +134,10 @@ def replay(
                     bar.update(task, completed=done, total=total)
 
                 res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
-                                plot=plot, on_progress=on_progress)  # fmt: skip
+                                plot=plot, on_progress=on_progress, odometry=odometry)  # fmt: skip
         else:
-            res = do_replay(
-                log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot
-            )
+            res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
+                            plot=plot, odometry=odometry)  # fmt: skip
     except (OSError, ValueError) as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(1) from None

@@ -191,12 +191,15 @@ def replay(
     plot: str | Path | None = None,
     on_progress: Callable[[int, int], None] | None = None,
     log_options: dict[str, Any] | None = None,
+    odometry: str = "auto",
     global_localize: bool = False,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
     else ``config.localizer.initial_pose``, else none: global localization
-    (:func:`icploc.relocalize.attach`), also forced by ``global_localize=True``."""
+    (:func:`icploc.relocalize.attach`), also forced by ``global_localize=True``.
+    ``odometry``: ``"auto"`` uses the odometry the log records with each scan when it has
+    one for every scan (CARMEN), else the odometry stream; ``"stream"`` / ``"scan"`` force one."""
     cfg = config or LocalizerConfig()
     t0 = time.perf_counter()
     name = str(log) if isinstance(log, (str, Path)) else "<memory>"
@@ -206,6 +209,23 @@ def replay(
         data = open_log(log, **(log_options or {}))
         scans = list(data.scans)
         odoms = list(data.odometry)
+        per_scan = np.asarray(data.scan_odometry, dtype=np.float64).reshape(-1, 3)
+        if odometry not in ("auto", "stream", "scan"):
+            raise ValueError(f"odometry must be 'auto', 'stream' or 'scan', got {odometry!r}")
+        if odometry == "scan" and len(per_scan) != len(scans):
+            raise ValueError(f"{name}: the log has no odometry recorded with its scans")
+        if (
+            odometry in ("auto", "scan")
+            and len(per_scan) == len(scans)
+            and len(scans)
+            and np.isfinite(per_scan).all()
+        ):
+            # the odometry the log recorded with each scan (CARMEN FLASER / ROBOTLASER1): in
+            # step with the scan by construction, unlike an ODOM stream whose stamps may
+            # have been repaired
+            odoms = [
+                Odometry(s.stamp, (p[0], p[1], p[2])) for s, p in zip(scans, per_scan, strict=True)
+            ]
     else:
         scans = [m for m in log if isinstance(m, Scan)]
         odoms = [m for m in log if isinstance(m, Odometry)]
