@@ -428,6 +428,7 @@ class _Attached:
     detector: LostDetector | None
     last_odom: Pose | None = None
     results: list[RelocalizeResult] = field(default_factory=list)
+    verdicts: list[str] = field(default_factory=list)  #: lost-detector checks: "", lost, reanchor
 
 
 def attach(
@@ -489,32 +490,55 @@ def attach(
 
     orig_update = loc.update
 
-    def elsewhere(scan: Any) -> bool:
-        """Does a distinct pose explain ``scan`` clearly better than the tracked one?"""
+    def check(scan: Any) -> tuple[str, Pose | None]:
+        """The detector fired: is the robot elsewhere (``"lost"``), a little off its
+        tracked pose (``"reanchor"``: the global best is a convincing fit that ICP from the
+        tracked pose converges to), or fine (``""``: a crowd, a glitch)?"""
         from icploc.localizer import prepare_scan
 
         pts = prepare_scan(scan, loc.config, loc._trig)
         if pts.shape[0] < 10:
-            return False
+            return "", None
         here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([loc.pose]))[0]
         best = rel.glob.search(pts, rel.region, rel.heading).best
-        if best is None or not rel.glob.distinct(here.pose, best.pose):
-            return False
-        # the better pose must be a convincing fit itself: a crowd around the robot makes
-        # the tracked pose look poor, and lets people's outlines fit walls elsewhere
-        # somewhat — never well
-        if best.inlier_ratio < 0.85 or best.see_through > 0.25:
-            return False
-        return rel._score(here) < (1.0 - lost_margin) * rel._score(best)
+        if best is None:
+            return "", None
+        # the better pose must be a convincing fit itself — a crowd around the robot makes
+        # the tracked pose look poor and lets people's outlines fit walls elsewhere
+        # somewhat, never well — or the tracked pose must be contradicted by the scan
+        # (beams through its walls: people only shorten beams) where the better pose is not
+        convincing = best.inlier_ratio >= 0.85 and best.see_through <= 0.25
+        contradicted = (
+            here.see_through >= 0.15
+            and best.see_through <= 0.1
+            and rel._good(rel._score(best), best.inlier_ratio, best.see_through)
+        )
+        if not (convincing or contradicted):
+            return "", None
+        if not rel.glob.distinct(here.pose, best.pose):
+            off = math.hypot(best.pose[0] - loc.pose[0], best.pose[1] - loc.pose[1])
+            turn = abs(wrap_angle(best.pose[2] - loc.pose[2]))
+            if off > 0.1 or turn > math.radians(2.0):
+                return "reanchor", (here.pose[0], here.pose[1], wrap_angle(here.pose[2]))
+            return "", None
+        if rel._score(here) < (1.0 - lost_margin) * rel._score(best):
+            return "lost", None
+        return "", None
 
     def update(scan: Any, odometry: Any = None) -> Any:
         est = orig_update(scan, odometry)
         det = state.detector
-        if det is not None and det.observe(est) and elsewhere(scan):
+        if det is None or not det.observe(est):
+            return est
+        verdict, pose = check(scan)
+        state.verdicts.append(verdict)
+        if verdict == "lost":
             loc.reset(loc.pose, loc.covariance, Status.LOST)
             loc._lost_scans = 0  # relocalize on the next scan, not n scans later
             rel.reset()
             state.last_odom = None
+        elif verdict == "reanchor" and pose is not None:
+            loc.reset(pose)  # the tracker slid (a degenerate view): put it back
         return est
 
     loc.relocalize = hook
