@@ -5,13 +5,12 @@ from __future__ import annotations
 import math
 import threading
 
+import icploc
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-
-import icploc
 from icploc import IcpConfig, MapIndex
 
 # ---------------------------------------------------------------- a generated world
