@@ -121,7 +121,7 @@ def drive(world: worlds.World, start, n: int, sensor: Sensor, rng, v: float = 0.
         t = k * dt
         out.append((pose, scan_at(world, pose, t, sensor, rng)))
         # steer: turn left when something is close ahead
-        ahead = world.ranges(pose, np.array([0.0]), 5.0)[0]
+        ahead = float(world.ranges(pose, np.linspace(-0.6, 0.6, 7), 5.0).min())
         w = 0.8 if ahead < 1.0 else 0.1
         vv = v if ahead > 0.5 else 0.0
         pose = (
