@@ -175,6 +175,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--max-range", type=float, default=30.0, help="range limit for map and scans (m)"
     )
+    ap.add_argument(
+        "--relocalize",
+        action="store_true",
+        help="attach lost detection and global relocalization (icploc.relocalize.attach)",
+    )
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     if not args.data.exists():
