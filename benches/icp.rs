@@ -89,8 +89,16 @@ fn bench_align(c: &mut Criterion) {
     ] {
         let cs = cases(&segs, 200, err, 0.01, 0.2, 7);
         for metric in [Metric::PointToLine, Metric::PointToPoint] {
+            // from the large start error, search start headings ±30° every 10°
+            let search = if name == "large" {
+                30f64.to_radians()
+            } else {
+                0.0
+            };
             let cfg = IcpConfig {
                 metric,
+                heading_search: search,
+                heading_step: 10f64.to_radians(),
                 ..IcpConfig::default()
             };
             let mut g = c.benchmark_group(format!("align_{name}_{metric:?}"));
