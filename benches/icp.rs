@@ -81,6 +81,29 @@ fn bench_nearest(c: &mut Criterion) {
     g.finish();
 }
 
+fn bench_correspondence(c: &mut Criterion) {
+    // the query ICP makes: through the precomputed nearest-point cache
+    let mut g = c.benchmark_group("correspondence_cached");
+    for &n in &SIZES {
+        let (p, nrm) = map_of(n);
+        let idx = MapIndex::new(p, Some(nrm))
+            .unwrap()
+            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let qs: Vec<[f64; 2]> = (0..1024)
+            .map(|i| [(i as f64 * 0.37) % 30.0, (i as f64 * 0.71) % 20.0])
+            .collect();
+        let mut k = 0usize;
+        g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
+            b.iter(|| {
+                k = (k + 1) & 1023;
+                black_box(idx.correspondence(black_box(qs[k])))
+            })
+        });
+    }
+    g.finish();
+}
+
 fn bench_align(c: &mut Criterion) {
     let segs = office_segments();
     for (name, err) in [
@@ -132,6 +155,6 @@ fn bench_align(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(3));
-    targets = bench_build, bench_nearest, bench_align
+    targets = bench_build, bench_nearest, bench_correspondence, bench_align
 }
 criterion_main!(benches);
