@@ -237,12 +237,7 @@ def run_simulated(
         seed=seed,
     )
     sess_holder.append(sess)
-    if config is None:
-        # The simulated base moves the robot in steps, once per 100 ms SIP, and the laser
-        # samples that frozen pose; odometry interpolated to a scan's stamp then runs up to
-        # one SIP ahead of the true pose. So here ICP is not fused with that prediction.
-        config = LocalizerConfig().replace(localizer={"fuse_odometry": False})
-    cfg = config
+    cfg = config or LocalizerConfig()
     cfg = cfg.replace(
         scan={
             "laser_x": sess.laser_offset[0],

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from icploc.drivers import sick_protocol as sp
 from icploc.sim.device import Faults, OutputSchedule
+from icploc.sim.robot import DiffDriveRobot
 
 #: ranges (m) at the scan's beam angles, given simulated time (s)
 ScanSource = Callable[[float], NDArray[np.float64]]
@@ -56,6 +57,8 @@ class PLSDevice:
     type_string: str = ""
     max_range: float = 50.0
     keep_b0_log: bool = True
+    #: the robot carrying the laser: moved to each scan's time before ``source`` samples it
+    robot: DiffDriveRobot | None = None
 
     def __post_init__(self) -> None:
         self.password = sp.PASSWORD_PLS if self.variant == "pls" else sp.PASSWORD_LMS
@@ -81,6 +84,7 @@ class PLSDevice:
         self.scan_index = 0
         self._next_scan = 0.0
         self._t0: float | None = None
+        self._robot_offset: float | None = None  # test mode: robot time - sim time
         self.schedule.clear()
         self.parser.reset()
 
@@ -161,11 +165,30 @@ class PLSDevice:
             return 0.0 if self._t0 is None else now - self._t0
         return self.scan_index * self.scan_period
 
+    def robot_time(self, now: float, t: float) -> float:
+        """The robot's simulated time at ``now`` (sim time ``t``): the shared host clock in
+        real-time mode; in test mode the scan's sim time, offset to where the robot was
+        when this device started scanning."""
+        assert self.robot is not None
+        if self.realtime:
+            return self.robot.clock_time(now)
+        if self._robot_offset is None:
+            self._robot_offset = self.robot.time - t
+        return t + self._robot_offset
+
+    def _sample(self, now: float, t: float) -> NDArray[np.float64]:
+        assert self.source is not None
+        if self.robot is None:
+            return np.asarray(self.source(t), dtype=np.float64)
+        with self.robot.lock:  # the base thread moves the robot too
+            self.robot.advance_to(self.robot_time(now, t))
+            return np.asarray(self.source(t), dtype=np.float64)
+
     def _b0_frame(self, now: float) -> bytes:
         t = self.sim_time(now)
         n = self.n_values()
         if self.source is not None:
-            r = np.asarray(self.source(t), dtype=np.float64)
+            r = self._sample(now, t)
             if r.shape != (n,):
                 raise ValueError(f"scan source returned {r.shape}, expected ({n},)")
         else:

@@ -80,7 +80,7 @@ class PowerBotDevice:
         self._saved_cmd = (0.0, 0.0)
         self.sip_index = 0
         self._t0: float | None = None
-        self._last_step: float | None = None
+        self._robot_offset: float | None = None  # test mode: robot time - sim time
         self._next_sip = 0.0
         self.schedule.clear()
         self.parser.reset()
@@ -128,11 +128,11 @@ class PowerBotDevice:
             if self._t0 is None:
                 self._t0 = now
                 self._next_sip = now
-                self._last_step = 0.0
             if not self.realtime or now >= self._next_sip:
                 t = self.sim_time(now)
-                self._advance(t)
-                frame = self._sip_frame(t)
+                with self.robot.lock:  # the laser thread moves the robot too
+                    self._advance(now, t)
+                    frame = self._sip_frame(t)
                 mangled, intact = self.faults.mangle(frame)
                 if self.keep_log:
                     self.sip_log[-1].intact = intact
@@ -154,20 +154,25 @@ class PowerBotDevice:
             return 0.0 if self._t0 is None else now - self._t0
         return self.sip_index * self.sip_period
 
-    def _advance(self, t: float) -> None:
-        last = self._last_step if self._last_step is not None else t
+    def robot_time(self, now: float, t: float) -> float:
+        """The robot's simulated time for this device at ``now`` (sim time ``t``): the
+        shared host clock in real-time mode; in test mode the device's own sim time,
+        offset to where the robot was when this device started reporting."""
+        if self.realtime:
+            return self.robot.clock_time(now)
+        if self._robot_offset is None:
+            self._robot_offset = self.robot.time - t
+        return t + self._robot_offset
+
+    def _advance(self, now: float, t: float) -> None:
+        """Bring the robot to the time of this SIP (the laser simulator may have moved it
+        part of the way already), then let the plan set the commands that follow it."""
+        self.robot.advance_to(self.robot_time(now, t))
         if self.plan is not None:
             cmd = self.plan(t)
             if cmd is not None:
                 self.robot.enabled = True
                 self.robot.set_velocity(*cmd)
-        dt = t - last
-        # integrate in small steps so accelerations stay smooth
-        while dt > 1e-12:
-            h = min(dt, 0.02)
-            self.robot.step(h)
-            dt -= h
-        self._last_step = t
 
     def _check_watchdog(self, now: float) -> None:
         if not self.connected or self.watchdog <= 0:

@@ -10,6 +10,7 @@ length 911 mm, maximum 2000 mm/s and 360 °/s; the effective wheel base 2 / Diff
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -58,7 +59,13 @@ def _ramp(cur: float, target: float, up: float, down: float, dt: float) -> float
 
 @dataclass
 class DiffDriveRobot:
-    """Integrates commanded velocities into a true pose and a noisy odometry pose."""
+    """Integrates commanded velocities into a true pose and a noisy odometry pose.
+
+    :attr:`time` is the robot's simulated time (s). The device simulators, each in its
+    own thread, call :meth:`advance_to` with their current time before they sample the
+    pose (laser) or report odometry (base), so truth, scans and odometry all follow one
+    continuous motion. Hold :attr:`lock` to read a consistent state after advancing.
+    """
 
     pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: true pose in the world (m, rad)
     geometry: RobotGeometry = POWERBOT_GEOMETRY
@@ -80,29 +87,56 @@ class DiffDriveRobot:
         self.estopped = False
         self.left_stall = False
         self.right_stall = False
-        self.time = 0.0
+        self.time = 0.0  #: simulated time (s) the pose and odometry belong to
         self.distance = 0.0
+        self.lock = threading.RLock()
+        #: host clock reading at robot time 0 (real-time mode, set by :meth:`clock_time`)
+        self.clock_origin: float | None = None
 
     def set_velocity(self, v: float, w: float) -> None:
         g = self.geometry
-        self.v_cmd = max(-g.max_velocity, min(g.max_velocity, v))
-        self.w_cmd = max(-g.max_rot_velocity, min(g.max_rot_velocity, w))
-        self.estopped = False
+        with self.lock:
+            self.v_cmd = max(-g.max_velocity, min(g.max_velocity, v))
+            self.w_cmd = max(-g.max_rot_velocity, min(g.max_rot_velocity, w))
+            self.estopped = False
 
     def set_wheels(self, left: float, right: float) -> None:
         b = self.geometry.wheel_base
         self.set_velocity((left + right) / 2.0, (right - left) / b)
 
     def stop(self) -> None:
-        self.v_cmd = 0.0
-        self.w_cmd = 0.0
+        with self.lock:
+            self.v_cmd = 0.0
+            self.w_cmd = 0.0
 
     def e_stop(self) -> None:
-        self.v_cmd = self.w_cmd = self.v = self.w = 0.0
-        self.estopped = True
+        with self.lock:
+            self.v_cmd = self.w_cmd = self.v = self.w = 0.0
+            self.estopped = True
 
     def reset_odometry(self, odom: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
-        self.odom = odom
+        with self.lock:
+            self.odom = odom
+
+    def clock_time(self, now: float) -> float:
+        """Robot time at host clock reading ``now`` (real-time mode): the first call ties
+        the current :attr:`time` to ``now``, so every device maps the shared clock alike."""
+        with self.lock:
+            if self.clock_origin is None:
+                self.clock_origin = now - self.time
+            return now - self.clock_origin
+
+    def advance_to(self, t: float, max_step: float = 0.02) -> None:
+        """Integrate the motion with the current commands up to simulated time ``t``
+        (nothing if the robot is already there). Steps end on the grid of multiples of
+        ``max_step`` (and at ``t``), so callers on that grid (test mode: SIPs every 0.1 s,
+        scans every 0.04 s) get the same integration however their calls interleave."""
+        with self.lock:
+            while t - self.time > 1e-9:
+                nxt = (math.floor(self.time / max_step + 1e-6) + 1) * max_step
+                target = min(t, nxt)
+                self.step(target - self.time)
+                self.time = target
 
     def step(self, dt: float) -> None:
         """Advance ``dt`` seconds."""

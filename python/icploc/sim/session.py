@@ -83,6 +83,7 @@ class SimSession:
             flipped=laser_flipped,
             faults=laser_faults or Faults(seed=seed + 2),
             max_range=laser_max_range,
+            robot=self.robot,
         )
         self.base = PowerBotDevice(
             robot=self.robot,
