@@ -205,6 +205,8 @@ class Relocalizer:
         self.scans = 0
         self._leader: int | None = None
         self._streak = 0
+        self._verified = False  # the leader dominated a scan that had a fresh search
+        self._saturated = False  # the last search (or the cap) may have cut a rival
         self.last: RelocalizeResult | None = None
 
     def _score(self, cand: Any) -> float:
@@ -223,8 +225,13 @@ class Relocalizer:
         )
 
     def update(
-        self, points: NDArray[np.float64], motion: Sequence[float] | None = None
+        self,
+        points: NDArray[np.float64],
+        motion: Sequence[float] | None = None,
+        search: bool | None = None,
     ) -> RelocalizeResult:
+        """``search``: run the global search on this scan (True) or only track the
+        hypotheses (False); None: with no hypotheses, else every ``search_every``-th scan."""
         c = self.config
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
         pts = pts[np.isfinite(pts).all(axis=1)]
@@ -249,10 +256,18 @@ class Relocalizer:
         # 2. a fresh search adds what the hypotheses do not cover yet
         search_time = 0.0
         search_amb = False
-        if not hyps or (self.scans - 1) % c.search_every == 0:
+        searched = (
+            search if search is not None else (not hyps or (self.scans - 1) % c.search_every == 0)
+        )
+        if searched:
+            self._saturated = False
             res = self.glob.search(pts, self.region, self.heading)
             search_time = res.coarse_time + res.refine_time
             search_amb = res.ambiguous
+            cands = list(res.candidates)
+            if len(cands) > 1:
+                top, last = self._score(cands[0]), self._score(cands[-1])
+                self._saturated = last >= (1.0 - c.dominance) * top
             for cand in res.candidates:
                 p = (cand.pose[0], cand.pose[1], wrap_angle(cand.pose[2]))
                 if any(not self.glob.distinct(p, h.pose) for h in hyps):
@@ -286,11 +301,24 @@ class Relocalizer:
         if best is not None:
             merged = [h for h in merged if h.score >= c.keep_ratio * best.score]
         self.hypotheses = merged[: c.max_hypotheses]
-        return self._decide(search_time, search_amb)
+        if best is not None and any(
+            h.score >= (1.0 - c.dominance) * best.score for h in merged[c.max_hypotheses :]
+        ):
+            self._saturated = True  # until the next search
+        # decide on every hypothesis, not only those kept: a rival cut by the cap (many
+        # identical offices) is still a rival; and a search whose weakest returned
+        # candidate is as good as its best was truncated: the truth may be among the
+        # poses it could not return
+        return self._decide(merged, search_time, search_amb, bool(searched))
 
-    def _decide(self, search_time: float, search_amb: bool) -> RelocalizeResult:
+    def _decide(
+        self,
+        hyps: list[Hypothesis],
+        search_time: float,
+        search_amb: bool,
+        searched: bool = True,
+    ) -> RelocalizeResult:
         c = self.config
-        hyps = self.hypotheses
         if not hyps or not self._good(hyps[0].score, hyps[0].inlier_ratio, hyps[0].see_through):
             self._leader, self._streak = None, 0
             return self._result("searching", search_time, search_amb)
@@ -304,14 +332,17 @@ class Relocalizer:
             ),
             None,
         )
-        if rival is not None:
+        if rival is not None or self._saturated:
             self._leader, self._streak = None, 0
             return self._result("ambiguous", search_time, search_amb)
         if self._leader == best.id:
             self._streak += 1
+            self._verified = self._verified or searched
         else:
-            self._leader, self._streak = best.id, 1
-        if self._streak >= c.confirm_scans and best.good >= c.confirm_scans:
+            self._leader, self._streak, self._verified = best.id, 1, searched
+        # a lock needs the leader to have beaten a fresh search too (with the search
+        # throttled, the scans in between only re-score the hypotheses already held)
+        if self._streak >= c.confirm_scans and best.good >= c.confirm_scans and self._verified:
             return self._result("locked", search_time, search_amb)
         return self._result("confirming", search_time, search_amb)
 
@@ -427,6 +458,7 @@ class _Attached:
     relocalizer: Relocalizer
     detector: LostDetector | None
     last_odom: Pose | None = None
+    last_search: tuple[int, float] | None = None  #: (localizer scan count, stamp) of it
     results: list[RelocalizeResult] = field(default_factory=list)
     verdicts: list[str] = field(default_factory=list)  #: lost-detector checks: "", lost, reanchor
 
@@ -465,7 +497,22 @@ def attach(
         if odom is not None and state.last_odom is not None and rel.hypotheses:
             motion = between(state.last_odom, odom)
         state.last_odom = odom
-        res = rel.update(pts, motion)
+        # throttle the global search (localizer.global_search_every / _interval): the
+        # hypotheses are tracked on every call, a fresh search only now and then
+        lc = loc.config.localizer
+        n, stamp = loc.scans_processed, float(scan.stamp)
+        last = state.last_search
+        search = (
+            rel.scans == 0  # a fresh start: the first lost scan, after a lock or a kidnapping
+            or last is None
+            or (
+                n - last[0] >= getattr(lc, "global_search_every", 1)
+                and not 0.0 <= stamp - last[1] < getattr(lc, "global_search_interval", 0.0)
+            )
+        )
+        if search:
+            state.last_search = (n, stamp)
+        res = rel.update(pts, motion, search=None if search else False)
         state.results.append(res)
         if len(state.results) > 100:
             del state.results[:-100]
