@@ -208,6 +208,12 @@ class LocalizerSection:
     recover_after: int = 3
     #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
     relocalize_every: int = 4
+    #: while lost with a global search attached (no initial pose, a kidnapping): at most one
+    #: global search per this many scans and per this many seconds of scan time (the first
+    #: lost scan always searches; between searches the hypotheses are carried by odometry
+    #: and re-scored on every scan)
+    global_search_every: int = 10
+    global_search_interval: float = 1.0
     #: a scan newer than the newest odometry sample is predicted by extrapolating at the last
     #: odometry velocity for at most min(0.25 s, this) seconds, then the pose is held
     max_odometry_gap: float = 1.0
@@ -238,8 +244,11 @@ class LocalizerSection:
             "lost_after_rejections",
             "recover_after",
             "relocalize_every",
+            "global_search_every",
             "max_odometry_gap",
         )
+        if not (self.global_search_interval >= 0.0 and math.isfinite(self.global_search_interval)):
+            raise ConfigError("localizer.global_search_interval must be a finite number >= 0")
 
 
 @dataclass
