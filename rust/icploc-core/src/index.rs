@@ -57,12 +57,8 @@ impl NearestCache {
     fn build(points: &[[f64; 2]], x0: f64, y0: f64, res: f64, nx: usize, ny: usize) -> Self {
         const NONE: u32 = u32::MAX;
         let mut cells = vec![NONE; nx * ny];
-        let centre =
-            |ix: usize, iy: usize| [x0 + (ix as f64 + 0.5) * res, y0 + (iy as f64 + 0.5) * res];
-        let d2 = |c: [f64; 2], j: u32| {
-            let p = points[j as usize];
-            (p[0] - c[0]) * (p[0] - c[0]) + (p[1] - c[1]) * (p[1] - c[1])
-        };
+        // squared distance from each cell centre to its current seed
+        let mut best = vec![f64::INFINITY; nx * ny];
         // seeds: every point claims its own cell (the one nearest the centre wins)
         for (j, p) in points.iter().enumerate() {
             let fx = (p[0] - x0) / res;
@@ -72,48 +68,76 @@ impl NearestCache {
             }
             let (ix, iy) = (fx as usize, fy as usize);
             let k = iy * nx + ix;
-            let c = centre(ix, iy);
-            if cells[k] == NONE || d2(c, j as u32) < d2(c, cells[k]) {
+            let cx = x0 + (ix as f64 + 0.5) * res;
+            let cy = y0 + (iy as f64 + 0.5) * res;
+            let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
+            if d < best[k] {
+                best[k] = d;
                 cells[k] = j as u32;
             }
         }
         // propagate: each cell takes a neighbour's seed when that seed is closer
-        let relax = |cells: &mut Vec<u32>, ix: usize, iy: usize, nxi: isize, nyi: isize| {
-            if nxi < 0 || nyi < 0 || nxi >= nx as isize || nyi >= ny as isize {
+        let mut relax = |k: usize, nk: usize, cx: f64, cy: f64| {
+            let s = cells[nk];
+            if s == NONE || s == cells[k] {
                 return;
             }
-            let s = cells[nyi as usize * nx + nxi as usize];
-            if s == NONE {
-                return;
-            }
-            let k = iy * nx + ix;
-            let c = centre(ix, iy);
-            if cells[k] == NONE || d2(c, s) < d2(c, cells[k]) {
+            let p = points[s as usize];
+            let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
+            if d < best[k] {
+                best[k] = d;
                 cells[k] = s;
             }
         };
         for iy in 0..ny {
+            let cy = y0 + (iy as f64 + 0.5) * res;
             for ix in 0..nx {
-                let (x, y) = (ix as isize, iy as isize);
-                for (dx, dy) in [(-1, 0), (-1, -1), (0, -1), (1, -1)] {
-                    relax(&mut cells, ix, iy, x + dx, y + dy);
+                let cx = x0 + (ix as f64 + 0.5) * res;
+                let k = iy * nx + ix;
+                if ix > 0 {
+                    relax(k, k - 1, cx, cy);
+                }
+                if iy > 0 {
+                    relax(k, k - nx, cx, cy);
+                    if ix > 0 {
+                        relax(k, k - nx - 1, cx, cy);
+                    }
+                    if ix + 1 < nx {
+                        relax(k, k - nx + 1, cx, cy);
+                    }
                 }
             }
-            for ix in (0..nx).rev() {
-                relax(&mut cells, ix, iy, ix as isize + 1, iy as isize);
+            for ix in (0..nx.saturating_sub(1)).rev() {
+                let cx = x0 + (ix as f64 + 0.5) * res;
+                let k = iy * nx + ix;
+                relax(k, k + 1, cx, cy);
             }
         }
         for iy in (0..ny).rev() {
+            let cy = y0 + (iy as f64 + 0.5) * res;
             for ix in (0..nx).rev() {
-                let (x, y) = (ix as isize, iy as isize);
-                for (dx, dy) in [(1, 0), (1, 1), (0, 1), (-1, 1)] {
-                    relax(&mut cells, ix, iy, x + dx, y + dy);
+                let cx = x0 + (ix as f64 + 0.5) * res;
+                let k = iy * nx + ix;
+                if ix + 1 < nx {
+                    relax(k, k + 1, cx, cy);
+                }
+                if iy + 1 < ny {
+                    relax(k, k + nx, cx, cy);
+                    if ix + 1 < nx {
+                        relax(k, k + nx + 1, cx, cy);
+                    }
+                    if ix > 0 {
+                        relax(k, k + nx - 1, cx, cy);
+                    }
                 }
             }
-            for ix in 0..nx {
-                relax(&mut cells, ix, iy, ix as isize - 1, iy as isize);
+            for ix in 1..nx {
+                let cx = x0 + (ix as f64 + 0.5) * res;
+                let k = iy * nx + ix;
+                relax(k, k - 1, cx, cy);
             }
         }
+        drop(best);
         Self {
             x0,
             y0,
