@@ -354,6 +354,7 @@ def run_mode(args: argparse.Namespace, mode: str) -> dict[str, Any]:
     """Run every method on every map size and start error in this process."""
     single = mode == "single"
     methods, skipped = available_methods(set(args.methods.split(",")) if args.methods else None)
+    loaded_build = icploc_build_stamp()  # the module this process imported (just now)
     scen = sc.make_scenario(num_poses=args.poses, seed=args.seed)
     scans = [scen.scan_points(i) for i in range(args.poses)]
     rows: list[dict[str, Any]] = []
@@ -413,6 +414,7 @@ def run_mode(args: argparse.Namespace, mode: str) -> dict[str, Any]:
                 rows.extend(_icploc_batch_rows(pts, nrm, size, scen, scans, mode, args.poses))
     return {
         "mode": mode,
+        "icploc_build": loaded_build,
         "rows": rows,
         "skipped": skipped,
         "settings": {m.name: {"library": m.library, "settings": m.settings} for m in methods},
@@ -700,9 +702,10 @@ def main(argv: list[str] | None = None) -> int:
             if "replay" in res:
                 result["replay"] = res.pop("replay")
             result["modes"].append(res)
-    after = icploc_build_stamp()
-    if after != result["icploc_build"]:
-        result["warning"] = f"icploc was rebuilt during the run ({result['icploc_build']} -> {after})"
+    loaded = sorted({str(m.get("icploc_build")) for m in result["modes"]})
+    result["icploc_build"] = loaded[0] if len(loaded) == 1 else result["icploc_build"]
+    if len(loaded) > 1:
+        result["warning"] = f"the thread modes ran different icploc builds ({', '.join(loaded)})"
         print("WARNING: " + result["warning"], file=sys.stderr)
     md = render_markdown(result)
     print(md)
