@@ -246,3 +246,18 @@ def test_binding_surface() -> None:
     res = g.search(points_at(room, (3.0, 2.0, 0.2), rng))
     assert len(res.candidates) <= 4 and res.headings == 180 and res.nodes > 0
     assert set(res.best.to_dict()) >= {"pose", "score", "inlier_ratio", "mse", "see_through"}
+
+
+def test_identical_offices_beyond_the_hypothesis_cap_never_lock() -> None:
+    """Inside one of many identical offices, with room for only two hypotheses: the ones
+    cut by the cap are still rivals, so no lock (a cap must not manufacture dominance)."""
+    bld = gb.building(periodic=True)
+    g = global_localizer(bld.walls, 0.05)
+    rel = Relocalizer(None, RelocalizeConfig(max_hypotheses=2), localizer=g)
+    rng = np.random.default_rng(6)
+    truth = (14.0, 4.0, -1.4)  # facing an office's back wall: every office looks the same
+    for _ in range(6):
+        out = rel.update(points_at(bld, truth, rng), (0.0, 0.0, 0.0))
+        assert not out.locked
+        assert len(out.hypotheses) <= 2
+    assert out.status == "ambiguous"

@@ -194,6 +194,9 @@ class Relocalizer:
             if localizer is not None
             else global_localizer(map_, self.config.resolution, **global_kwargs)
         )
+        #: candidates a search returns at most (GlobalLocalizer max_candidates): a full
+        #: list whose weakest entry is as good as its best was truncated
+        self.search_cap = int(global_kwargs.get("max_candidates", 32))
         self.region = tuple(region) if region is not None else None
         self.heading = heading
         self._ids = itertools.count()
@@ -265,7 +268,7 @@ class Relocalizer:
             search_time = res.coarse_time + res.refine_time
             search_amb = res.ambiguous
             cands = list(res.candidates)
-            if len(cands) > 1:
+            if len(cands) >= self.search_cap:
                 top, last = self._score(cands[0]), self._score(cands[-1])
                 self._saturated = last >= (1.0 - c.dominance) * top
             for cand in res.candidates:
