@@ -154,3 +154,20 @@ def test_run_simulate_live_path(tmp_path: Path) -> None:
     assert rec.stat().st_size > 10_000
     median_mm = float(r.output.split("median ")[1].split(" mm")[0])
     assert median_mm < 10.0
+
+
+@pytest.mark.slow
+def test_run_simulate_without_start_pose_localizes_globally(tmp_path: Path) -> None:
+    """`icploc run --simulate --global`: the localizer is not told the start; it locks on
+    by global search over the live path and then tracks the simulator's truth."""
+    from icploc import live
+
+    res, truth = live.run_simulated(timeout=6.0, global_start=True)
+    assert res.estimates
+    statuses = [str(e.status) for e in res.estimates]
+    assert statuses[0].endswith("lost")
+    tracked = [e for e in res.estimates if str(e.status).endswith("tracking")]
+    assert len(tracked) >= len(res.estimates) // 2
+    T = live.truth_at(truth, [e.stamp for e in tracked])
+    err = [float(np.hypot(e.pose[0] - t[0], e.pose[1] - t[1])) for e, t in zip(tracked, T, strict=True)]
+    assert float(np.median(err)) < 0.02

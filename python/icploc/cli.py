@@ -155,6 +155,10 @@ def run_cmd(
         bool, typer.Option("--simulate", help="Use the device simulators on ptys")
     ] = False,
     initial_pose: Annotated[str | None, typer.Option("--initial-pose", help="X,Y,THETA")] = None,
+    global_start: Annotated[
+        bool,
+        typer.Option("--global", help="With --simulate: do not tell the localizer the start pose"),
+    ] = False,
     out: Annotated[Path | None, typer.Option("--out", help="Write the trajectory (TUM)")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Record the raw bytes")] = None,
     config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
@@ -174,7 +178,8 @@ def run_cmd(
 
     if simulate:
         res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
-                                        map_=str(map_path) if map_path else None, timeout=duration or 120.0)  # fmt: skip
+                                        map_=str(map_path) if map_path else None, timeout=duration or 120.0,
+                                        global_start=global_start)  # fmt: skip
         import numpy as np
 
         if res.estimates:

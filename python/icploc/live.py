@@ -158,7 +158,8 @@ def run_hardware(
     on_estimate: Callable[[Estimate], None] | None = None,
 ) -> LiveResult:
     """Open the PLS (and the PowerBot), localize until ``duration`` or Ctrl-C; write the
-    trajectory (TUM) to ``out`` and the raw bytes of both devices to ``record``."""
+    trajectory (TUM) to ``out`` and the raw bytes of both devices to ``record``. Without an
+    initial pose (argument or config) the robot localizes globally."""
     from icploc.config import LocalizerConfig
     from icploc.drivers.powerbot import PowerBot
     from icploc.drivers.recording import Recorder
@@ -167,9 +168,16 @@ def run_hardware(
 
     cfg = config or LocalizerConfig()
     m = Map.load(map_path)
-    loc = Localizer(
-        m, cfg, initial_pose=initial_pose or cfg.localizer.initial_pose or (0.0, 0.0, 0.0)
-    )
+    start = initial_pose or cfg.localizer.initial_pose
+    loc = Localizer(m, cfg, initial_pose=start)
+    if start is None:
+        # no pose given: start lost and localize globally (multi-hypothesis, verified lock)
+        from icploc.localizer import Status
+        from icploc.relocalize import attach
+
+        if loc.status is not Status.LOST:
+            loc.reset(loc.pose, loc.covariance, Status.LOST)
+        attach(loc)
     rec = Recorder(record) if record is not None else None
     tum = open(out, "w") if out is not None else None  # noqa: SIM115
     try:
@@ -207,10 +215,13 @@ def run_simulated(
     record: str | Path | None = None,
     timeout: float = 120.0,
     on_estimate: Callable[[Estimate], None] | None = None,
+    global_start: bool = False,
 ) -> tuple[LiveResult, list[tuple[float, Pose]]]:
     """The live path against the PLS and PowerBot simulators on pseudo-terminals, in real
     time: the base drives ``path`` (default: the lab random walk) by pure pursuit. Returns
-    the live result and the simulator's truth ``(stamp, robot pose)`` per generated scan."""
+    the live result and the simulator's truth ``(stamp, robot pose)`` per generated scan.
+    ``global_start``: the localizer is not told where the robot starts and localizes
+    globally (multi-hypothesis search, lock verified over the next scans)."""
     from icploc import worlds
     from icploc.config import LocalizerConfig
     from icploc.drivers.powerbot import PowerBot
@@ -250,7 +261,14 @@ def run_simulated(
         if map_ is not None
         else Map.from_lines(world.lines)
     )
-    loc = Localizer(m, cfg, initial_pose=start)
+    loc = Localizer(m, cfg, initial_pose=None if global_start else start)
+    if global_start:
+        from icploc.localizer import Status
+        from icploc.relocalize import attach
+
+        if loc.status is not Status.LOST:
+            loc.reset(loc.pose, loc.covariance, Status.LOST)
+        attach(loc)
     rec = Recorder(record) if record is not None else None
     tum = open(out, "w") if out is not None else None  # noqa: SIM115
     t_end = [math.inf]
