@@ -322,3 +322,19 @@ def test_kidnapped_robot_recovers_with_the_global_localizer(lab: worlds.World) -
     assert statuses[-1] is Status.TRACKING
     assert math.hypot(e.x - truth[0], e.y - truth[1]) < 0.02
     assert abs(wrap_angle(e.theta - truth[2])) < math.radians(1.0)
+
+
+def test_point_to_line_that_does_not_settle_falls_back_to_point_to_point(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    # Two point-to-line iterations never reach the final threshold: no result converges,
+    # so every scan also gets the paper's point-to-point, and the better fit is kept.
+    frames = list(worlds.simulate(lab, worlds.lab_random_walk(4.0, seed=5), seed=6))
+    cfg = LocalizerConfig().replace(icp={"metric": "point_to_line", "max_iterations": 2})
+    loc = Localizer(lab_index, cfg, initial_pose=frames[0].truth)
+    err = []
+    for f in frames:
+        e = loc.update(f.scan, f.odometry)
+        err.append(math.hypot(e.x - f.truth[0], e.y - f.truth[1]))
+    assert loc._counters.point_to_point_fallbacks == len(frames)
+    assert max(err) < 0.05

@@ -335,6 +335,7 @@ class _Counters:
     rejections_in_row: int = 0
     low_inliers_in_row: int = 0
     good_in_row: int = 0
+    point_to_point_fallbacks: int = 0
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
 
 
@@ -373,7 +374,7 @@ class Localizer:
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
         self._last_reloc_result: Any = None
-        self._icp_configs: dict[float, Any] = {}
+        self._icp_configs: dict[Any, Any] = {}
         lc0 = self.config.localizer
         self._q_floor = np.diag(
             [lc0.process_sigma_xy**2, lc0.process_sigma_xy**2, lc0.process_sigma_theta**2]
@@ -547,10 +548,36 @@ class Localizer:
         from icploc._core import IcpError, icp
 
         cfg = self.icp_config if pred_cov is None else self._icp_config_for(pts, pred_cov)
+        index = self._match_index(pred)
         try:
-            return icp(pts, self._match_index(pred), pred, cfg)
+            res = icp(pts, index, pred, cfg)
         except IcpError:
             return None
+        if cfg.metric == "point_to_line" and not res.converged:
+            # Point-to-line that does not settle is sliding or oscillating on ambiguous
+            # geometry (measured: it drifted off on the Acapulco log); the paper's
+            # point-to-point from the same prediction has the wider basin. Keep whichever
+            # explains more of the scan.
+            self._counters.point_to_point_fallbacks += 1
+            try:
+                alt = icp(pts, index, pred, self._fallback_config(cfg))
+            except IcpError:
+                return res
+            if alt.inlier_ratio > res.inlier_ratio:
+                return alt
+        return res
+
+    def _fallback_config(self, cfg: Any) -> Any:
+        key = ("p2p", cfg.max_correspondence_distance)
+        alt = self._icp_configs.get(key)
+        if alt is None:
+            from icploc._core import IcpConfig
+
+            d = cfg.to_dict()
+            d["metric"] = "point_to_point"
+            alt = IcpConfig(**d)
+            self._icp_configs[key] = alt
+        return alt
 
     def _gate_allowance(self) -> tuple[float, float]:
         g = self.config.gating
