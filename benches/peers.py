@@ -123,6 +123,35 @@ def _icploc_configs(metric: str, one_call: bool, heading_search: float = 0.0) ->
     return cfgs
 
 
+def _icploc_search_method() -> Method:
+    """icploc's own one-call path for unknown start errors: its default threshold schedule
+    with the start search on (headings ±30° every 10°, positions ±0.5 m on a 3 × 3 grid)."""
+    import icploc
+
+    cfg = icploc.IcpConfig(
+        metric="point_to_line",
+        heading_search=math.radians(30),
+        heading_step=math.radians(10),
+        position_search=0.5,
+    )
+
+    def make(pts: NDArray[np.float64], nrm: NDArray[np.float64], spacing: float, single: bool):
+        index = icploc.MapIndex(pts, nrm)
+
+        def align(scan: NDArray[np.float64], init: Any) -> tuple[float, float, float]:
+            return icploc.icp(scan, index, init, cfg).pose
+
+        return align
+
+    return Method(
+        name="icploc p2l +search",
+        library=f"icploc {icploc.__version__}",
+        settings="icp(metric=point_to_line), one call, default schedule 1.0→0.1 m ×0.6/iter, heading_search=30° step 10°, position_search=0.5 m; one thread per call",
+        make=make,
+        is_icploc=True,
+    )
+
+
 def _icploc_method(metric: str, one_call: bool = False, heading_search: float = 0.0) -> Method:
     import icploc
 
@@ -321,6 +350,7 @@ def available_methods(only: set[str] | None = None) -> tuple[list[Method], dict[
         ("icploc p2l", lambda: _icploc_method("point_to_line")),
         ("icploc p2l 1-call", lambda: _icploc_method("point_to_line", one_call=True)),
         ("icploc p2l +heading", lambda: _icploc_method("point_to_line", heading_search=HEADING_SEARCH)),
+        ("icploc p2l +search", _icploc_search_method),
         ("numpy+cKDTree p2p", _numpy_method),
         ("Open3D p2p", lambda: _o3d_method(False)),
         ("Open3D p2plane", lambda: _o3d_method(True)),

@@ -34,7 +34,8 @@ class IcpConfig:
     by ``threshold_decay`` per iteration (set ``threshold_decay=1`` for the paper's fixed
     threshold). ``mse_threshold`` is the paper's tau; ``mse_change`` the relative change of the
     MSE below which it stops; ``heading_search`` (rad, 0 = off) tries start headings within
-    +-heading_search every ``heading_step`` with a short coarse ICP each, for large start errors."""
+    +-heading_search every ``heading_step`` with a short coarse ICP each, for large start errors;
+    ``position_search`` (m, 0 = off) adds start positions offset by +-position_search in x and y."""
 
     metric: Metric
     max_iterations: int
@@ -51,6 +52,7 @@ class IcpConfig:
     min_inlier_ratio: float
     heading_search: float
     heading_step: float
+    position_search: float
     def __new__(
         cls,
         *,
@@ -69,6 +71,7 @@ class IcpConfig:
         min_inlier_ratio: float = 0.0,
         heading_search: float = 0.0,
         heading_step: float = 0.08726646259971647,
+        position_search: float = 0.0,
     ) -> Self: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""

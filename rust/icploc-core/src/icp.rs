@@ -69,6 +69,9 @@ pub struct IcpConfig {
     pub heading_search: f64,
     /// Step of the heading search (rad).
     pub heading_step: f64,
+    /// Also try start positions offset by ±this (m) in x and y — a 3 × 3 grid around the
+    /// start, with every searched heading; 0 turns it off.
+    pub position_search: f64,
 }
 
 impl Default for IcpConfig {
@@ -89,6 +92,7 @@ impl Default for IcpConfig {
             min_inlier_ratio: 0.0,
             heading_search: 0.0,
             heading_step: 5f64.to_radians(),
+            position_search: 0.0,
         }
     }
 }
@@ -202,6 +206,13 @@ impl IcpConfig {
                 "heading_step",
                 self.heading_step,
                 "must be positive and finite",
+            ));
+        }
+        if !(self.position_search >= 0.0 && self.position_search.is_finite()) {
+            return Err(bad(
+                "position_search",
+                self.position_search,
+                "must be non-negative and finite",
             ));
         }
         if !(0.0..=1.0).contains(&self.min_inlier_ratio) {
@@ -425,7 +436,7 @@ fn align_unchecked(
         .max((cfg.min_inlier_ratio * n as f64).ceil() as usize);
 
     let mut pose = initial.normalized();
-    if cfg.heading_search > 0.0 {
+    if cfg.heading_search > 0.0 || cfg.position_search > 0.0 {
         pose = heading_search(scan, index, pose, cfg, ws);
     }
     let mut mse = f64::INFINITY;
@@ -710,6 +721,7 @@ fn heading_search(
         min_correspondence_distance: (cfg.max_correspondence_distance * 0.25)
             .max(cfg.min_correspondence_distance),
         heading_search: 0.0,
+        position_search: 0.0,
         min_inliers: 3,
         min_inlier_ratio: 0.0,
         trim_fraction: 1.0,
@@ -719,37 +731,57 @@ fn heading_search(
         let d = cfg.min_correspondence_distance.max(0.05);
         d * d
     };
+    // candidates in order of distance from the start (the start first), so that ties keep
+    // the start: strict improvement only
     let k = (cfg.heading_search / cfg.heading_step).round() as i64;
+    let headings = std::iter::once(0).chain((1..=k).flat_map(|h| [-h, h]));
+    let r = cfg.position_search;
+    let offsets: &[(f64, f64)] = if r > 0.0 {
+        &[
+            (0.0, 0.0),
+            (-1.0, 0.0),
+            (1.0, 0.0),
+            (0.0, -1.0),
+            (0.0, 1.0),
+            (-1.0, -1.0),
+            (1.0, -1.0),
+            (-1.0, 1.0),
+            (1.0, 1.0),
+        ]
+    } else {
+        &[(0.0, 0.0)]
+    };
     let mut best = (0usize, f64::INFINITY, start);
-    for h in -k..=k {
-        let p0 = Pose2::new(
-            start.x,
-            start.y,
-            wrap_angle(start.theta + h as f64 * cfg.heading_step),
-        );
-        let r = align_unchecked(&sub, index, p0, &coarse, ws);
-        let (s, c) = r.pose.theta.sin_cos();
-        let mut hits = 0usize;
-        let mut sum = 0.0;
-        for p in &sub {
-            let q = [
-                r.pose.x + c * p[0] - s * p[1],
-                r.pose.y + s * p[0] + c * p[1],
-            ];
-            let (d2, _) = index.correspondence(q);
-            if d2 <= score_d2 {
-                hits += 1;
-                sum += d2;
+    for h in headings {
+        for &(ox, oy) in offsets {
+            let p0 = Pose2::new(
+                start.x + ox * r,
+                start.y + oy * r,
+                wrap_angle(start.theta + h as f64 * cfg.heading_step),
+            );
+            let r = align_unchecked(&sub, index, p0, &coarse, ws);
+            let (s, c) = r.pose.theta.sin_cos();
+            let mut hits = 0usize;
+            let mut sum = 0.0;
+            for p in &sub {
+                let q = [
+                    r.pose.x + c * p[0] - s * p[1],
+                    r.pose.y + s * p[0] + c * p[1],
+                ];
+                let (d2, _) = index.correspondence(q);
+                if d2 <= score_d2 {
+                    hits += 1;
+                    sum += d2;
+                }
             }
-        }
-        let mse = if hits > 0 {
-            sum / hits as f64
-        } else {
-            f64::INFINITY
-        };
-        // the start heading wins ties: (h == 0) is tried in order, strict improvement only
-        if hits > best.0 || (hits == best.0 && mse < best.1) {
-            best = (hits, mse, r.pose);
+            let mse = if hits > 0 {
+                sum / hits as f64
+            } else {
+                f64::INFINITY
+            };
+            if hits > best.0 || (hits == best.0 && mse < best.1) {
+                best = (hits, mse, r.pose);
+            }
         }
     }
     best.2

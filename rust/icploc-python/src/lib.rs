@@ -428,6 +428,7 @@ struct PyIcpConfig {
     min_inlier_ratio: f64,
     heading_search: f64,
     heading_step: f64,
+    position_search: f64,
 }
 
 impl Default for PyIcpConfig {
@@ -464,6 +465,7 @@ impl PyIcpConfig {
             min_inlier_ratio: d.min_inlier_ratio,
             heading_search: d.heading_search,
             heading_step: d.heading_step,
+            position_search: d.position_search,
         }
     }
 
@@ -507,6 +509,7 @@ impl PyIcpConfig {
             min_inlier_ratio: self.min_inlier_ratio,
             heading_search: self.heading_search,
             heading_step: self.heading_step,
+            position_search: self.position_search,
         };
         c.validate()?;
         Ok(c)
@@ -535,6 +538,7 @@ impl PyIcpConfig {
             ("min_inlier_ratio", self.min_inlier_ratio.to_string()),
             ("heading_search", self.heading_search.to_string()),
             ("heading_step", self.heading_step.to_string()),
+            ("position_search", self.position_search.to_string()),
         ]
     }
 }
@@ -545,7 +549,7 @@ impl PyIcpConfig {
     #[pyo3(signature = (*, metric="point_to_line", max_iterations=50, max_correspondence_distance=1.0,
         min_correspondence_distance=0.1, threshold_decay=0.6, trim_fraction=1.0, robust="none",
         robust_scale=0.05, mse_threshold=1e-8, mse_change=1e-7, step_tolerance=1e-6, min_inliers=10,
-        min_inlier_ratio=0.0, heading_search=0.0, heading_step=0.08726646259971647))]
+        min_inlier_ratio=0.0, heading_search=0.0, heading_step=0.08726646259971647, position_search=0.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -564,6 +568,7 @@ impl PyIcpConfig {
         min_inlier_ratio: f64,
         heading_search: f64,
         heading_step: f64,
+        position_search: f64,
     ) -> PyResult<Self> {
         let c = Self {
             metric: metric.into(),
@@ -581,6 +586,7 @@ impl PyIcpConfig {
             min_inlier_ratio,
             heading_search,
             heading_step,
+            position_search,
         };
         c.to_core().map_err(|e| to_py(py, e))?;
         Ok(c)
@@ -613,6 +619,7 @@ impl PyIcpConfig {
         d.set_item("min_inlier_ratio", self.min_inlier_ratio)?;
         d.set_item("heading_search", self.heading_search)?;
         d.set_item("heading_step", self.heading_step)?;
+        d.set_item("position_search", self.position_search)?;
         Ok(d)
     }
 

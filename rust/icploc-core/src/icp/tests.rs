@@ -141,6 +141,13 @@ fn heading_search_rescues_large_start_errors() {
     });
     assert!(searched >= 36, "{searched}/40");
     assert!(searched > plain, "{searched} vs {plain}");
+    let with_position = count(&IcpConfig {
+        heading_search: 30f64.to_radians(),
+        heading_step: 10f64.to_radians(),
+        position_search: 0.5,
+        ..IcpConfig::default()
+    });
+    assert!(with_position >= searched, "{with_position} vs {searched}");
 }
 
 #[test]
