@@ -35,7 +35,8 @@ class IcpConfig:
     threshold). ``mse_threshold`` is the paper's tau; ``mse_change`` the relative change of the
     MSE below which it stops; ``heading_search`` (rad, 0 = off) tries start headings within
     +-heading_search every ``heading_step`` with a short coarse ICP each, for large start errors;
-    ``position_search`` (m, 0 = off) adds start positions offset by +-position_search in x and y."""
+    ``position_search`` (m, 0 = off) adds start positions offset by +-position_search in x and y
+    when no heading at the start position already explains most (75 %) of the scan."""
 
     metric: Metric
     max_iterations: int

@@ -70,7 +70,8 @@ pub struct IcpConfig {
     /// Step of the heading search (rad).
     pub heading_step: f64,
     /// Also try start positions offset by ±this (m) in x and y — a 3 × 3 grid around the
-    /// start, with every searched heading; 0 turns it off.
+    /// start, with every searched heading — unless a heading at the start position already
+    /// explains most of the scan; 0 turns it off.
     pub position_search: f64,
 }
 
@@ -703,6 +704,13 @@ impl Accelerator {
     }
 }
 
+/// The start search stops after the start position's headings when the best of them has
+/// this fraction of the subsampled scan within `min_correspondence_distance` (a scan with
+/// more clutter than that simply gets the full search). Measured on the peer scenario
+/// (20 % of beams on unmapped obstacles): 0.75 keeps 99–100 % success at a quarter of the
+/// cost of always searching the 3 × 3 positions.
+const SEARCH_GOOD_FIT: f64 = 0.75;
+
 /// Try initial headings around `start`; return the start pose of the best short coarse ICP.
 fn heading_search(
     scan: &[[f64; 2]],
@@ -734,7 +742,9 @@ fn heading_search(
     // candidates in order of distance from the start (the start first), so that ties keep
     // the start: strict improvement only
     let k = (cfg.heading_search / cfg.heading_step).round() as i64;
-    let headings = std::iter::once(0).chain((1..=k).flat_map(|h| [-h, h]));
+    let headings: Vec<i64> = std::iter::once(0)
+        .chain((1..=k).flat_map(|h| [-h, h]))
+        .collect();
     let r = cfg.position_search;
     let offsets: &[(f64, f64)] = if r > 0.0 {
         &[
@@ -752,8 +762,13 @@ fn heading_search(
         &[(0.0, 0.0)]
     };
     let mut best = (0usize, f64::INFINITY, start);
-    for h in headings {
-        for &(ox, oy) in offsets {
+    for (oi, &(ox, oy)) in offsets.iter().enumerate() {
+        // the start position with every heading first; the offset positions only when
+        // none of those explains most of the scan
+        if oi == 1 && best.0 as f64 >= SEARCH_GOOD_FIT * sub.len() as f64 {
+            break;
+        }
+        for &h in &headings {
             let p0 = Pose2::new(
                 start.x + ox * r,
                 start.y + oy * r,
