@@ -741,6 +741,11 @@ fn heading_search(
     };
     // candidates in order of distance from the start (the start first), so that ties keep
     // the start: strict improvement only
+    let line_normals = if cfg.metric == Metric::PointToLine {
+        Some(index.normals())
+    } else {
+        None
+    };
     let k = (cfg.heading_search / cfg.heading_step).round() as i64;
     let headings: Vec<i64> = std::iter::once(0)
         .chain((1..=k).flat_map(|h| [-h, h]))
@@ -783,7 +788,16 @@ fn heading_search(
                     r.pose.x + c * p[0] - s * p[1],
                     r.pose.y + s * p[0] + c * p[1],
                 ];
-                let (d2, _) = index.correspondence(q);
+                let (mut d2, j) = index.correspondence(q);
+                if let Some(nrm) = line_normals {
+                    // point-to-line: score the distance to the wall, not to its nearest sample
+                    // (on a sparsely sampled map the latter is large even when aligned)
+                    if d2 <= 4.0 * score_d2 {
+                        let (x, n) = (index.points()[j], nrm[j]);
+                        let e = n[0] * (q[0] - x[0]) + n[1] * (q[1] - x[1]);
+                        d2 = e * e;
+                    }
+                }
                 if d2 <= score_d2 {
                     hits += 1;
                     sum += d2;
