@@ -28,6 +28,22 @@ fn map_of(n: usize) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
     sample_segments(&office_segments(), total_length() / n as f64)
 }
 
+/// The map index as the Python API builds it by default (with the closest-point grid).
+fn cached_index(n: usize) -> MapIndex {
+    let (p, nrm) = map_of(n);
+    MapIndex::new(p, Some(nrm))
+        .unwrap()
+        .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+        .unwrap()
+}
+
+/// 1,024 fixed query points spread over the office.
+fn queries() -> Vec<[f64; 2]> {
+    (0..1024)
+        .map(|i| [(i as f64 * 0.37) % 30.0, (i as f64 * 0.71) % 20.0])
+        .collect()
+}
+
 fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration) {
     let mut ok = 0;
     let mut times: Vec<Duration> = Vec::with_capacity(cs.len());
@@ -67,9 +83,7 @@ fn bench_nearest(c: &mut Criterion) {
     for &n in &SIZES {
         let (p, nrm) = map_of(n);
         let idx = MapIndex::new(p, Some(nrm)).unwrap();
-        let qs: Vec<[f64; 2]> = (0..1024)
-            .map(|i| [(i as f64 * 0.37) % 30.0, (i as f64 * 0.71) % 20.0])
-            .collect();
+        let qs = queries();
         let mut k = 0usize;
         g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
             b.iter(|| {
@@ -85,14 +99,8 @@ fn bench_correspondence(c: &mut Criterion) {
     // the query ICP makes: through the precomputed nearest-point cache
     let mut g = c.benchmark_group("correspondence_cached");
     for &n in &SIZES {
-        let (p, nrm) = map_of(n);
-        let idx = MapIndex::new(p, Some(nrm))
-            .unwrap()
-            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
-            .unwrap();
-        let qs: Vec<[f64; 2]> = (0..1024)
-            .map(|i| [(i as f64 * 0.37) % 30.0, (i as f64 * 0.71) % 20.0])
-            .collect();
+        let idx = cached_index(n);
+        let qs = queries();
         let mut k = 0usize;
         g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
             b.iter(|| {
@@ -126,11 +134,7 @@ fn bench_align(c: &mut Criterion) {
             };
             let mut g = c.benchmark_group(format!("align_{name}_{metric:?}"));
             for &n in &SIZES {
-                let (p, nrm) = map_of(n);
-                let idx = MapIndex::new(p, Some(nrm))
-                    .unwrap()
-                    .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
-                    .unwrap();
+                let idx = cached_index(n);
                 let (ok, med) = success(&idx, &cs, &cfg);
                 eprintln!(
                     "align {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {:?}",
