@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.se2 import Pose, compose, wrap_angle
+from icploc.sim.world import ray_circles
 from icploc.types import BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = [
@@ -124,7 +125,7 @@ class World:
             r = np.where(hit_glass & ~passes, rg, r)
         circles = self.people_at(t)
         if circles.shape[0]:
-            r = np.minimum(r, _ray_circles(sensor_pose, angles, circles))
+            r = np.minimum(r, ray_circles(sensor_pose, angles, circles))
         if noise > 0.0 and rng is not None:
             fin = np.isfinite(r)
             r = r.copy()
@@ -159,22 +160,6 @@ def _raycast(
     r = np.where(ok, t, np.inf).min(axis=1)
     r[r > max_range] = np.inf
     return r
-
-
-def _ray_circles(
-    pose: Sequence[float], angles: NDArray[np.float64], circles: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    a = angles + pose[2]
-    dx, dy = np.cos(a)[:, None], np.sin(a)[:, None]
-    ox = pose[0] - circles[None, :, 0]
-    oy = pose[1] - circles[None, :, 1]
-    b = ox * dx + oy * dy
-    c = ox * ox + oy * oy - circles[None, :, 2] ** 2
-    disc = b * b - c
-    with np.errstate(invalid="ignore"):
-        t = -b - np.sqrt(disc)
-    ok = (disc >= 0) & (t > 0)
-    return np.where(ok, t, np.inf).min(axis=1)
 
 
 # -- the worlds -----------------------------------------------------------------------------

@@ -35,6 +35,7 @@ import serial
 
 from icploc import clock
 from icploc.drivers import arcos_protocol as ap
+from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
 from icploc.types import Odometry
@@ -371,16 +372,7 @@ class PowerBot:
             self._put(_STOP)
 
     def _put(self, item: object) -> None:
-        while True:
-            try:
-                self._sips.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    self._sips.get_nowait()
-                    self.counters["dropped_sips"] += 1
-                except queue.Empty:
-                    pass
+        self.counters["dropped_sips"] += put_dropping_oldest(self._sips, item)
 
     def get(self, timeout: float | None = None) -> Sip | None:
         """Next SIP (None on timeout or after close). Raises the reader's error."""

@@ -32,6 +32,7 @@ import serial
 
 from icploc import clock
 from icploc.drivers import sick_protocol as sp
+from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.recording import Recorder
 from icploc.types import Scan
 
@@ -340,16 +341,7 @@ class SickLaser:
         self._last_scan = clock.now()
         if self._callback is not None:
             self._callback(scan)
-        while True:
-            try:
-                self._scans.put_nowait(scan)
-                return
-            except queue.Full:
-                try:
-                    self._scans.get_nowait()
-                    self.counters["dropped_scans"] += 1
-                except queue.Empty:
-                    pass
+        self.counters["dropped_scans"] += put_dropping_oldest(self._scans, scan)
 
     def _next_control(self, deadline: float) -> sp.Telegram | sp.ByteEvent | None:
         in_thread = (
