@@ -790,12 +790,16 @@ impl GlobalLocalizer {
     }
 
     /// Fraction of the beams (sensor origin to each scan point) that pass through a mapped
-    /// wall more than 0.3 m before the return.
+    /// wall more than 0.3 m before the return. A beam that only grazes a wall (meets it at
+    /// less than ~15 degrees, as along a corridor) does not count: on a grid it cannot be
+    /// told from a beam passing just beside the wall.
     pub fn see_through(&self, scan: &[[f64; 2]], pose: Pose2) -> f64 {
         let step = self.res;
         let spacing = self.index.spacing();
         let thr = 0.5 * spacing + 0.5 * step + 0.75 * self.res;
         let margin = 0.3f64.max(3.0 * self.cfg.inlier_distance);
+        let normals = self.index.normals();
+        let min_sin = 15f64.to_radians().sin();
         let (mut checked, mut bad) = (0usize, 0usize);
         for p in scan {
             let r = p[0].hypot(p[1]);
@@ -807,8 +811,17 @@ impl GlobalLocalizer {
             let (dx, dy) = ((q[0] - pose.x) / r, (q[1] - pose.y) / r);
             let mut t = margin;
             while t < r - margin {
-                if let Some(d) = self.distance_at([pose.x + dx * t, pose.y + dy * t]) {
-                    if d < thr {
+                let s = [pose.x + dx * t, pose.y + dy * t];
+                if let Some(d) = self.distance_at(s) {
+                    if d < thr
+                        && self.crosses(
+                            s,
+                            [s[0] - dx * step, s[1] - dy * step],
+                            [dx, dy],
+                            normals,
+                            min_sin,
+                        )
+                    {
                         bad += 1;
                         break;
                     }
@@ -821,6 +834,43 @@ impl GlobalLocalizer {
         } else {
             bad as f64 / checked as f64
         }
+    }
+
+    /// Does the ray step `prev -> s` (direction `dir`) cross the wall of the map point
+    /// nearest to `s` — the line through it along its normal changes side, at a point on
+    /// the wall (not past its end: a beam through a doorway near the jamb), at more than
+    /// the grazing angle?
+    fn crosses(
+        &self,
+        s: [f64; 2],
+        prev: [f64; 2],
+        dir: [f64; 2],
+        normals: &[[f64; 2]],
+        min_sin: f64,
+    ) -> bool {
+        let j = self.index.nearest(s).1;
+        let (p, n) = (self.index.points()[j], normals[j]);
+        let cos = dir[0] * n[0] + dir[1] * n[1];
+        if cos.abs() < min_sin {
+            return false;
+        }
+        let s1 = (s[0] - p[0]) * n[0] + (s[1] - p[1]) * n[1];
+        let s0 = (prev[0] - p[0]) * n[0] + (prev[1] - p[1]) * n[1];
+        if s0 * s1 > 0.0 {
+            // both on one side: crossed only if the next step does (checked then), unless
+            // the step is already on the wall's line
+            return s1.abs() < 1e-9;
+        }
+        let f = if (s0 - s1).abs() > 1e-12 {
+            s0 / (s0 - s1)
+        } else {
+            0.0
+        };
+        let c = [
+            prev[0] + f * (s[0] - prev[0]),
+            prev[1] + f * (s[1] - prev[1]),
+        ];
+        (c[0] - p[0]).hypot(c[1] - p[1]) <= self.index.spacing() + 0.5 * self.res
     }
 }
 
@@ -1035,6 +1085,47 @@ mod tests {
         assert!(s[0].score > 0.8 && s[1].score < 0.3, "{s:?}");
         assert!(g.score(&scan, &[Pose2::new(f64::NAN, 0.0, 0.0)]).is_err());
         assert!(g.refine(&scan[..2], &poses).is_err());
+    }
+
+    #[test]
+    fn see_through_counts_crossings_not_grazing_or_doorways() {
+        // a 20 m x 2 m corridor; a cross wall at x = 10 with a 1 m doorway in its middle
+        let corridor: Vec<Segment> = vec![
+            [0.0, 0.0, 20.0, 0.0],
+            [20.0, 0.0, 20.0, 2.0],
+            [20.0, 2.0, 0.0, 2.0],
+            [0.0, 2.0, 0.0, 0.0],
+        ];
+        let mut door = corridor.clone();
+        door.push([10.0, 0.0, 10.0, 0.5]);
+        door.push([10.0, 1.5, 10.0, 2.0]);
+        let mut closed = corridor.clone();
+        closed.push([10.0, 0.0, 10.0, 2.0]);
+        let mut rng = Rng::new(5);
+        let pose = Pose2::new(1.0, 1.0, 0.0);
+        // beams along the corridor graze its walls for metres: not seen through
+        let g = localizer(&corridor, 0.05);
+        let scan = make_scan(&corridor, pose, 361, 30.0, 0.01, 0.0, &mut rng);
+        assert!(
+            g.see_through(&scan, pose) < 0.02,
+            "{}",
+            g.see_through(&scan, pose)
+        );
+        // beams through the doorway, some within centimetres of the jambs: not seen through
+        let g = localizer(&door, 0.05);
+        let scan = make_scan(&door, pose, 361, 30.0, 0.01, 0.0, &mut rng);
+        assert!(
+            g.see_through(&scan, pose) < 0.02,
+            "{}",
+            g.see_through(&scan, pose)
+        );
+        // the open corridor's scan against a map with the doorway closed: every beam that
+        // reaches the far end crossed the wall
+        let g = localizer(&closed, 0.05);
+        let scan = make_scan(&door, pose, 361, 30.0, 0.01, 0.0, &mut rng);
+        let far = scan.iter().filter(|p| p[0] > 9.5).count() as f64 / scan.len() as f64;
+        let st = g.see_through(&scan, pose);
+        assert!(far > 0.02 && (st - far).abs() < 0.01, "{st} vs {far}");
     }
 
     #[test]
