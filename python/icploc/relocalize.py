@@ -62,6 +62,11 @@ class RelocalizeConfig:
     min_inlier_ratio: float = 0.6
     #: every other distinct hypothesis must score below (1 - dominance) x the best
     dominance: float = 0.03
+    #: the margin grows for a mediocre leader: + ``dominance_slope`` x (``clean_score`` -
+    #: its score) — the part of the scan it does not explain could hold the evidence for
+    #: a rival (a scan from somewhere the map does not show fits several places half well)
+    dominance_slope: float = 0.5
+    clean_score: float = 0.9
     #: consecutive dominating, good scans (the search scan included) before a lock
     confirm_scans: int = 3
     #: run a fresh global search every n-th scan while not locked (1: every scan)
@@ -87,7 +92,15 @@ class RelocalizeConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if not 0.0 <= self.see_through_weight <= 1.0:
             raise ValueError(f"see_through_weight must be in [0, 1], got {self.see_through_weight}")
-        for name in ("keep_ratio", "min_score", "min_inlier_ratio", "dominance", "inlier_margin"):
+        for name in (
+            "keep_ratio",
+            "min_score",
+            "min_inlier_ratio",
+            "dominance",
+            "inlier_margin",
+            "dominance_slope",
+            "clean_score",
+        ):
             v = float(getattr(self, name))
             if not 0.0 <= v < 1.0:
                 raise ValueError(f"{name} must be in [0, 1), got {v}")
@@ -212,6 +225,17 @@ class Relocalizer:
         self._saturated = False  # the last search (or the cap) may have cut a rival
         self.last: RelocalizeResult | None = None
 
+    @property
+    def awaiting_verification(self) -> bool:
+        """One hypothesis has dominated for ``confirm_scans - 1`` scans but has not yet
+        beaten a fresh global search: a throttled caller should search on the next scan
+        (the lock waits for it)."""
+        return (
+            self._leader is not None
+            and not self._verified
+            and self._streak >= max(1, self.config.confirm_scans - 1)
+        )
+
     def _score(self, cand: Any) -> float:
         """The tracker's score of a GlobalCandidate: its likelihood with a softened
         see-through penalty."""
@@ -326,11 +350,12 @@ class Relocalizer:
             self._leader, self._streak = None, 0
             return self._result("searching", search_time, search_amb)
         best = hyps[0]
+        margin = c.dominance + c.dominance_slope * max(0.0, c.clean_score - best.score)
         rival = next(
             (
                 h
                 for h in hyps[1:]
-                if h.score >= (1.0 - c.dominance) * best.score
+                if h.score >= (1.0 - margin) * best.score
                 or h.inlier_ratio > best.inlier_ratio + c.inlier_margin
             ),
             None,
@@ -407,25 +432,44 @@ def _points(scan: Any) -> NDArray[np.float64]:
 
 @dataclass
 class LostDetector:
-    """Declare a tracking localizer lost from its estimates: a scan is *suspect* when its
-    correction was rejected, or its inlier ratio collapsed below ``collapse`` x the median
-    of the recent good scans (or below ``min_inlier_ratio``); ``suspects`` suspect scans
-    among the last ``window`` mean lost. ``observe`` returns True when it fires."""
+    """Declare a tracking localizer lost from its estimates.
+
+    A scan is *suspect* when its correction was rejected, or its inlier ratio collapsed
+    below ``collapse`` x the reference (the median of the recent good scans) or below
+    ``min_inlier_ratio``; ``suspects`` suspect scans among the last ``window`` fire.
+    A scan is *doubtful* when its inlier ratio is below ``doubt`` x the reference: a
+    robot carried to a place that looks a little like where it was (the next office, the
+    same corridor) fits its wrong pose half well and slowly worse; ``doubt_scans``
+    doubtful scans in a row fire too. Doubtful scans do not enter the reference, so it
+    cannot sink with the fit. ``observe`` returns True when it fires; the caller then
+    checks (a global search) and calls :meth:`accept` when the pose was fine after all
+    (a crowd, a poorly mapped place): the reference restarts from the current scans."""
 
     window: int = 5
     suspects: int = 4
     collapse: float = 0.6
     min_inlier_ratio: float = 0.3
+    doubt: float = 0.8
+    doubt_scans: int = 8
     history: int = 25
     _recent: deque[bool] = field(default_factory=deque)
     _good: deque[float] = field(default_factory=deque)
+    _doubtful: int = 0
 
     def reset(self) -> None:
         self._recent.clear()
         self._good.clear()
+        self._doubtful = 0
+
+    def accept(self) -> None:
+        """The pose was checked and is right: forget the suspicion and the reference."""
+        self.reset()
+
+    def _reference(self) -> float:
+        return float(np.median(self._good)) if len(self._good) >= 3 else 1.0
 
     def suspect(self, inlier_ratio: float, accepted: bool) -> bool:
-        ref = float(np.median(self._good)) if len(self._good) >= 3 else 1.0
+        ref = self._reference()
         return (
             (not accepted)
             or inlier_ratio < self.min_inlier_ratio
@@ -440,15 +484,18 @@ class LostDetector:
             return False
         ir = float(estimate.inlier_ratio)
         bad = self.suspect(ir, bool(estimate.accepted))
+        doubtful = bad or ir < self.doubt * self._reference()
+        self._doubtful = self._doubtful + 1 if doubtful else 0
         self._recent.append(bad)
         while len(self._recent) > self.window:
             self._recent.popleft()
-        if not bad:
+        if not doubtful:
             self._good.append(ir)
             while len(self._good) > self.history:
                 self._good.popleft()
-        if sum(self._recent) >= self.suspects:
-            self.reset()
+        if sum(self._recent) >= self.suspects or self._doubtful >= self.doubt_scans:
+            self._recent.clear()
+            self._doubtful = 0
             return True
         return False
 
@@ -463,7 +510,11 @@ class _Attached:
     last_odom: Pose | None = None
     last_search: tuple[int, float] | None = None  #: (localizer scan count, stamp) of it
     results: list[RelocalizeResult] = field(default_factory=list)
-    verdicts: list[str] = field(default_factory=list)  #: lost-detector checks: "", lost, reanchor
+    #: lost-detector checks: "", suspect (a better pose elsewhere, to be re-checked), lost,
+    #: reanchor
+    verdicts: list[str] = field(default_factory=list)
+    #: a check's better pose awaiting its re-check: (pose, odometry then, scan count then)
+    pending: tuple[Pose, Pose | None, int] | None = None
 
 
 def attach(
@@ -473,6 +524,7 @@ def attach(
     detector: LostDetector | None = None,
     detect: bool = True,
     lost_margin: float = 0.3,
+    recheck_scans: int = 3,
 ) -> Relocalizer:
     """Plug global relocalization into ``localizer`` (an :class:`icploc.localizer.Localizer`):
     its ``relocalize`` hook (called while ``lost``) runs the multi-hypothesis
@@ -481,8 +533,9 @@ def attach(
     ``update`` is watched by a :class:`LostDetector` that switches it to ``lost`` early
     (a kidnapping) — after a check: a global search must find a distinct pose that
     explains the scan clearly better (tracked pose's score < (1 - ``lost_margin``) x the
-    best) than the tracked pose, else it was a crowd or a glitch, not a kidnapping.
-    A localizer without an initial pose then localizes globally.
+    best) than the tracked pose, and a second check ``recheck_scans`` later must find it
+    again where odometry has carried it; else it was a crowd or a glitch, not a
+    kidnapping. A localizer without an initial pose then localizes globally.
     Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
     from icploc.localizer import Status
 
@@ -508,6 +561,7 @@ def attach(
         search = (
             rel.scans == 0  # a fresh start: the first lost scan, after a lock or a kidnapping
             or last is None
+            or rel.awaiting_verification  # a leader has dominated long enough: check it now
             or (
                 n - last[0] >= getattr(lc, "global_search_every", 1)
                 and not 0.0 <= stamp - last[1] < getattr(lc, "global_search_interval", 0.0)
@@ -560,10 +614,17 @@ def attach(
         convincing = best.inlier_ratio >= 0.85 and best.see_through <= 0.25
         contradicted = (
             here.see_through >= 0.15
-            and best.see_through <= 0.1
+            and best.see_through <= min(0.3, 0.5 * here.see_through)
             and rel._good(rel._score(best), best.inlier_ratio, best.see_through)
         )
-        if not (convincing or contradicted):
+        # or it explains the scan several times better than the tracked pose with a good
+        # fit (glass lets beams through mapped walls in both)
+        outclassed = (
+            best.inlier_ratio >= 0.8
+            and rel._good(rel._score(best), best.inlier_ratio, best.see_through)
+            and rel._score(here) < 0.2 * rel._score(best)
+        )
+        if not (convincing or contradicted or outclassed):
             return "", None
         if not rel.glob.distinct(here.pose, best.pose):
             off = math.hypot(best.pose[0] - loc.pose[0], best.pose[1] - loc.pose[1])
@@ -572,16 +633,44 @@ def attach(
                 return "reanchor", (here.pose[0], here.pose[1], wrap_angle(here.pose[2]))
             return "", None
         if rel._score(here) < (1.0 - lost_margin) * rel._score(best):
-            return "lost", None
+            return "lost", (best.pose[0], best.pose[1], wrap_angle(best.pose[2]))
         return "", None
+
+    def consistent(pending: tuple[Pose, Pose | None, int], pose: Pose) -> bool:
+        """Is ``pose`` where the earlier check's better pose has moved to by odometry?"""
+        then, odom_then, _ = pending
+        now = getattr(loc, "_last_odom", None)
+        expected = (
+            then if odom_then is None or now is None else compose(then, between(odom_then, now))
+        )
+        return not rel.glob.distinct(expected, pose)
 
     def update(scan: Any, odometry: Any = None) -> Any:
         est = orig_update(scan, odometry)
         det = state.detector
-        if det is None or not det.observe(est):
+        if det is None:
+            return est
+        fired = det.observe(est)
+        pending = state.pending
+        due = pending is not None and loc.scans_processed - pending[2] >= recheck_scans
+        if est.status is Status.LOST:
+            state.pending = None
+            return est
+        if not (fired or due):
             return est
         verdict, pose = check(scan)
+        if verdict == "lost" and pose is not None:
+            # a kidnapping is declared only when a second check, ``recheck_scans`` later,
+            # finds the better pose again where odometry has carried it: the poses that
+            # a crowd's outlines fit elsewhere do not stay put while people walk
+            if pending is None or not consistent(pending, pose):
+                state.pending = (pose, getattr(loc, "_last_odom", None), loc.scans_processed)
+                state.verdicts.append("suspect")
+                return est
+        state.pending = None
         state.verdicts.append(verdict)
+        if verdict == "":
+            det.accept()  # checked and fine: the current fit is the new normal
         if verdict == "lost":
             loc.reset(loc.pose, loc.covariance, Status.LOST)
             loc._lost_scans = 0  # relocalize on the next scan, not n scans later
