@@ -201,6 +201,28 @@ def test_lost_detector_fires_on_collapse_not_on_noise() -> None:
         assert not det.observe(est(ir))
 
 
+def test_lost_detector_doubts_a_slowly_failing_fit() -> None:
+    """A robot carried somewhere that half-fits its old pose: the inlier ratio drops to
+    ~0.7 of its reference and sinks slowly — never a collapse, but 8 doubtful scans in a
+    row fire; once checked and accepted, the reference restarts from the new level."""
+    det = LostDetector()
+
+    def est(ir: float) -> SimpleNamespace:
+        return SimpleNamespace(inlier_ratio=ir, accepted=True, status=Status.TRACKING)
+
+    for _ in range(10):
+        assert not det.observe(est(0.98))
+    fired = [det.observe(est(0.7 - 0.01 * k)) for k in range(8)]
+    assert fired == [False] * 7 + [True]
+    det.accept()  # the check found the pose right (a poorly mapped place)
+    # the new level is the new normal: no firing while it holds
+    assert not any(det.observe(est(0.65)) for _ in range(20))
+    # short dips below the doubt level do not fire
+    det = LostDetector()
+    for k in range(40):
+        assert not det.observe(est(0.7 if k % 4 == 0 else 0.95))
+
+
 def test_bad_input_raises() -> None:
     room = rectangle()
     g = global_localizer(room.lines, 0.1)

@@ -34,7 +34,7 @@ class CountingGlob:
 
     def search(self, *a: Any, **k: Any) -> Any:
         loc = self.loc[0]
-        if loc.relocalizer.awaiting_verification:
+        if loc.relocalization.relocalizer.awaiting_verification:
             self.verifications += 1
         else:
             self.searches.append((loc.scans_processed, self.stamp))

@@ -257,6 +257,54 @@ def test_lost_after_inlier_collapse_and_relocalize_hook(
     assert math.hypot(e.x - 1.0, e.y + 1.0) < 0.01
 
 
+def test_a_plugged_in_relocalization_strategy(lab: worlds.World, lab_index: MapIndex) -> None:
+    """The public :class:`Relocalization` protocol: ``observe`` sees every estimate and
+    may declare the localizer lost; while lost ``relocalize`` is called on every scan with
+    the prepared points, and tracking resumes where it returns a verified pose."""
+    from icploc._core import icp
+
+    truth = (1.0, -1.0, 0.3)
+
+    class Strategy:
+        def __init__(self) -> None:
+            self.observed: list[Status] = []
+            self.lost_calls = 0
+            self.kidnapped = False
+
+        def observe(self, localizer: Localizer, scan: Scan, estimate) -> None:  # noqa: ANN001
+            self.observed.append(estimate.status)
+            if self.kidnapped and estimate.status is not Status.LOST:
+                localizer.declare_lost()
+
+        def relocalize(self, localizer: Localizer, scan: Scan, points: np.ndarray):  # noqa: ANN201
+            assert points.shape[1] == 2 and np.isfinite(points).all()
+            self.lost_calls += 1
+            if self.lost_calls < 3:
+                return None  # still confirming: follow a hypothesis meanwhile
+            fit = icp(points, localizer.index, truth, localizer.icp_config)
+            return tuple(fit.pose), fit
+
+    strat = Strategy()
+    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0), relocalization=strat)
+    assert loc.last_odometry is None
+    e = loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.0), (0.0, 0.0, 0.0))
+    assert e.status is Status.TRACKING and loc.last_odometry == (0.0, 0.0, 0.0)
+    assert loc.prepare(scan_at(lab, (0.0, 0.0, 0.0))).shape[1] == 2
+    # carried to `truth`; the strategy notices at once (say, a bumper switch)
+    strat.kidnapped = True
+    loc.update(scan_at(lab, truth, 0.1), (0.0, 0.0, 0.0))
+    assert loc.status is Status.LOST
+    strat.kidnapped = False
+    ests = [loc.update(scan_at(lab, truth, 0.2 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(3)]
+    assert [x.status for x in ests] == [Status.LOST, Status.LOST, Status.TRACKING]
+    assert strat.lost_calls == 3  # every lost scan, not every relocalize_every-th
+    assert ests[-1].reason == "relocalized"
+    assert math.hypot(ests[-1].x - truth[0], ests[-1].y - truth[1]) < 0.01
+    assert len(strat.observed) == 5  # every estimate
+    # Localizer.relocalize delegates to the strategy
+    assert loc.relocalize(scan_at(lab, truth, 1.0)) is not None
+
+
 def test_without_initial_pose_the_localizer_starts_lost(lab_index: MapIndex) -> None:
     loc = Localizer(lab_index)
     assert loc.status is Status.LOST

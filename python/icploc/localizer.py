@@ -17,7 +17,10 @@ pose leans on odometry: a rejected or partially degenerate correction), ``lost``
 (inlier ratio collapsed for several scans, or the gate rejected many scans in a row).
 While lost the localizer keeps dead-reckoning and calls :meth:`Localizer.relocalize`
 every scan; a global search plugs in there (``global_search=`` callable) and returns
-candidate poses that are refined with ``icploc.icp_batch``.
+candidate poses that are refined with ``icploc.icp_batch``. A whole relocalization
+strategy (multi-hypothesis global localization, kidnap detection) plugs in as a
+:class:`Relocalization` (``relocalization=``, or :func:`icploc.relocalize.attach`):
+:meth:`Localizer.relocalize` then delegates to it, and it observes every estimate.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ __all__ = [
     "GlobalSearch",
     "Localizer",
     "OdometryBuffer",
+    "Relocalization",
     "Status",
     "global_search_from",
     "prepare_scan",
@@ -105,6 +109,24 @@ class GlobalSearch(Protocol):
         prior: Pose,
         covariance: NDArray[np.float64],
     ) -> Sequence[Sequence[float]]: ...
+
+
+class Relocalization(Protocol):
+    """A relocalization strategy plugged into a :class:`Localizer` (``relocalization=``).
+
+    While the localizer is ``lost``, :meth:`relocalize` is called on **every** scan (it
+    throttles any expensive search itself) with the scan's prepared points; it returns
+    ``(pose, IcpResult)`` once the pose is verified — tracking resumes there — or
+    ``None``. It may move ``localizer.pose`` to follow its leading hypothesis meanwhile.
+    :meth:`observe` sees every estimate (tracking or not) and may call
+    :meth:`Localizer.declare_lost` (a kidnapping) or :meth:`Localizer.reset` (a slid pose).
+    """
+
+    def relocalize(
+        self, localizer: Localizer, scan: Scan, points: NDArray[np.float64]
+    ) -> tuple[Pose, Any] | None: ...
+
+    def observe(self, localizer: Localizer, scan: Scan, estimate: Estimate) -> None: ...
 
 
 class OdometryBuffer:
@@ -355,12 +377,15 @@ class Localizer:
         initial_pose: Sequence[float] | None = None,
         *,
         global_search: GlobalSearch | None = None,
+        relocalization: Relocalization | None = None,
     ) -> None:
         self.config = (config or LocalizerConfig()).validate()
         self.index = _as_index(map, self.config)
         self.map = map
         self.icp_config = self.config.icp.to_icp_config()
         self.global_search = global_search
+        #: the plugged-in relocalization strategy (see :class:`Relocalization`), if any
+        self.relocalization = relocalization
         self.odometry = OdometryBuffer(
             max_extrapolation=min(0.25, self.config.localizer.max_odometry_gap)
         )
@@ -420,6 +445,20 @@ class Localizer:
         self._since_fix_rot = 0.0
         self._recover_pose = None
 
+    def declare_lost(self) -> None:
+        """Switch to ``lost`` now (e.g. a kidnapping detected from outside): the pose is
+        dead-reckoned and relocalization runs from the next scan on."""
+        self.reset(self.pose, self.covariance, Status.LOST)
+
+    @property
+    def last_odometry(self) -> Pose | None:
+        """The odometry pose at the last scan (None before the first with odometry)."""
+        return self._last_odom
+
+    def prepare(self, scan: Scan) -> NDArray[np.float64]:
+        """``scan`` as this localizer uses it: (N, 2) points in the robot base frame."""
+        return prepare_scan(scan, self.config, self._trig)
+
     @property
     def status_counts(self) -> dict[str, int]:
         return dict(self._counters.status_counts)
@@ -450,6 +489,8 @@ class Localizer:
         self._counters.scans += 1
         self._counters.status_counts[est.status.value] += 1
         self.last_estimate = est
+        if self.relocalization is not None:
+            self.relocalization.observe(self, scan, est)
         return est
 
     def _odometry_at(
@@ -727,7 +768,11 @@ class Localizer:
         self.covariance = pred_cov
         self._lost_scans += 1
         every = self.config.localizer.relocalize_every
-        try_now = self._counters.good_in_row > 0 or (self._lost_scans - 1) % every == 0
+        try_now = (
+            self.relocalization is not None  # a plugged-in strategy throttles itself
+            or self._counters.good_in_row > 0
+            or (self._lost_scans - 1) % every == 0
+        )
         found = (
             self.relocalize(scan, points=pts)
             if try_now and pts.shape[0] >= self.config.scan.min_points
@@ -735,6 +780,7 @@ class Localizer:
         )
         if found is not None:
             res_pose, res = found
+            self._last_reloc_result = res
             self.reset(res_pose, self._corrected_covariance(res, pred_cov, False), Status.TRACKING)
             self._since_fix_dist = 0.0
             return Estimate(
@@ -795,9 +841,14 @@ class Localizer:
         inlier ratio; a fit that is good (``recover_inlier_ratio``), not degenerate and
         agrees with itself for ``recover_after`` consecutive scans is returned as
         ``(pose, IcpResult)`` and tracking resumes. Returns ``None`` otherwise.
-        This is the hook a global search plugs into (``global_search=``).
+        This is the hook a global search plugs into (``global_search=``); with a
+        :class:`Relocalization` plugged in (``relocalization=``) it delegates to that.
         """
         from icploc._core import IcpError, icp_batch
+
+        if self.relocalization is not None:
+            pts0 = self.prepare(scan) if points is None else points
+            return self.relocalization.relocalize(self, scan, pts0)
 
         lc = self.config.localizer
         g = self.config.gating

@@ -15,10 +15,11 @@ consecutive scans. While two hypotheses explain the scans equally well it keeps 
 (inlier-ratio collapse against its own recent history, rejected corrections) to declare
 ``lost`` sooner than the localizer's own counters after a kidnapping.
 
-:func:`attach` plugs both into a Localizer through its relocalization hook: the
-localizer's ``relocalize`` is replaced (on that instance) by the hypothesis tracker, and
-its ``update`` watched by the detector. :func:`relocalize` is the one-shot form: search
-(and optionally confirm over the following scans with odometry).
+:func:`attach` plugs both into a Localizer as its :class:`~icploc.localizer.Relocalization`
+strategy (:class:`GlobalRelocalization`): the localizer's ``relocalize`` delegates to the
+hypothesis tracker while lost, and every estimate is shown to the detector.
+:func:`relocalize` is the one-shot form: search (and optionally confirm over the
+following scans with odometry).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from numpy.typing import NDArray
 from icploc.se2 import Pose, between, compose, wrap_angle
 
 __all__ = [
+    "GlobalRelocalization",
     "Hypothesis",
     "LostDetector",
     "RelocalizeConfig",
@@ -484,7 +486,8 @@ class LostDetector:
             return False
         ir = float(estimate.inlier_ratio)
         bad = self.suspect(ir, bool(estimate.accepted))
-        doubtful = bad or ir < self.doubt * self._reference()
+        # without a reference yet (a fresh start, after accept) the scans form one
+        doubtful = bad or (len(self._good) >= 3 and ir < self.doubt * self._reference())
         self._doubtful = self._doubtful + 1 if doubtful else 0
         self._recent.append(bad)
         while len(self._recent) > self.window:
@@ -503,104 +506,130 @@ class LostDetector:
 # -- Localizer integration ---------------------------------------------------------------------
 
 
-@dataclass
-class _Attached:
-    relocalizer: Relocalizer
-    detector: LostDetector | None
-    last_odom: Pose | None = None
-    last_search: tuple[int, float] | None = None  #: (localizer scan count, stamp) of it
-    results: list[RelocalizeResult] = field(default_factory=list)
-    #: lost-detector checks: "", suspect (a better pose elsewhere, to be re-checked), lost,
-    #: reanchor
-    verdicts: list[str] = field(default_factory=list)
-    #: a check's better pose awaiting its re-check: (pose, odometry then, scan count then)
-    pending: tuple[Pose, Pose | None, int] | None = None
+class GlobalRelocalization:
+    """The :class:`icploc.localizer.Relocalization` strategy :func:`attach` plugs in.
 
+    While the localizer is lost, :meth:`relocalize` runs the multi-hypothesis
+    :class:`Relocalizer` with the odometry increments between calls (the global search
+    throttled by ``localizer.global_search_every`` / ``global_search_interval``, except to
+    verify a dominating leader at once) and returns the pose (with an ICP result for the
+    covariance) only once locked. While tracking, :meth:`observe` feeds a
+    :class:`LostDetector`; when it fires, a check decides: a global search must find a
+    distinct pose that explains the scan clearly better than the tracked one (tracked
+    score < (1 - ``lost_margin``) x the best; the better pose a convincing fit, or the
+    tracked pose contradicted by beams through its walls, or outclassed five times over),
+    and a re-check ``recheck_scans`` later must find it again where odometry carried it —
+    then the localizer is declared lost (a kidnapping); a better fit at about the tracked
+    pose re-anchors it (a slide along a wall); anything else was a crowd or a glitch."""
 
-def attach(
-    localizer: Any,
-    relocalizer: Relocalizer | None = None,
-    *,
-    detector: LostDetector | None = None,
-    detect: bool = True,
-    lost_margin: float = 0.3,
-    recheck_scans: int = 3,
-) -> Relocalizer:
-    """Plug global relocalization into ``localizer`` (an :class:`icploc.localizer.Localizer`):
-    its ``relocalize`` hook (called while ``lost``) runs the multi-hypothesis
-    :class:`Relocalizer` with the odometry increments between calls and returns the pose
-    (with an ICP result for the covariance) only once locked; with ``detect`` its
-    ``update`` is watched by a :class:`LostDetector` that switches it to ``lost`` early
-    (a kidnapping) — after a check: a global search must find a distinct pose that
-    explains the scan clearly better (tracked pose's score < (1 - ``lost_margin``) x the
-    best) than the tracked pose, and a second check ``recheck_scans`` later must find it
-    again where odometry has carried it; else it was a crowd or a glitch, not a
-    kidnapping. A localizer without an initial pose then localizes globally.
-    Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
-    from icploc.localizer import Status
+    def __init__(
+        self,
+        relocalizer: Relocalizer,
+        detector: LostDetector | None = None,
+        *,
+        lost_margin: float = 0.3,
+        recheck_scans: int = 3,
+    ) -> None:
+        self.relocalizer = relocalizer
+        self.detector = detector
+        self.lost_margin = float(lost_margin)
+        self.recheck_scans = int(recheck_scans)
+        self._last_odom: Pose | None = None
+        #: (localizer scan count, stamp) of the last global search while lost
+        self._last_search: tuple[int, float] | None = None
+        #: a check's better pose awaiting its re-check: (pose, odometry then, scan count)
+        self.pending: tuple[Pose, Pose | None, int] | None = None
+        #: the latest relocalizer results (at most 100)
+        self.results: list[RelocalizeResult] = []
+        #: lost-detector checks: "", "suspect" (a better pose elsewhere, to be
+        #: re-checked), "lost", "reanchor"
+        self.verdicts: list[str] = []
 
-    rel = relocalizer or Relocalizer(localizer.index)
-    state = _Attached(rel, (detector or LostDetector()) if detect else None)
-    loc = localizer
-
-    def hook(scan: Any, points: NDArray[np.float64] | None = None) -> tuple[Pose, Any] | None:
+    # -- while lost ------------------------------------------------------------------------
+    def relocalize(
+        self, loc: Any, scan: Any, points: NDArray[np.float64]
+    ) -> tuple[Pose, Any] | None:
         from icploc._core import IcpError, icp
-        from icploc.localizer import prepare_scan
 
-        pts = prepare_scan(scan, loc.config, loc._trig) if points is None else points
-        odom = getattr(loc, "_last_odom", None)
+        rel = self.relocalizer
+        odom = loc.last_odometry
         motion = None
-        if odom is not None and state.last_odom is not None and rel.hypotheses:
-            motion = between(state.last_odom, odom)
-        state.last_odom = odom
-        # throttle the global search (localizer.global_search_every / _interval): the
-        # hypotheses are tracked on every call, a fresh search only now and then
+        if odom is not None and self._last_odom is not None and rel.hypotheses:
+            motion = between(self._last_odom, odom)
+        self._last_odom = odom
+        # throttle the global search: the hypotheses are tracked on every call, a fresh
+        # search only now and then — or at once to verify a leader
         lc = loc.config.localizer
         n, stamp = loc.scans_processed, float(scan.stamp)
-        last = state.last_search
+        last = self._last_search
         search = (
             rel.scans == 0  # a fresh start: the first lost scan, after a lock or a kidnapping
             or last is None
             or rel.awaiting_verification  # a leader has dominated long enough: check it now
             or (
-                n - last[0] >= getattr(lc, "global_search_every", 1)
-                and not 0.0 <= stamp - last[1] < getattr(lc, "global_search_interval", 0.0)
+                n - last[0] >= lc.global_search_every
+                and not 0.0 <= stamp - last[1] < lc.global_search_interval
             )
         )
         if search:
-            state.last_search = (n, stamp)
-        res = rel.update(pts, motion, search=None if search else False)
-        state.results.append(res)
-        if len(state.results) > 100:
-            del state.results[:-100]
-        if res.status in ("confirming", "ambiguous"):
-            # keep being called every scan while hypotheses are being confirmed
-            loc._counters.good_in_row = max(1, loc._counters.good_in_row)
-        else:
-            loc._counters.good_in_row = 0
+            self._last_search = (n, stamp)
+        res = rel.update(points, motion, search=None if search else False)
+        self.results.append(res)
+        if len(self.results) > 100:
+            del self.results[:-100]
         if res.pose is not None:
             loc.pose = res.pose  # follow the leading hypothesis while confirming
         if not res.locked or res.pose is None:
             return None
         try:
-            fit = icp(pts, loc.index, res.pose, loc.icp_config)
+            fit = icp(points, loc.index, res.pose, loc.icp_config)
         except IcpError:
             return None
-        loc._last_reloc_result = fit
         rel.reset()
-        state.last_odom = None
-        loc._counters.good_in_row = 0
+        self._last_odom = None
         return (fit.pose[0], fit.pose[1], wrap_angle(fit.pose[2])), fit
 
-    orig_update = loc.update
+    # -- while tracking --------------------------------------------------------------------
+    def observe(self, loc: Any, scan: Any, estimate: Any) -> None:
+        from icploc.localizer import Status
 
-    def check(scan: Any) -> tuple[str, Pose | None]:
-        """The detector fired: is the robot elsewhere (``"lost"``), a little off its
+        det = self.detector
+        if det is None:
+            return
+        fired = det.observe(estimate)
+        pending = self.pending
+        if estimate.status is Status.LOST:
+            self.pending = None
+            return
+        due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
+        if not (fired or due):
+            return
+        verdict, pose = self.check(loc, scan)
+        if verdict == "lost" and pose is not None:
+            # a kidnapping is declared only when a second check, ``recheck_scans`` later,
+            # finds the better pose again where odometry has carried it: the poses that
+            # a crowd's outlines fit elsewhere do not stay put while people walk
+            if pending is None or not self._consistent(loc, pending, pose):
+                self.pending = (pose, loc.last_odometry, loc.scans_processed)
+                self.verdicts.append("suspect")
+                return
+        self.pending = None
+        self.verdicts.append(verdict)
+        if verdict == "":
+            det.accept()  # checked and fine: the current fit is the new normal
+        elif verdict == "lost":
+            loc.declare_lost()
+            self.relocalizer.reset()
+            self._last_odom = None
+        elif verdict == "reanchor" and pose is not None:
+            loc.reset(pose)  # the tracker slid (a degenerate view): put it back
+
+    def check(self, loc: Any, scan: Any) -> tuple[str, Pose | None]:
+        """Is the robot elsewhere (``"lost"``, with the better pose), a little off its
         tracked pose (``"reanchor"``: the global best is a convincing fit that ICP from the
         tracked pose converges to), or fine (``""``: a crowd, a glitch)?"""
-        from icploc.localizer import prepare_scan
-
-        pts = prepare_scan(scan, loc.config, loc._trig)
+        rel = self.relocalizer
+        pts = loc.prepare(scan)
         if pts.shape[0] < 10:
             return "", None
         here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([loc.pose]))[0]
@@ -632,55 +661,40 @@ def attach(
             if off > 0.1 or turn > math.radians(2.0):
                 return "reanchor", (here.pose[0], here.pose[1], wrap_angle(here.pose[2]))
             return "", None
-        if rel._score(here) < (1.0 - lost_margin) * rel._score(best):
+        if rel._score(here) < (1.0 - self.lost_margin) * rel._score(best):
             return "lost", (best.pose[0], best.pose[1], wrap_angle(best.pose[2]))
         return "", None
 
-    def consistent(pending: tuple[Pose, Pose | None, int], pose: Pose) -> bool:
+    def _consistent(self, loc: Any, pending: tuple[Pose, Pose | None, int], pose: Pose) -> bool:
         """Is ``pose`` where the earlier check's better pose has moved to by odometry?"""
         then, odom_then, _ = pending
-        now = getattr(loc, "_last_odom", None)
+        now = loc.last_odometry
         expected = (
             then if odom_then is None or now is None else compose(then, between(odom_then, now))
         )
-        return not rel.glob.distinct(expected, pose)
+        return not self.relocalizer.glob.distinct(expected, pose)
 
-    def update(scan: Any, odometry: Any = None) -> Any:
-        est = orig_update(scan, odometry)
-        det = state.detector
-        if det is None:
-            return est
-        fired = det.observe(est)
-        pending = state.pending
-        due = pending is not None and loc.scans_processed - pending[2] >= recheck_scans
-        if est.status is Status.LOST:
-            state.pending = None
-            return est
-        if not (fired or due):
-            return est
-        verdict, pose = check(scan)
-        if verdict == "lost" and pose is not None:
-            # a kidnapping is declared only when a second check, ``recheck_scans`` later,
-            # finds the better pose again where odometry has carried it: the poses that
-            # a crowd's outlines fit elsewhere do not stay put while people walk
-            if pending is None or not consistent(pending, pose):
-                state.pending = (pose, getattr(loc, "_last_odom", None), loc.scans_processed)
-                state.verdicts.append("suspect")
-                return est
-        state.pending = None
-        state.verdicts.append(verdict)
-        if verdict == "":
-            det.accept()  # checked and fine: the current fit is the new normal
-        if verdict == "lost":
-            loc.reset(loc.pose, loc.covariance, Status.LOST)
-            loc._lost_scans = 0  # relocalize on the next scan, not n scans later
-            rel.reset()
-            state.last_odom = None
-        elif verdict == "reanchor" and pose is not None:
-            loc.reset(pose)  # the tracker slid (a degenerate view): put it back
-        return est
 
-    loc.relocalize = hook
-    loc.update = update
-    loc.relocalizer = rel
+def attach(
+    localizer: Any,
+    relocalizer: Relocalizer | None = None,
+    *,
+    detector: LostDetector | None = None,
+    detect: bool = True,
+    lost_margin: float = 0.3,
+    recheck_scans: int = 3,
+) -> Relocalizer:
+    """Plug global relocalization (a :class:`GlobalRelocalization`) into ``localizer`` (an
+    :class:`icploc.localizer.Localizer`, as its ``relocalization``): while lost it
+    localizes globally with the multi-hypothesis :class:`Relocalizer`; with ``detect`` a
+    :class:`LostDetector` (checked by a global search) switches it to ``lost`` after a
+    kidnapping. A localizer without an initial pose then localizes globally.
+    Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
+    rel = relocalizer or Relocalizer(localizer.index)
+    localizer.relocalization = GlobalRelocalization(
+        rel,
+        (detector or LostDetector()) if detect else None,
+        lost_margin=lost_margin,
+        recheck_scans=recheck_scans,
+    )
     return rel
