@@ -4,10 +4,13 @@ Measures, with exact simulated truth:
 
 * **lock**: from no initial pose at random start poses (uniform over free space, any
   heading) in the demo world (``worlds.lab``: glass, people) and in a 40 m x 20 m building
-  of identical offices along a corridor, the robot drives on with odometry and the
+  of identical offices along a corridor (:func:`building`: furnished, bare, and perfectly
+  periodic), the robot drives on with odometry and the
   :class:`icploc.relocalize.Relocalizer` gets one scan at a time: the fraction verified
   (``locked``) within 5 scans and within 5 cm / 1 deg of the truth, and the number of
-  confident wrong locks (locked but > 0.3 m or > 3 deg off), which must be 0;
+  confident wrong locks (locked but > 0.3 m or > 3 deg off), which must be 0. Starts left
+  unlocked are checked against the true world: when a pose the tracker holds sees the
+  same scan as the truth (:func:`indistinguishable`), no method could have chosen;
 * **search time**: one :meth:`GlobalLocalizer.search` on the 40 m x 20 m map at 5 cm;
 * **kidnap**: a :class:`icploc.localizer.Localizer` with :func:`icploc.relocalize.attach`
   tracks a run; mid-run the robot is carried >= 5 m (odometry feels nothing); the number
@@ -39,12 +42,21 @@ LOCK_SCANS = 5
 KIDNAP_SCANS = 20
 
 
-def building(width: float = 40.0, height: float = 20.0, periodic: bool = False) -> worlds.World:
+def building(
+    width: float = 40.0, height: float = 20.0, periodic: bool = False, furnished: bool = True
+) -> worlds.World:
     """A 40 m x 20 m office floor: a 2 m corridor along x, identical 4 m x 9 m offices on
-    both sides, a cross corridor at x = 20. ``periodic``: every office has its 1 m door at
-    the same place and nothing else (a single scan inside an office cannot tell which
-    office: the search must say ``ambiguous`` forever); otherwise the doors sit at one of
-    three places and some offices hold a cabinet (a repetitive but real floor)."""
+    both sides (a wider room where the cross corridor at x = 20 removes two dividers).
+
+    * ``periodic``: every office has its 1 m door at the same place and nothing else — a
+      scan inside an office cannot tell which office: the search must stay ``ambiguous``.
+    * default (``furnished``): the walls repeat (doors at one of three places along the
+      corridor wall) and every office is furnished as offices are, differently — a desk
+      and a cabinet at random places — and mapped as a SLAM-built map maps them;
+    * ``furnished=False`` ("bare"): the same walls and doors, and a cabinet in only
+      about half of the offices: many offices are identical and a robot inside one of them
+      sees nothing that tells which (the benchmark counts those starts separately).
+    """
     rng = np.random.default_rng(4)
     w: list[list[float]] = [
         [0.0, 0.0, width, 0.0],
@@ -59,10 +71,39 @@ def building(width: float = 40.0, height: float = 20.0, periodic: bool = False) 
             d = 1.0 if periodic else float(rng.choice([0.5, 1.5, 2.5]))
             w.append([x, y, x + d, y])
             w.append([x + d + 1.0, y, x + 4.0, y])
-            if not periodic and rng.random() < 0.6:
-                cx = x + float(rng.uniform(0.6, 3.0))
-                cy = (1.0 if y == yc0 else 17.0) + float(rng.uniform(0.0, 1.5))
-                w += worlds._rect(cx, cy, cx + 0.6, cy + 0.8)
+            if periodic:
+                continue
+            back = 0.0 if y == yc0 else height  # the office's back wall
+            inward = 1.0 if y == yc0 else -1.0
+            if not furnished:
+                if rng.random() < 0.6:
+                    cx = x + float(rng.uniform(0.6, 3.0))
+                    cy = (1.0 if y == yc0 else 17.0) + float(rng.uniform(0.0, 1.5))
+                    w += worlds._rect(cx, cy, cx + 0.6, cy + 0.8)
+                continue
+            # a desk (1.6 x 0.8 m) against the back wall or a side wall
+            if rng.random() < 0.5:
+                dx = x + float(rng.uniform(0.2, 2.2))
+                y0 = back + inward * 0.0
+                y1 = back + inward * 0.8
+                w += worlds._rect(dx, min(y0, y1), dx + 1.6, max(y0, y1))
+            else:
+                side = x if rng.random() < 0.5 else x + 4.0 - 0.8
+                dy = float(rng.uniform(1.0, 6.0))
+                y0, y1 = back + inward * dy, back + inward * (dy + 1.6)
+                w += worlds._rect(side, min(y0, y1), side + 0.8, max(y0, y1))
+            # a cabinet (0.5 x 1.0 m) and a shelf (0.4 x 1.2 m along a side wall)
+            cx = x + float(rng.uniform(0.5, 3.0))
+            cy = back + inward * float(rng.uniform(2.0, 7.0))
+            w += worlds._rect(cx, cy - 0.5, cx + 0.5, cy + 0.5)
+            sx = x if rng.random() < 0.5 else x + 4.0 - 0.4
+            sy = back + inward * float(rng.uniform(1.5, 6.5))
+            w += worlds._rect(sx, min(sy, sy + inward * 1.2), sx + 0.4, max(sy, sy + inward * 1.2))
+            # a chair and a waste bin
+            for size in (0.5, 0.3):
+                px = x + float(rng.uniform(0.4, 3.6 - size))
+                py = back + inward * float(rng.uniform(0.4, 7.5))
+                w += worlds._rect(px, py, px + size, py + size)
         x += 4.0
     x = 4.0
     while x < width - 1e-9:
@@ -70,9 +111,8 @@ def building(width: float = 40.0, height: float = 20.0, periodic: bool = False) 
             w.append([x, 0.0, x, yc0])
             w.append([x, yc1, x, height])
         x += 4.0
-    return worlds.World(
-        "building" + ("-periodic" if periodic else ""), np.array(w), start=(1.0, 10.0, 0.0)
-    )
+    name = "building" + ("-periodic" if periodic else "" if furnished else "-bare")
+    return worlds.World(name, np.array(w), start=(1.0, 10.0, 0.0))
 
 
 def free_start(
@@ -141,7 +181,7 @@ def lock_trials(
 ) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     cfg = LocalizerConfig()
-    ok = wrong = imprecise = unlocked = 0
+    ok = wrong = imprecise = unlocked = no_evidence = 0
     unlocked_status: dict[str, int] = {}
     scans_needed: list[int] = []
     times: list[float] = []
@@ -183,6 +223,8 @@ def lock_trials(
         if locked_at is None:
             unlocked += 1
             unlocked_status[res.status] = unlocked_status.get(res.status, 0) + 1
+            if indistinguishable(world, frames[-1][0], res.hypotheses, sensor):
+                no_evidence += 1
     return {
         "world": world.name,
         "trials": trials,
@@ -192,10 +234,32 @@ def lock_trials(
         "imprecise": imprecise,
         "not_locked_in_5": unlocked,
         "not_locked_status": unlocked_status,
+        # unlocked starts where another pose the tracker holds sees the same scan (an
+        # oracle with the true world: <= 5 % of beams differ by > 10 cm): no method could
+        # have told them apart in these scans
+        "not_locked_indistinguishable": no_evidence,
+        "lock_rate_distinguishable": ok / max(1, trials - no_evidence),
         "mean_scans_to_lock": statistics.fmean(scans_needed) if scans_needed else None,
         "update_ms_median": 1e3 * statistics.median(times),
         "update_ms_p95": 1e3 * float(np.percentile(times, 95)),
     }
+
+
+def indistinguishable(
+    world: worlds.World, truth, hypotheses, sensor: Sensor, beams: float = 0.05
+) -> bool:
+    """Does a hypothesis away from ``truth`` (> 0.3 m or > 3 deg) see, in the noise-free
+    world, the same scan as the truth (at most ``beams`` of the beams differ by > 10 cm)?"""
+    ang = sensor.angles
+    ref = np.nan_to_num(world.ranges(truth, ang, sensor.max_range), nan=1e3)
+    for h in hypotheses:
+        de, dth = err(h.pose, truth)
+        if de <= 0.3 and dth <= math.radians(3.0):
+            continue
+        r = np.nan_to_num(world.ranges(h.pose, ang, sensor.max_range), nan=1e3)
+        if float((np.abs(r - ref) > 0.1).mean()) <= beams:
+            return True
+    return False
 
 
 def search_time(
@@ -241,7 +305,8 @@ def kidnap_run(
             break
     fb = drive(world, b, after, sensor, rng)
     loc = Localizer(glob.index, LocalizerConfig(), initial_pose=a)
-    attach(loc, Relocalizer(None, localizer=glob))
+    rel = attach(loc, Relocalizer(None, localizer=glob))
+    no_evidence = False
     dt = 1.0 / sensor.rate
     odo = (0.0, 0.0, 0.0)
     prev = None
@@ -275,11 +340,18 @@ def kidnap_run(
                     recovered = k - before + 1
             elif recovered is not None and de > 0.3:
                 recovered = None  # a later divergence: not recovered
+            if k == before + KIDNAP_SCANS - 1 and recovered is None and rel.last is not None:
+                no_evidence = est.status is Status.LOST and indistinguishable(
+                    world, truth, rel.last.hypotheses, sensor
+                )
     return {
         "carried_m": math.hypot(b[0] - fa[-1][0][0], b[1] - fa[-1][0][1]),
         "lost_after_scans": lost_at,
         "recovered_after_scans": recovered,
         "wrong_tracking_scans": wrong_tracking,
+        # not back within 20 scans, and the tracker then held a rival that sees the same
+        # scan as the truth (see indistinguishable)
+        "indistinguishable_at_20": no_evidence,
         "final_status": est.status.value,
         "final_error_m": errs[-1],
     }
@@ -310,11 +382,16 @@ def main(argv: list[str] | None = None) -> int:
     out["search_time"] = search_time(bld, (0.0, 0.0, 40.0, 20.0), g_bld, 30, a.seed, sensor)
     print("search:", out["search_time"], flush=True)
     out["lock"] = []
-    for world, box, g in (
-        (lab, (-3.5, -3.5, 3.5, 3.5), g_lab),
-        (bld, (0.0, 0.0, 40.0, 20.0), g_bld),
+    bare = building(furnished=False)
+    periodic = building(periodic=True)
+    whole = (0.0, 0.0, 40.0, 20.0)
+    for world, box, g, n in (
+        (lab, (-3.5, -3.5, 3.5, 3.5), g_lab, trials),
+        (bld, whole, g_bld, trials),
+        (bare, whole, global_localizer(bare.walls, 0.05), trials),
+        (periodic, whole, global_localizer(periodic.walls, 0.05), max(1, trials // 2)),
     ):
-        r = lock_trials(world, box, trials, a.seed, sensor, g)
+        r = lock_trials(world, box, n, a.seed, sensor, g)
         print("lock:", r, flush=True)
         out["lock"].append(r)
     out["kidnap"] = {}
@@ -334,6 +411,8 @@ def kidnap_summary(ks: list[dict[str, Any]]) -> dict[str, Any]:
         "runs": ks,
         "recovered_within_20": sum(1 for r in rec if r is not None and r <= KIDNAP_SCANS),
         "recovered_at_all": sum(1 for r in rec if r is not None),
+        "not_within_20_indistinguishable": sum(1 for k in ks if k["indistinguishable_at_20"]),
+        "scans_to_recover_median": statistics.median([r for r in rec if r is not None] or [0]),
         "wrong_tracking_scans": sum(k["wrong_tracking_scans"] for k in ks),
         "total": len(ks),
     }
