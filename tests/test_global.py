@@ -104,6 +104,26 @@ def test_symmetric_room_reports_ambiguity_and_never_locks() -> None:
     assert close(res.best.pose, truth)
 
 
+def test_localizer_in_a_symmetric_room_says_ambiguous() -> None:
+    """Through the Localizer: no initial pose in the symmetric room — it stays ``lost``
+    and every estimate's reason says ``ambiguous``, scan after scan."""
+    room = rectangle()
+    g = global_localizer(room.lines, 0.05)
+    loc = Localizer(g.index, CFG)
+    attach(loc, Relocalizer(None, localizer=g))
+    rng = np.random.default_rng(5)
+    pose, odo = (2.6, 1.7, 0.5), (0.0, 0.0, 0.0)
+    reasons = []
+    for k in range(8):
+        r = room.ranges(pose, SENSOR.angles, 30.0, 0.0, rng, 0.01)
+        scan = Scan(stamp=0.08 * k, ranges=r, angles=SENSOR.angles, max_range=30.0)
+        est = loc.update(scan, Odometry(stamp=0.08 * k, pose=odo))
+        assert est.status is Status.LOST
+        reasons.append(est.reason)
+        pose, odo = compose(pose, (0.05, 0.0, 0.02)), compose(odo, (0.05, 0.0, 0.02))
+    assert reasons[2:] == ["ambiguous"] * 6, reasons
+
+
 def test_one_shot_relocalize_with_following_scans(lab, lab_glob) -> None:
     rng = np.random.default_rng(8)
     start = (-1.0, 0.5, 0.3)

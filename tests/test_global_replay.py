@@ -127,3 +127,16 @@ def test_a_crowd_is_not_a_kidnapping() -> None:
     ests = run(loc, _items(frames))
     assert all(e.status is not Status.LOST for e in ests)
     assert max(_err(e.pose, f.truth)[0] for e, f in zip(ests, frames, strict=True)) < 0.05
+
+
+def test_replay_in_a_symmetric_room_reports_ambiguity() -> None:
+    """A replay without an initial pose in a perfectly symmetric room: never a lock, and
+    the summary says the lost scans were ambiguous rather than simply lost."""
+    room = worlds.World("room", np.array(worlds._rect(0.0, 0.0, 8.0, 5.0)))
+    path = worlds.circle_path(radius=1.0, laps=1, center=(4.0, 2.5))
+    frames = list(worlds.simulate(room, path, start=(4.0, 2.5, 0.0), seed=3, max_frames=30))
+    res = replay(_items(frames), Map.from_lines(room.lines))
+    assert all(e.status is Status.LOST for e in res.estimates)
+    amb = sum(e.reason == "ambiguous" for e in res.estimates)
+    assert amb >= len(frames) - 3, [e.reason for e in res.estimates]
+    assert f"{amb} of them ambiguous" in res.summary()

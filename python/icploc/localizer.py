@@ -120,6 +120,8 @@ class Relocalization(Protocol):
     ``None``. It may move ``localizer.pose`` to follow its leading hypothesis meanwhile.
     :meth:`observe` sees every estimate (tracking or not) and may call
     :meth:`Localizer.declare_lost` (a kidnapping) or :meth:`Localizer.reset` (a slid pose).
+    An optional ``state`` attribute (e.g. ``"ambiguous"``) becomes the ``reason`` of the
+    estimates while lost.
     """
 
     def relocalize(
@@ -808,7 +810,9 @@ class Localizer:
             iterations=int(last.iterations) if last is not None else 0,
             time=time.perf_counter() - t0,
             accepted=False,
-            reason="lost",
+            # a plugged-in strategy says what it is doing: "ambiguous" (several places fit
+            # the scans equally well), "confirming", "searching"
+            reason=str(getattr(self.relocalization, "state", "") or "lost"),
             degeneracy=float(last.degeneracy) if last is not None else float("nan"),
             prediction=pred,
             odometry=odom,

@@ -545,6 +545,12 @@ class GlobalRelocalization:
         #: re-checked), "lost", "reanchor"
         self.verdicts: list[str] = []
 
+    @property
+    def state(self) -> str:
+        """What the hypothesis tracker made of the last lost scan: ``"ambiguous"``,
+        ``"confirming"``, ``"searching"``, ``"locked"`` ("" before any)."""
+        return self.relocalizer.last.status if self.relocalizer.last is not None else ""
+
     # -- while lost ------------------------------------------------------------------------
     def relocalize(
         self, loc: Any, scan: Any, points: NDArray[np.float64]

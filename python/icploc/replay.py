@@ -68,6 +68,9 @@ class ReplayResult:
             f"localize {self.localize_time:.2f} s)",
             "status: " + ", ".join(f"{k} {c.get(k, 0)}" for k in ("tracking", "degraded", "lost")),
         ]
+        amb = sum(1 for e in self.estimates if e.status.value == "lost" and e.reason == "ambiguous")
+        if amb:
+            parts[-1] += f" ({amb} of them ambiguous: several places fit the scans equally well)"
         if self.metrics:
             parts.append(
                 "vs truth: "
