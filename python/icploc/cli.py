@@ -172,8 +172,9 @@ def run_cmd(
     pose = _pose_option(initial_pose)
 
     def show(e):  # type: ignore[no-untyped-def]
+        why = f" ({e.reason})" if e.status.value == "lost" and e.reason != "lost" else ""
         typer.echo(
-            f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status} inliers={e.inlier_ratio:.2f}"
+            f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status}{why} inliers={e.inlier_ratio:.2f}"
         )
 
     if simulate:
