@@ -210,7 +210,8 @@ def _stamp(header: Any) -> float:
 
 
 def _scan_arrays(msg: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]:
-    r = np.asarray(msg.ranges, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # a damaged float32 can be a signalling NaN
+        r = np.asarray(msg.ranges, dtype=np.float64)
     n = r.shape[0]
     a = float(msg.angle_min) + np.arange(n, dtype=np.float64) * float(msg.angle_increment)
     rmin, rmax = float(msg.range_min), float(msg.range_max)
