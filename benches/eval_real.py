@@ -95,7 +95,7 @@ def evaluate(
     seed: int = 0,
     max_range: float = 30.0,
     metric: str = "point_to_line",
-    relocalize: bool = False,
+    relocalize: bool = True,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     data = open_log(path)
@@ -116,14 +116,16 @@ def evaluate(
     m = build_map([scans[i] for i in map_idx], truth[map_idx], max_range, 0.05)
     t_load = time.perf_counter() - t0
     # localize with the same range limit the map was built with
-    cfg = LocalizerConfig().replace(scan={"max_range": max_range}, icp={"metric": metric})
+    # relocalize: lost detection + global multi-hypothesis relocalization (the Localizer's
+    # default); without it only the local recovery near the dead-reckoned pose
+    cfg = LocalizerConfig().replace(
+        scan={"max_range": max_range},
+        icp={"metric": metric},
+        localizer={"relocalization": "global" if relocalize else "local"},
+    )
     P_true = truth[loc_idx]
     odo = drifting_odometry(P_true, seed)
     loc = Localizer(m, cfg, initial_pose=tuple(P_true[0]))
-    if relocalize:  # lost detection + global multi-hypothesis relocalization
-        from icploc.relocalize import attach
-
-        attach(loc)
     est = []
     t1 = time.perf_counter()
     bad = 0
@@ -176,9 +178,11 @@ def main(argv: list[str] | None = None) -> int:
         "--max-range", type=float, default=30.0, help="range limit for map and scans (m)"
     )
     ap.add_argument(
-        "--relocalize",
-        action="store_true",
-        help="attach lost detection and global relocalization (icploc.relocalize.attach)",
+        "--local",
+        dest="relocalize",
+        action="store_false",
+        help="localizer.relocalization: local (no kidnap detection, no global recovery; "
+        "the default is the Localizer's: global)",
     )
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)

@@ -13,6 +13,7 @@ import pytest
 from icploc import GlobalLocalizer, InvalidConfigError, InvalidInputError, worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
+from icploc.maps import Map
 from icploc.relocalize import (
     LostDetector,
     RelocalizeConfig,
@@ -199,6 +200,48 @@ def test_kidnap_in_the_middle_of_a_run(lab, lab_glob) -> None:
     lost_at, recovered = _kidnap(lab, lab_glob, a, b, before=20, after=30, seed=3)
     assert lost_at is not None and lost_at <= 10
     assert recovered is not None and recovered <= 20
+
+
+def test_a_plain_localizer_recovers_from_a_kidnap_by_default(lab) -> None:
+    """Global relocalization is the Localizer's default (``localizer.relocalization:
+    global``, grids built on first need): no attach, same recovery; ``local`` turns it
+    off and the robot stays lost where the dead-reckoned neighbourhood holds nothing."""
+    a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)
+    rng = np.random.default_rng(3)
+    frames = gb.drive(lab, a, 20, SENSOR, rng) + gb.drive(lab, b, 30, SENSOR, rng)
+    m = Map.from_lines(lab.lines)
+    outcomes = {}
+    for mode in ("global", "local"):
+        cfg = CFG.replace(localizer={"relocalization": mode})
+        loc = Localizer(m, cfg, initial_pose=a)
+        assert (loc.relocalization is not None) == (mode == "global")
+        odo, prev, back = (0.0, 0.0, 0.0), None, None
+        for k, (truth, s) in enumerate(frames):
+            if prev is not None and k != 20:
+                odo = compose(odo, between(prev, truth))
+            prev = truth
+            est = loc.update(s, Odometry(stamp=s.stamp, pose=odo))
+            if (
+                k >= 20
+                and back is None
+                and est.status is Status.TRACKING
+                and close(est.pose, truth)
+            ):
+                back = k - 20 + 1
+        outcomes[mode] = back
+    assert outcomes["global"] is not None and outcomes["global"] <= 20, outcomes
+    assert outcomes["local"] is None, outcomes
+
+
+def test_a_map_too_large_for_the_global_grid_falls_back_to_local_recovery() -> None:
+    """A 3 km x 3 km map: the deferred global grid coarsens to 40 cm, still > 40 M cells:
+    a warning, and the built-in local recovery."""
+    pts = np.array([[0.0, 0.0], [3000.0, 3000.0], [1.0, 1.0]])
+    loc = Localizer(pts, CFG)  # no initial pose: lost, and the first scan needs the grid
+    scan = Scan(stamp=0.0, ranges=np.full(361, 2.0), angles=SENSOR.angles, max_range=30.0)
+    with pytest.warns(RuntimeWarning, match="global relocalization unavailable"):
+        est = loc.update(scan)
+    assert est.status is Status.LOST and loc.relocalization is None
 
 
 def test_kidnap_into_a_corridor_that_half_fits_the_old_pose() -> None:

@@ -34,6 +34,7 @@ class ConfigError(ValueError):
 
 Metric = Literal["point_to_point", "point_to_line"]
 Robust = Literal["none", "huber", "cauchy"]
+Relocalization = Literal["global", "local"]
 
 
 @dataclass
@@ -206,6 +207,12 @@ class LocalizerSection:
     recover_inlier_ratio: float = 0.7
     #: consecutive good fits needed to recover
     recover_after: int = 3
+    #: "global": kidnap detection and multi-hypothesis global relocalization anywhere on the
+    #: map (:mod:`icploc.relocalize`; its grids are built the first time they are needed);
+    #: "local": only the built-in recovery around the dead-reckoned pose (plus a
+    #: ``global_search=`` hook). A ``global_search=`` or ``relocalization=`` given to the
+    #: Localizer takes precedence.
+    relocalization: Relocalization = "global"
     #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
     relocalize_every: int = 4
     #: while lost with a global search attached (no initial pose, a kidnapping): at most one
@@ -249,6 +256,10 @@ class LocalizerSection:
         )
         if not (self.global_search_interval >= 0.0 and math.isfinite(self.global_search_interval)):
             raise ConfigError("localizer.global_search_interval must be a finite number >= 0")
+        if self.relocalization not in ("global", "local"):
+            raise ConfigError(
+                f"localizer.relocalization must be 'global' or 'local', got {self.relocalization!r}"
+            )
 
 
 @dataclass

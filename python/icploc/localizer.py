@@ -386,8 +386,18 @@ class Localizer:
         self.map = map
         self.icp_config = self.config.icp.to_icp_config()
         self.global_search = global_search
-        #: the plugged-in relocalization strategy (see :class:`Relocalization`), if any
-        self.relocalization = relocalization
+        #: the plugged-in relocalization strategy (see :class:`Relocalization`), if any;
+        #: by default (``localizer.relocalization: global``, no ``global_search``) the global
+        #: one of :mod:`icploc.relocalize`, its grids built when first needed
+        if (
+            relocalization is None
+            and global_search is None
+            and self.config.localizer.relocalization == "global"
+        ):
+            from icploc.relocalize import GlobalRelocalization
+
+            relocalization = GlobalRelocalization.deferred()
+        self.relocalization: Relocalization | None = relocalization
         self.odometry = OdometryBuffer(
             max_extrapolation=min(0.25, self.config.localizer.max_odometry_gap)
         )

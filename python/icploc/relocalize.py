@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import statistics
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
@@ -468,10 +469,11 @@ class LostDetector:
         self.reset()
 
     def _reference(self) -> float:
-        return float(np.median(self._good)) if len(self._good) >= 3 else 1.0
+        # statistics.median of <= 25 floats: ~50x cheaper than np.median per scan
+        return statistics.median(self._good) if len(self._good) >= 3 else 1.0
 
-    def suspect(self, inlier_ratio: float, accepted: bool) -> bool:
-        ref = self._reference()
+    def suspect(self, inlier_ratio: float, accepted: bool, ref: float | None = None) -> bool:
+        ref = self._reference() if ref is None else ref
         return (
             (not accepted)
             or inlier_ratio < self.min_inlier_ratio
@@ -485,9 +487,10 @@ class LostDetector:
             self.reset()
             return False
         ir = float(estimate.inlier_ratio)
-        bad = self.suspect(ir, bool(estimate.accepted))
+        ref = self._reference()
+        bad = self.suspect(ir, bool(estimate.accepted), ref)
         # without a reference yet (a fresh start, after accept) the scans form one
-        doubtful = bad or (len(self._good) >= 3 and ir < self.doubt * self._reference())
+        doubtful = bad or (len(self._good) >= 3 and ir < self.doubt * ref)
         self._doubtful = self._doubtful + 1 if doubtful else 0
         self._recent.append(bad)
         while len(self._recent) > self.window:
@@ -524,13 +527,14 @@ class GlobalRelocalization:
 
     def __init__(
         self,
-        relocalizer: Relocalizer,
+        relocalizer: Relocalizer | None,
         detector: LostDetector | None = None,
         *,
         lost_margin: float = 0.3,
         recheck_scans: int = 3,
     ) -> None:
-        self.relocalizer = relocalizer
+        #: None: built from the localizer's map index when first needed (:meth:`deferred`)
+        self._relocalizer = relocalizer
         self.detector = detector
         self.lost_margin = float(lost_margin)
         self.recheck_scans = int(recheck_scans)
@@ -545,11 +549,54 @@ class GlobalRelocalization:
         #: re-checked), "lost", "reanchor"
         self.verdicts: list[str] = []
 
+    @classmethod
+    def deferred(cls, detector: LostDetector | None = None) -> GlobalRelocalization:
+        """The Localizer's default: a :class:`Relocalizer` over the localizer's own map
+        index, built the first time a global search is needed (a lost scan, a lost check),
+        and a default :class:`LostDetector`."""
+        return cls(None, detector or LostDetector())
+
+    @property
+    def relocalizer(self) -> Relocalizer:
+        if self._relocalizer is None:
+            raise RuntimeError("GlobalRelocalization: not built yet (no lost scan so far)")
+        return self._relocalizer
+
+    def _ready(self, loc: Any) -> bool:
+        """Build the deferred relocalizer from ``loc``'s index (at 5 cm, or up to 40 cm
+        for a map too large for that). A map the global search cannot grid even so
+        leaves the localizer with its built-in local recovery, with a warning."""
+        if self._relocalizer is not None:
+            return True
+        try:
+            # the default 5 cm grid, or coarser ones for a map too large for it
+            for res in (0.05, 0.1, 0.2, 0.4):
+                try:
+                    self._relocalizer = Relocalizer(loc.index, RelocalizeConfig(resolution=res))
+                    break
+                except ValueError as e:
+                    if res == 0.4 or "cells" not in str(e):
+                        raise
+        except (ValueError, RuntimeError, MemoryError) as e:
+            import warnings
+
+            warnings.warn(
+                f"global relocalization unavailable for this map ({e}); "
+                "falling back to local recovery",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            if getattr(loc, "relocalization", None) is self:
+                loc.relocalization = None
+            return False
+        return True
+
     @property
     def state(self) -> str:
         """What the hypothesis tracker made of the last lost scan: ``"ambiguous"``,
         ``"confirming"``, ``"searching"``, ``"locked"`` ("" before any)."""
-        return self.relocalizer.last.status if self.relocalizer.last is not None else ""
+        rel = self._relocalizer
+        return rel.last.status if rel is not None and rel.last is not None else ""
 
     # -- while lost ------------------------------------------------------------------------
     def relocalize(
@@ -557,6 +604,8 @@ class GlobalRelocalization:
     ) -> tuple[Pose, Any] | None:
         from icploc._core import IcpError, icp
 
+        if not self._ready(loc):
+            return loc.relocalize(scan, points)  # the built-in local recovery
         rel = self.relocalizer
         odom = loc.last_odometry
         motion = None
@@ -609,6 +658,8 @@ class GlobalRelocalization:
             return
         due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
         if not (fired or due):
+            return
+        if not self._ready(loc):
             return
         verdict, pose = self.check(loc, scan)
         if verdict == "lost" and pose is not None:
