@@ -481,9 +481,7 @@ class LostDetector:
         )
 
     def observe(self, estimate: Any) -> bool:
-        from icploc.localizer import Status
-
-        if estimate.status is Status.LOST:
+        if estimate.status == "lost":  # Status is a str enum
             self.reset()
             return False
         ir = float(estimate.inlier_ratio)
@@ -646,14 +644,12 @@ class GlobalRelocalization:
 
     # -- while tracking --------------------------------------------------------------------
     def observe(self, loc: Any, scan: Any, estimate: Any) -> None:
-        from icploc.localizer import Status
-
         det = self.detector
         if det is None:
             return
         fired = det.observe(estimate)
         pending = self.pending
-        if estimate.status is Status.LOST:
+        if estimate.status == "lost":  # Status is a str enum
             self.pending = None
             return
         due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
