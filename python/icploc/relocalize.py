@@ -508,7 +508,8 @@ class LostDetector:
 
 
 class GlobalRelocalization:
-    """The :class:`icploc.localizer.Relocalization` strategy :func:`attach` plugs in.
+    """The :class:`icploc.localizer.Relocalization` strategy a Localizer uses by default
+    (``localizer.relocalization: global``) and :func:`attach` plugs in.
 
     While the localizer is lost, :meth:`relocalize` runs the multi-hypothesis
     :class:`Relocalizer` with the odometry increments between calls (the global search
