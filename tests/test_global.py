@@ -205,7 +205,7 @@ def test_kidnap_in_the_middle_of_a_run(lab, lab_glob) -> None:
 def test_a_plain_localizer_recovers_from_a_kidnap_by_default(lab) -> None:
     """Global relocalization is the Localizer's default (``localizer.relocalization:
     global``, grids built on first need): no attach, same recovery; ``local`` turns it
-    off and the robot stays lost where the dead-reckoned neighbourhood holds nothing."""
+    off, and the kidnapped robot is never found again."""
     a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)
     rng = np.random.default_rng(3)
     frames = gb.drive(lab, a, 20, SENSOR, rng) + gb.drive(lab, b, 30, SENSOR, rng)
@@ -228,20 +228,39 @@ def test_a_plain_localizer_recovers_from_a_kidnap_by_default(lab) -> None:
                 and close(est.pose, truth)
             ):
                 back = k - 20 + 1
-        outcomes[mode] = back
-    assert outcomes["global"] is not None and outcomes["global"] <= 20, outcomes
-    assert outcomes["local"] is None, outcomes
+        outcomes[mode] = (back, est.status, math.dist(est.pose[:2], frames[-1][0][:2]))
+    assert outcomes["global"][0] is not None and outcomes["global"][0] <= 20, outcomes
+    assert outcomes["global"][1] is Status.TRACKING and outcomes["global"][2] < 0.05
+    # local (the paper's loop): never back — it ends up "tracking" a wrong pose metres off
+    assert outcomes["local"][0] is None and outcomes["local"][2] > 1.0, outcomes
 
 
-def test_a_map_too_large_for_the_global_grid_falls_back_to_local_recovery() -> None:
-    """A 3 km x 3 km map: the deferred global grid coarsens to 40 cm, still > 40 M cells:
-    a warning, and the built-in local recovery."""
+def test_a_large_map_gets_a_coarser_global_grid() -> None:
+    """A 3 km x 3 km map: the deferred global grid coarsens (<= 4 M cells) instead of
+    failing or taking seconds per search."""
     pts = np.array([[0.0, 0.0], [3000.0, 3000.0], [1.0, 1.0]])
     loc = Localizer(pts, CFG)  # no initial pose: lost, and the first scan needs the grid
+    scan = Scan(stamp=0.0, ranges=np.full(361, 2.0), angles=SENSOR.angles, max_range=30.0)
+    est = loc.update(scan)
+    assert est.status is Status.LOST
+    g = loc.relocalization.relocalizer.glob
+    assert g.resolution >= 1.5 and g.shape[0] * g.shape[1] <= 4.1e6
+
+
+def test_global_relocalization_unavailable_falls_back_to_local_recovery(monkeypatch) -> None:
+    """If the global grids cannot be built, a warning, once, and the built-in recovery."""
+    import icploc.relocalize as reloc
+
+    def broken(*a, **k):  # noqa: ANN002, ANN003, ANN202
+        raise MemoryError("no room for the grids")
+
+    monkeypatch.setattr(reloc, "Relocalizer", broken)
+    loc = Localizer(np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 5.0]]), CFG)
     scan = Scan(stamp=0.0, ranges=np.full(361, 2.0), angles=SENSOR.angles, max_range=30.0)
     with pytest.warns(RuntimeWarning, match="global relocalization unavailable"):
         est = loc.update(scan)
     assert est.status is Status.LOST and loc.relocalization is None
+    assert loc.update(Scan(stamp=0.1, ranges=scan.ranges, angles=scan.angles)).status is Status.LOST
 
 
 def test_kidnap_into_a_corridor_that_half_fits_the_old_pose() -> None:
@@ -277,6 +296,48 @@ def test_lost_detector_fires_on_collapse_not_on_noise() -> None:
     # one bad scan among good ones does not fire
     for ir in (0.9, 0.91, 0.2, 0.9, 0.9, 0.92):
         assert not det.observe(est(ir))
+
+
+def test_lost_detector_backs_off_after_unsure_checks() -> None:
+    """A crowd keeps the fit poor and the checks find nothing convincing: each unsure
+    check doubles the quiet time (8, 16, 32 scans ...); a calm stretch resets it."""
+    det = LostDetector()
+
+    def est(ir: float) -> SimpleNamespace:
+        return SimpleNamespace(inlier_ratio=ir, accepted=True, status=Status.TRACKING)
+
+    for _ in range(10):
+        det.observe(est(0.95))
+    gaps = []
+    n = 0
+    for _ in range(300):
+        n += 1
+        if det.observe(est(0.5)):  # doubtful (and suspect) on every scan
+            gaps.append(n)
+            n = 0
+            det.backoff()
+    # 4 of 5 suspect scans fire; then quiet 8, 16, 32, 64 (the cap) scans after each
+    assert gaps[:6] == [4, 9, 17, 33, 65, 65], gaps
+    for _ in range(det.history):
+        det.observe(est(0.95))
+    fired = [det.observe(est(0.5)) for _ in range(4)]
+    assert fired == [False, False, False, True]  # calm again: the back-off is forgotten
+
+
+def test_relocalization_state_does_not_leak_between_lost_episodes(lab, lab_glob) -> None:
+    """Lost a while, then tracking again because the user set the pose: the hypotheses
+    (and odometry) of that episode are dropped, the next lost episode searches afresh."""
+    rng = np.random.default_rng(8)
+    truth = (1.2, -0.8, 2.0)
+    frames = gb.drive(lab, truth, 4, SENSOR, rng)
+    loc = Localizer(lab_glob.index, CFG)
+    rel = attach(loc, Relocalizer(None, localizer=lab_glob))
+    loc.update(frames[0][1], Odometry(stamp=0.0, pose=(0.0, 0.0, 0.0)))
+    assert loc.status is Status.LOST and rel.scans == 1
+    loc.reset(frames[1][0])  # the operator gives the pose
+    est = loc.update(frames[1][1], Odometry(stamp=0.08, pose=(0.0, 0.0, 0.0)))
+    assert est.status is Status.TRACKING
+    assert rel.scans == 0 and rel.hypotheses == []
 
 
 def test_lost_detector_doubts_a_slowly_failing_fit() -> None:

@@ -856,13 +856,20 @@ class Localizer:
         agrees with itself for ``recover_after`` consecutive scans is returned as
         ``(pose, IcpResult)`` and tracking resumes. Returns ``None`` otherwise.
         This is the hook a global search plugs into (``global_search=``); with a
-        :class:`Relocalization` plugged in (``relocalization=``) it delegates to that.
+        :class:`Relocalization` plugged in (``relocalization=``) it delegates to that
+        (:meth:`relocalize_locally` is the built-in recovery either way).
         """
-        from icploc._core import IcpError, icp_batch
-
         if self.relocalization is not None:
             pts0 = self.prepare(scan) if points is None else points
             return self.relocalization.relocalize(self, scan, pts0)
+        return self.relocalize_locally(scan, points)
+
+    def relocalize_locally(
+        self, scan: Scan, points: NDArray[np.float64] | None = None
+    ) -> tuple[Pose, Any] | None:
+        """The built-in recovery of :meth:`relocalize`: multi-start ICP from
+        :meth:`candidate_poses` (around the dead-reckoned pose, plus ``global_search``)."""
+        from icploc._core import IcpError, icp_batch
 
         lc = self.config.localizer
         g = self.config.gating

@@ -239,6 +239,14 @@ class Relocalizer:
             and self._streak >= max(1, self.config.confirm_scans - 1)
         )
 
+    def _margin(self, best_score: float) -> float:
+        """The relative lead a leader scoring ``best_score`` needs over every rival:
+        ``dominance``, more for a mediocre leader, never so much that a rival could
+        already have been dropped by ``keep_ratio``."""
+        c = self.config
+        m = c.dominance + c.dominance_slope * max(0.0, c.clean_score - best_score)
+        return min(m, 1.0 - c.keep_ratio)
+
     def _score(self, cand: Any) -> float:
         """The tracker's score of a GlobalCandidate: its likelihood with a softened
         see-through penalty."""
@@ -297,7 +305,7 @@ class Relocalizer:
             cands = list(res.candidates)
             if len(cands) >= self.search_cap:
                 top, last = self._score(cands[0]), self._score(cands[-1])
-                self._saturated = last >= (1.0 - c.dominance) * top
+                self._saturated = last >= (1.0 - self._margin(top)) * top
             for cand in res.candidates:
                 p = (cand.pose[0], cand.pose[1], wrap_angle(cand.pose[2]))
                 if any(not self.glob.distinct(p, h.pose) for h in hyps):
@@ -332,7 +340,8 @@ class Relocalizer:
             merged = [h for h in merged if h.score >= c.keep_ratio * best.score]
         self.hypotheses = merged[: c.max_hypotheses]
         if best is not None and any(
-            h.score >= (1.0 - c.dominance) * best.score for h in merged[c.max_hypotheses :]
+            h.score >= (1.0 - self._margin(best.score)) * best.score
+            for h in merged[c.max_hypotheses :]
         ):
             self._saturated = True  # until the next search
         # decide on every hypothesis, not only those kept: a rival cut by the cap (many
@@ -353,7 +362,7 @@ class Relocalizer:
             self._leader, self._streak = None, 0
             return self._result("searching", search_time, search_amb)
         best = hyps[0]
-        margin = c.dominance + c.dominance_slope * max(0.0, c.clean_score - best.score)
+        margin = self._margin(best.score)
         rival = next(
             (
                 h
@@ -445,8 +454,11 @@ class LostDetector:
     same corridor) fits its wrong pose half well and slowly worse; ``doubt_scans``
     doubtful scans in a row fire too. Doubtful scans do not enter the reference, so it
     cannot sink with the fit. ``observe`` returns True when it fires; the caller then
-    checks (a global search) and calls :meth:`accept` when the pose was fine after all
-    (a crowd, a poorly mapped place): the reference restarts from the current scans."""
+    checks (a global search) and calls :meth:`accept` when the check confirmed the pose
+    (a poorly mapped place: the reference restarts from the current scans), or
+    :meth:`backoff` when it found no evidence either way (a crowd hides the walls): the
+    reference stays, and the detector keeps quiet for ``doubt_scans`` x 2^k scans (k
+    unsure checks in a row, at most ``backoff_max``) until ``history`` calm scans."""
 
     window: int = 5
     suspects: int = 4
@@ -455,9 +467,13 @@ class LostDetector:
     doubt: float = 0.8
     doubt_scans: int = 8
     history: int = 25
+    backoff_max: int = 64
     _recent: deque[bool] = field(default_factory=deque)
     _good: deque[float] = field(default_factory=deque)
     _doubtful: int = 0
+    _quiet: int = 0  #: scans left to keep quiet after an unsure check
+    _backoffs: int = 0  #: unsure checks since the last calm stretch or accept
+    _calm: int = 0  #: consecutive scans that were not doubtful
 
     def reset(self) -> None:
         self._recent.clear()
@@ -467,6 +483,14 @@ class LostDetector:
     def accept(self) -> None:
         """The pose was checked and is right: forget the suspicion and the reference."""
         self.reset()
+        self._quiet = self._backoffs = 0
+
+    def backoff(self) -> None:
+        """The check could not tell (no convincing pose anywhere): keep quiet a while."""
+        self._recent.clear()
+        self._doubtful = 0
+        self._quiet = min(self.backoff_max, self.doubt_scans * 2**self._backoffs)
+        self._backoffs += 1
 
     def _reference(self) -> float:
         # statistics.median of <= 25 floats: ~50x cheaper than np.median per scan
@@ -490,6 +514,9 @@ class LostDetector:
         # without a reference yet (a fresh start, after accept) the scans form one
         doubtful = bad or (len(self._good) >= 3 and ir < self.doubt * ref)
         self._doubtful = self._doubtful + 1 if doubtful else 0
+        self._calm = 0 if doubtful else self._calm + 1
+        if self._calm >= self.history:
+            self._backoffs = 0
         self._recent.append(bad)
         while len(self._recent) > self.window:
             self._recent.popleft()
@@ -497,6 +524,9 @@ class LostDetector:
             self._good.append(ir)
             while len(self._good) > self.history:
                 self._good.popleft()
+        if self._quiet > 0:
+            self._quiet -= 1
+            return False
         if sum(self._recent) >= self.suspects or self._doubtful >= self.doubt_scans:
             self._recent.clear()
             self._doubtful = 0
@@ -534,6 +564,7 @@ class GlobalRelocalization:
     ) -> None:
         #: None: built from the localizer's map index when first needed (:meth:`deferred`)
         self._relocalizer = relocalizer
+        self._unavailable = False  #: the map could not be gridded: local recovery only
         self.detector = detector
         self.lost_margin = float(lost_margin)
         self.recheck_scans = int(recheck_scans)
@@ -544,9 +575,13 @@ class GlobalRelocalization:
         self.pending: tuple[Pose, Pose | None, int] | None = None
         #: the latest relocalizer results (at most 100)
         self.results: list[RelocalizeResult] = []
-        #: lost-detector checks: "", "suspect" (a better pose elsewhere, to be
-        #: re-checked), "lost", "reanchor"
+        #: lost-detector checks: "" (the tracked pose confirmed), "unsure" (no convincing
+        #: pose anywhere), "suspect" (a better pose elsewhere, to be re-checked), "lost",
+        #: "reanchor"
         self.verdicts: list[str] = []
+
+    #: a deferred build picks the finest resolution (>= 5 cm) with at most this many cells
+    max_cells: float = 4e6
 
     @classmethod
     def deferred(cls, detector: LostDetector | None = None) -> GlobalRelocalization:
@@ -562,19 +597,26 @@ class GlobalRelocalization:
         return self._relocalizer
 
     def _ready(self, loc: Any) -> bool:
-        """Build the deferred relocalizer from ``loc``'s index (at 5 cm, or up to 40 cm
-        for a map too large for that). A map the global search cannot grid even so
-        leaves the localizer with its built-in local recovery, with a warning."""
+        """Build the deferred relocalizer from ``loc``'s index (at 5 cm, coarser on a map
+        larger than :attr:`max_cells` cells at 5 cm, e.g. 10 cm for 200 m x 200 m). A map
+        the global search cannot grid even so leaves the localizer with its built-in local
+        recovery, with a warning."""
         if self._relocalizer is not None:
             return True
+        if self._unavailable:
+            return False
         try:
-            # the default 5 cm grid, or coarser ones for a map too large for it
-            for res in (0.05, 0.1, 0.2, 0.4):
+            # 5 cm, or coarser on a large map: a search's time grows with the cells, and
+            # it runs inside a scan's update (the ICP refinement keeps the map's detail)
+            x0, y0, x1, y1 = loc.index.bounds
+            area = max(float(x1 - x0), 1.0) * max(float(y1 - y0), 1.0)
+            res0 = max(0.05, math.ceil(math.sqrt(area / self.max_cells) / 0.05) * 0.05)
+            for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
                     self._relocalizer = Relocalizer(loc.index, RelocalizeConfig(resolution=res))
                     break
                 except ValueError as e:
-                    if res == 0.4 or "cells" not in str(e):
+                    if res == 8 * res0 or "cells" not in str(e):
                         raise
         except (ValueError, RuntimeError, MemoryError) as e:
             import warnings
@@ -585,6 +627,7 @@ class GlobalRelocalization:
                 RuntimeWarning,
                 stacklevel=3,
             )
+            self._unavailable = True
             if getattr(loc, "relocalization", None) is self:
                 loc.relocalization = None
             return False
@@ -604,7 +647,7 @@ class GlobalRelocalization:
         from icploc._core import IcpError, icp
 
         if not self._ready(loc):
-            return loc.relocalize(scan, points)  # the built-in local recovery
+            return loc.relocalize_locally(scan, points)  # type: ignore[no-any-return]
         rel = self.relocalizer
         odom = loc.last_odometry
         motion = None
@@ -638,6 +681,7 @@ class GlobalRelocalization:
         try:
             fit = icp(points, loc.index, res.pose, loc.icp_config)
         except IcpError:
+            rel.reset()  # search afresh rather than report a lock that did not take
             return None
         rel.reset()
         self._last_odom = None
@@ -653,6 +697,13 @@ class GlobalRelocalization:
         if estimate.status == "lost":  # Status is a str enum
             self.pending = None
             return
+        rel = self._relocalizer
+        if rel is not None and rel.scans > 0:
+            # tracking again without our lock (reset by the user, the built-in recovery):
+            # the hypotheses, the odometry and the search clock of that episode are stale
+            rel.reset()
+            self._last_odom = None
+            self._last_search = None
         due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
         if not (fired or due):
             return
@@ -667,10 +718,14 @@ class GlobalRelocalization:
                 self.pending = (pose, loc.last_odometry, loc.scans_processed)
                 self.verdicts.append("suspect")
                 return
+        if pending is not None and verdict == "":
+            verdict = "unsure"  # a suspicion the re-check neither confirmed nor cleared
         self.pending = None
         self.verdicts.append(verdict)
         if verdict == "":
-            det.accept()  # checked and fine: the current fit is the new normal
+            det.accept()  # the tracked pose confirmed: the current fit is the new normal
+        elif verdict == "unsure":
+            det.backoff()  # no evidence either way (a crowd): ask again later
         elif verdict == "lost":
             loc.declare_lost()
             self.relocalizer.reset()
@@ -681,15 +736,16 @@ class GlobalRelocalization:
     def check(self, loc: Any, scan: Any) -> tuple[str, Pose | None]:
         """Is the robot elsewhere (``"lost"``, with the better pose), a little off its
         tracked pose (``"reanchor"``: the global best is a convincing fit that ICP from the
-        tracked pose converges to), or fine (``""``: a crowd, a glitch)?"""
+        tracked pose converges to), fine (``""``: the tracked pose fits as well as any), or
+        can the scan not tell (``"unsure"``: no convincing pose anywhere — a crowd)?"""
         rel = self.relocalizer
         pts = loc.prepare(scan)
         if pts.shape[0] < 10:
-            return "", None
+            return "unsure", None
         here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([loc.pose]))[0]
         best = rel.glob.search(pts, rel.region, rel.heading).best
         if best is None:
-            return "", None
+            return "unsure", None
         # the better pose must be a convincing fit itself — a crowd around the robot makes
         # the tracked pose look poor and lets people's outlines fit walls elsewhere
         # somewhat, never well — or the tracked pose must be contradicted by the scan
@@ -708,7 +764,7 @@ class GlobalRelocalization:
             and rel._score(here) < 0.2 * rel._score(best)
         )
         if not (convincing or contradicted or outclassed):
-            return "", None
+            return "unsure", None
         if not rel.glob.distinct(here.pose, best.pose):
             off = math.hypot(best.pose[0] - loc.pose[0], best.pose[1] - loc.pose[1])
             turn = abs(wrap_angle(best.pose[2] - loc.pose[2]))

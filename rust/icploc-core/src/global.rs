@@ -870,7 +870,10 @@ impl GlobalLocalizer {
             prev[0] + f * (s[0] - prev[0]),
             prev[1] + f * (s[1] - prev[1]),
         ];
-        (c[0] - p[0]).hypot(c[1] - p[1]) <= self.index.spacing() + 0.5 * self.res
+        // on the wall: a map point within ~half the sampling interval of the crossing
+        // point (measured from the crossing itself: the point nearest to `s` can be a
+        // step away along the wall on a densely sampled map)
+        self.index.nearest(c).0.sqrt() <= 0.75 * self.index.spacing() + 0.005
     }
 }
 
@@ -1126,6 +1129,29 @@ mod tests {
         let far = scan.iter().filter(|p| p[0] > 9.5).count() as f64 / scan.len() as f64;
         let st = g.see_through(&scan, pose);
         assert!(far > 0.02 && (st - far).abs() < 0.01, "{st} vs {far}");
+    }
+
+    #[test]
+    fn see_through_counts_shallow_crossings_on_a_dense_map() {
+        // a wall along y = 5 sampled every 1 cm (5x finer than the 5 cm grid)
+        let wall: Vec<Segment> = vec![[-30.0, 5.0, 30.0, 5.0]];
+        let (p, n) = sample_segments(&wall, 0.01);
+        let idx = Arc::new(MapIndex::new(p, Some(n)).unwrap());
+        let g = GlobalLocalizer::new(idx, 0.05, GlobalConfig::default()).unwrap();
+        for deg in [20.0f64, 30.0, 45.0, 70.0, 90.0] {
+            let a = deg.to_radians();
+            // 50 beams from origins at different distances below the wall: every phase of
+            // the 5 cm ray steps against the crossing and the 1 cm samples
+            let crossed = (0..50)
+                .filter(|k| {
+                    let y0 = 0.0013 * *k as f64;
+                    let r = (5.0 - y0) / a.sin() + 3.0; // the return is 3 m beyond the wall
+                    let beam = [[r * a.cos(), r * a.sin()]];
+                    g.see_through(&beam, Pose2::new(0.007 * *k as f64, y0, 0.0)) > 0.5
+                })
+                .count();
+            assert_eq!(crossed, 50, "{deg} deg: {crossed} of 50 crossings seen");
+        }
     }
 
     #[test]
