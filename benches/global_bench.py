@@ -11,7 +11,8 @@ Measures, with exact simulated truth:
   confident wrong locks (locked but > 0.3 m or > 3 deg off), which must be 0. Starts left
   unlocked are checked against the true world: when a pose the tracker holds sees the
   same scan as the truth (:func:`indistinguishable`), no method could have chosen;
-* **search time**: one :meth:`GlobalLocalizer.search` on the 40 m x 20 m map at 5 cm;
+* **search time**: one :meth:`GlobalLocalizer.search` on the 40 m x 20 m map at 5 cm, and
+  (when ``../shared`` is beside the project) on the Willow Garage map;
 * **kidnap**: a :class:`icploc.localizer.Localizer` with :func:`icploc.relocalize.attach`
   tracks a run; mid-run the robot is carried >= 5 m (odometry feels nothing); the number
   of scans until it is back to ``tracking`` within 5 cm.
@@ -28,6 +29,7 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -411,10 +413,63 @@ def main(argv: list[str] | None = None) -> int:
         ks = [kidnap_run(world, g, a.seed + 100 + i, sensor, box=box) for i in range(kidnaps)]
         out["kidnap"][world.name] = kidnap_summary(ks)
         print("kidnap:", world.name, out["kidnap"][world.name], flush=True)
+    if WILLOW.exists():  # ../shared beside the project: a real building map too
+        out["real_map_search"] = real_map_searches(WILLOW, 30, a.seed, sensor)
+        print("real map:", out["real_map_search"], flush=True)
     if a.json:
         with open(a.json, "w") as f:
             json.dump(out, f, indent=2, default=str)
     return 0
+
+
+WILLOW = (
+    Path(__file__).resolve().parents[2] / "shared/data/maps/willow_garage/willow-full-0.05.yaml"
+)
+
+
+def real_map_searches(path: Path, n: int, seed: int, sensor: Sensor) -> dict[str, Any]:
+    """One-scan global searches on a real building map (Willow Garage, ROS map_server,
+    5 cm): scans simulated from its fitted walls at random poses 0.5-5 m from a wall."""
+    from icploc import Map
+
+    m = Map.load(path)
+    idx = m.index(0.05)
+    t0 = time.perf_counter()
+    g = global_localizer(idx, 0.05)
+    build = time.perf_counter() - t0
+    w = worlds.World(path.stem, m.lines)
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = idx.bounds
+    times: list[float] = []
+    ok = 0
+    while len(times) < n:
+        p = (rng.uniform(x0, x1), rng.uniform(y0, y1), rng.uniform(-math.pi, math.pi))
+        if not 0.5 < float(g.distance(np.array([p[:2]]))[0]) < 5.0:
+            continue
+        r = w.ranges(p, sensor.angles, sensor.max_range, 0.0, rng, sensor.noise)
+        fin = np.isfinite(r)
+        if fin.sum() < 200:
+            continue
+        pts = np.column_stack(
+            [r[fin] * np.cos(sensor.angles[fin]), r[fin] * np.sin(sensor.angles[fin])]
+        )
+        t0 = time.perf_counter()
+        best = g.search(pts).best
+        times.append(time.perf_counter() - t0)
+        if (
+            best is not None
+            and err(best.pose, p)[0] <= 0.05
+            and err(best.pose, p)[1] <= math.radians(1)
+        ):
+            ok += 1
+    return {
+        "map": f"{path.name} {g.shape[0]}x{g.shape[1]} cells at 0.05 m",
+        "grid_build_s": build,
+        "searches": n,
+        "best_within_5cm_1deg": ok,
+        "ms_median": 1e3 * statistics.median(times),
+        "ms_p95": 1e3 * float(np.percentile(times, 95)),
+    }
 
 
 def kidnap_summary(ks: list[dict[str, Any]]) -> dict[str, Any]:
