@@ -881,7 +881,9 @@ impl GlobalLocalizer {
 mod tests {
     use super::*;
     use crate::raycast::Segment;
-    use crate::testkit::{make_scan, office_segments, random_pose, sample_segments, Rng};
+    use crate::testkit::{
+        make_scan, office_segments, random_pose, rectangle, sample_segments, Rng,
+    };
     use std::time::Instant;
 
     fn localizer(segs: &[Segment], res: f64) -> GlobalLocalizer {
@@ -950,12 +952,7 @@ mod tests {
     #[test]
     fn symmetric_room_is_ambiguous() {
         // an 8 m x 5 m empty rectangle: (x, y, th) and (8 - x, 5 - y, th + pi) see the same
-        let segs: Vec<Segment> = vec![
-            [0.0, 0.0, 8.0, 0.0],
-            [8.0, 0.0, 8.0, 5.0],
-            [8.0, 5.0, 0.0, 5.0],
-            [0.0, 5.0, 0.0, 0.0],
-        ];
+        let segs = rectangle(8.0, 5.0);
         let g = localizer(&segs, 0.05);
         let mut rng = Rng::new(3);
         let truth = Pose2::new(2.7, 1.8, 0.4);
@@ -1093,12 +1090,7 @@ mod tests {
     #[test]
     fn see_through_counts_crossings_not_grazing_or_doorways() {
         // a 20 m x 2 m corridor; a cross wall at x = 10 with a 1 m doorway in its middle
-        let corridor: Vec<Segment> = vec![
-            [0.0, 0.0, 20.0, 0.0],
-            [20.0, 0.0, 20.0, 2.0],
-            [20.0, 2.0, 0.0, 2.0],
-            [0.0, 2.0, 0.0, 0.0],
-        ];
+        let corridor = rectangle(20.0, 2.0);
         let mut door = corridor.clone();
         door.push([10.0, 0.0, 10.0, 0.5]);
         door.push([10.0, 1.5, 10.0, 2.0]);

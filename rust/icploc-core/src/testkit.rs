@@ -80,6 +80,16 @@ pub fn office_segments() -> Vec<Segment> {
     s
 }
 
+/// The four walls of an empty `w` x `h` rectangle with a corner at the origin.
+pub fn rectangle(w: f64, h: f64) -> Vec<Segment> {
+    vec![
+        [0.0, 0.0, w, 0.0],
+        [w, 0.0, w, h],
+        [w, h, 0.0, h],
+        [0.0, h, 0.0, 0.0],
+    ]
+}
+
 /// Sample segments every `spacing` metres; each sample carries its segment's unit normal.
 pub fn sample_segments(segments: &[Segment], spacing: f64) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
     let mut pts = Vec::new();
