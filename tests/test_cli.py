@@ -79,6 +79,26 @@ def test_replay_command(carmen_run: dict[str, Path], tmp_path: Path) -> None:
     assert np.all(np.isfinite(vals))
 
 
+def test_replay_command_without_initial_pose_localizes_globally(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
+    """The issue's promise at the command line: no --initial-pose (and no --truth to take
+    one from) -> global localization, then tracking; the TUM rows land on the truth."""
+    out = tmp_path / "g.tum"
+    r = runner.invoke(
+        app, ["replay", str(carmen_run["log"]), "--map", str(carmen_run["map"]), "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "120 scans" in r.output
+    rows = np.array([[float(v) for v in row.split()] for row in out.read_text().splitlines()])
+    truth = np.array(
+        [[float(v) for v in row.split()] for row in carmen_run["truth"].read_text().splitlines()]
+    )
+    assert rows.shape == (120, 8)
+    err = np.hypot(*(rows[:, 1:3] - truth[:, 1:3]).T)
+    assert np.all(err[5:] < 0.05), err  # locked within the first 5 scans, then on the truth
+
+
 def test_replay_bad_initial_pose_and_bad_log(carmen_run: dict[str, Path], tmp_path: Path) -> None:
     r = runner.invoke(
         app,
@@ -169,5 +189,7 @@ def test_run_simulate_without_start_pose_localizes_globally(tmp_path: Path) -> N
     tracked = [e for e in res.estimates if str(e.status).endswith("tracking")]
     assert len(tracked) >= len(res.estimates) // 2
     T = live.truth_at(truth, [e.stamp for e in tracked])
-    err = [float(np.hypot(e.pose[0] - t[0], e.pose[1] - t[1])) for e, t in zip(tracked, T, strict=True)]
+    err = [
+        float(np.hypot(e.pose[0] - t[0], e.pose[1] - t[1])) for e, t in zip(tracked, T, strict=True)
+    ]
     assert float(np.median(err)) < 0.02
