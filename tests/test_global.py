@@ -263,6 +263,53 @@ def test_global_relocalization_unavailable_falls_back_to_local_recovery(monkeypa
     assert loc.update(Scan(stamp=0.1, ranges=scan.ranges, angles=scan.angles)).status is Status.LOST
 
 
+def test_background_lost_checks_never_run_inside_update(lab, lab_glob) -> None:
+    """``localizer.lost_check: background`` (what ``icploc run`` uses): the global searches
+    of the lost checks run on a worker thread, ``update`` does not wait for them, and the
+    kidnapping is still caught and recovered at a live scan rate."""
+    import threading
+    import time
+
+    searches: list[str] = []
+
+    class Spy:
+        def __init__(self, glob) -> None:  # noqa: ANN001
+            self.glob = glob
+
+        def search(self, *a, **k):  # noqa: ANN002, ANN003, ANN202
+            searches.append(threading.current_thread().name)
+            return self.glob.search(*a, **k)
+
+        def __getattr__(self, name: str):  # noqa: ANN204
+            return getattr(self.glob, name)
+
+    a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)
+    rng = np.random.default_rng(3)
+    frames = gb.drive(lab, a, 20, SENSOR, rng) + gb.drive(lab, b, 30, SENSOR, rng)
+    cfg = CFG.replace(localizer={"lost_check": "background"})
+    loc = Localizer(lab_glob.index, cfg, initial_pose=a)
+    attach(loc, Relocalizer(None, localizer=Spy(lab_glob)))
+    assert loc.relocalization.background
+    odo, prev, back, lost_at = (0.0, 0.0, 0.0), None, None, None
+    for k, (truth, s) in enumerate(frames):
+        if prev is not None and k != 20:
+            odo = compose(odo, between(prev, truth))
+        prev = truth
+        n_before = len(searches)
+        est = loc.update(s, Odometry(stamp=s.stamp, pose=odo))
+        if k >= 20 and est.status is Status.LOST and lost_at is None:
+            lost_at = k - 20
+            tracking_searches = searches[:n_before]  # the first lost scan searches inline
+        if k >= 20 and back is None and est.status is Status.TRACKING and close(est.pose, truth):
+            back = k - 20 + 1
+        time.sleep(0.03)  # a live scan period, shortened (checks here take ~10 ms)
+    # the verdicts land a scan or two later than inline ones (20 on a quiet machine)
+    assert lost_at is not None and back is not None and back <= 30, (lost_at, back)
+    # every search before the robot was declared lost was a background check
+    assert tracking_searches and all(n.startswith("icploc-lost-check") for n in tracking_searches)
+    assert "lost" in loc.relocalization.verdicts
+
+
 def test_kidnap_into_a_corridor_that_half_fits_the_old_pose() -> None:
     """Carried from an office into the corridor of the 40 x 20 m building: the old pose
     still explains ~70 % of the scan, sinking slowly (no collapse) — the lost detector's

@@ -35,6 +35,7 @@ class ConfigError(ValueError):
 Metric = Literal["point_to_point", "point_to_line"]
 Robust = Literal["none", "huber", "cauchy"]
 Relocalization = Literal["global", "local"]
+LostCheck = Literal["inline", "background"]
 
 
 @dataclass
@@ -213,6 +214,11 @@ class LocalizerSection:
     #: ``global_search=`` hook). A ``global_search=`` or ``relocalization=`` given to the
     #: Localizer takes precedence.
     relocalization: Relocalization = "global"
+    #: the global relocalization's lost checks (a global search each, 5 ms - 1 s with the
+    #: map's size): "inline" inside ``update`` (deterministic: replays, benchmarks) or
+    #: "background" on a worker thread, acted on a few scans later (``icploc run``: a live
+    #: loop must not stall)
+    lost_check: LostCheck = "inline"
     #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
     relocalize_every: int = 4
     #: while lost with a global search attached (no initial pose, a kidnapping): at most one

@@ -166,7 +166,8 @@ def run_hardware(
     from icploc.drivers.sick import PLS
     from icploc.maps import Map
 
-    cfg = config or LocalizerConfig()
+    # a live loop must not stall on a lost check (a global search): run them in the back
+    cfg = (config or LocalizerConfig()).replace(localizer={"lost_check": "background"})
     m = Map.load(map_path)
     start = initial_pose or cfg.localizer.initial_pose
     loc = Localizer(m, cfg, initial_pose=start)
@@ -254,7 +255,8 @@ def run_simulated(
             "laser_x": sess.laser_offset[0],
             "laser_y": sess.laser_offset[1],
             "laser_theta": sess.laser_offset[2],
-        }
+        },
+        localizer={"lost_check": "background"},  # as on the robot (run_hardware)
     )
     m = (
         (Map.load(map_) if isinstance(map_, (str, Path)) else map_)

@@ -396,7 +396,9 @@ class Localizer:
         ):
             from icploc.relocalize import GlobalRelocalization
 
-            relocalization = GlobalRelocalization.deferred()
+            relocalization = GlobalRelocalization.deferred(
+                background=self.config.localizer.lost_check == "background"
+            )
         self.relocalization: Relocalization | None = relocalization
         self.odometry = OdometryBuffer(
             max_extrapolation=min(0.25, self.config.localizer.max_odometry_gap)

@@ -561,9 +561,18 @@ class GlobalRelocalization:
         *,
         lost_margin: float = 0.3,
         recheck_scans: int = 3,
+        background: bool = False,
     ) -> None:
         #: None: built from the localizer's map index when first needed (:meth:`deferred`)
         self._relocalizer = relocalizer
+        #: run the lost checks (a global search each) on a worker thread: ``update`` never
+        #: waits for one (a live robot on a large map); the verdict applies a few scans
+        #: later, its poses carried there by odometry. Off: checks run inline (replays
+        #: stay deterministic).
+        self.background = bool(background)
+        self._executor: Any = None
+        #: a check running in the background: (future, odometry then, scan count then)
+        self._inflight: tuple[Any, Pose | None, int] | None = None
         self._unavailable = False  #: the map could not be gridded: local recovery only
         self.detector = detector
         self.lost_margin = float(lost_margin)
@@ -584,11 +593,13 @@ class GlobalRelocalization:
     max_cells: float = 4e6
 
     @classmethod
-    def deferred(cls, detector: LostDetector | None = None) -> GlobalRelocalization:
+    def deferred(
+        cls, detector: LostDetector | None = None, *, background: bool = False
+    ) -> GlobalRelocalization:
         """The Localizer's default: a :class:`Relocalizer` over the localizer's own map
         index, built the first time a global search is needed (a lost scan, a lost check),
         and a default :class:`LostDetector`."""
-        return cls(None, detector or LostDetector())
+        return cls(None, detector or LostDetector(), background=background)
 
     @property
     def relocalizer(self) -> Relocalizer:
@@ -693,9 +704,9 @@ class GlobalRelocalization:
         if det is None:
             return
         fired = det.observe(estimate)
-        pending = self.pending
         if estimate.status == "lost":  # Status is a str enum
             self.pending = None
+            self._inflight = None  # a running check's verdict no longer applies
             return
         rel = self._relocalizer
         if rel is not None and rel.scans > 0:
@@ -704,12 +715,43 @@ class GlobalRelocalization:
             rel.reset()
             self._last_odom = None
             self._last_search = None
+        if self._inflight is not None:  # a background check: apply it once it is done
+            fut, odom_then, _ = self._inflight
+            if not fut.done():
+                return
+            self._inflight = None
+            try:
+                verdict, pose = fut.result()
+            except Exception:  # noqa: BLE001 - a failed check is no evidence
+                verdict, pose = "unsure", None
+            now = loc.last_odometry
+            if pose is not None and odom_then is not None and now is not None:
+                pose = compose(pose, between(odom_then, now))  # where it is by now
+            self._apply(loc, verdict, pose)
+            return
+        pending = self.pending
         due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
         if not (fired or due):
             return
         if not self._ready(loc):
             return
-        verdict, pose = self.check(loc, scan)
+        pts, tracked = loc.prepare(scan), loc.pose
+        if self.background:
+            if self._executor is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="icploc-lost-check")
+            fut = self._executor.submit(self.check_points, pts, tracked)
+            self._inflight = (fut, loc.last_odometry, loc.scans_processed)
+            return
+        verdict, pose = self.check_points(pts, tracked)
+        self._apply(loc, verdict, pose)
+
+    def _apply(self, loc: Any, verdict: str, pose: Pose | None) -> None:
+        """Act on a check's verdict (``pose``: where it puts the robot now)."""
+        det = self.detector
+        assert det is not None
+        pending = self.pending
         if verdict == "lost" and pose is not None:
             # a kidnapping is declared only when a second check, ``recheck_scans`` later,
             # finds the better pose again where odometry has carried it: the poses that
@@ -734,15 +776,20 @@ class GlobalRelocalization:
             loc.reset(pose)  # the tracker slid (a degenerate view): put it back
 
     def check(self, loc: Any, scan: Any) -> tuple[str, Pose | None]:
-        """Is the robot elsewhere (``"lost"``, with the better pose), a little off its
-        tracked pose (``"reanchor"``: the global best is a convincing fit that ICP from the
-        tracked pose converges to), fine (``""``: the tracked pose fits as well as any), or
-        can the scan not tell (``"unsure"``: no convincing pose anywhere — a crowd)?"""
+        """:meth:`check_points` for ``loc``'s current scan and tracked pose."""
+        return self.check_points(loc.prepare(scan), loc.pose)
+
+    def check_points(self, pts: NDArray[np.float64], tracked: Pose) -> tuple[str, Pose | None]:
+        """Given scan points (robot frame) and the tracked pose: is the robot elsewhere
+        (``"lost"``, with the better pose), a little off its tracked pose (``"reanchor"``:
+        the global best is a convincing fit that ICP from the tracked pose converges to),
+        fine (``""``: the tracked pose fits as well as any), or can the scan not tell
+        (``"unsure"``: no convincing pose anywhere — a crowd)? Touches no localizer state
+        (it may run on a worker thread)."""
         rel = self.relocalizer
-        pts = loc.prepare(scan)
         if pts.shape[0] < 10:
             return "unsure", None
-        here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([loc.pose]))[0]
+        here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([tracked]))[0]
         best = rel.glob.search(pts, rel.region, rel.heading).best
         if best is None:
             return "unsure", None
@@ -766,8 +813,8 @@ class GlobalRelocalization:
         if not (convincing or contradicted or outclassed):
             return "unsure", None
         if not rel.glob.distinct(here.pose, best.pose):
-            off = math.hypot(best.pose[0] - loc.pose[0], best.pose[1] - loc.pose[1])
-            turn = abs(wrap_angle(best.pose[2] - loc.pose[2]))
+            off = math.hypot(best.pose[0] - tracked[0], best.pose[1] - tracked[1])
+            turn = abs(wrap_angle(best.pose[2] - tracked[2]))
             if off > 0.1 or turn > math.radians(2.0):
                 return "reanchor", (here.pose[0], here.pose[1], wrap_angle(here.pose[2]))
             return "", None
@@ -793,18 +840,24 @@ def attach(
     detect: bool = True,
     lost_margin: float = 0.3,
     recheck_scans: int = 3,
+    background: bool | None = None,
 ) -> Relocalizer:
     """Plug global relocalization (a :class:`GlobalRelocalization`) into ``localizer`` (an
     :class:`icploc.localizer.Localizer`, as its ``relocalization``): while lost it
     localizes globally with the multi-hypothesis :class:`Relocalizer`; with ``detect`` a
     :class:`LostDetector` (checked by a global search) switches it to ``lost`` after a
-    kidnapping. A localizer without an initial pose then localizes globally.
-    Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
+    kidnapping (checked on a worker thread with ``background``; None: as the localizer's
+    ``localizer.lost_check`` says). A localizer without an initial pose then localizes
+    globally. Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
     rel = relocalizer or Relocalizer(localizer.index)
+    if background is None:  # the localizer's config says (localizer.lost_check)
+        lc = getattr(getattr(localizer, "config", None), "localizer", None)
+        background = getattr(lc, "lost_check", "inline") == "background"
     localizer.relocalization = GlobalRelocalization(
         rel,
         (detector or LostDetector()) if detect else None,
         lost_margin=lost_margin,
         recheck_scans=recheck_scans,
+        background=background,
     )
     return rel
