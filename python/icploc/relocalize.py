@@ -775,10 +775,6 @@ class GlobalRelocalization:
         elif verdict == "reanchor" and pose is not None:
             loc.reset(pose)  # the tracker slid (a degenerate view): put it back
 
-    def check(self, loc: Any, scan: Any) -> tuple[str, Pose | None]:
-        """:meth:`check_points` for ``loc``'s current scan and tracked pose."""
-        return self.check_points(loc.prepare(scan), loc.pose)
-
     def check_points(self, pts: NDArray[np.float64], tracked: Pose) -> tuple[str, Pose | None]:
         """Given scan points (robot frame) and the tracked pose: is the robot elsewhere
         (``"lost"``, with the better pose), a little off its tracked pose (``"reanchor"``:

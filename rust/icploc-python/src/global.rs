@@ -255,13 +255,7 @@ impl PyGlobalLocalizer {
         scan_xy: &Bound<'_, PyAny>,
         poses: &Bound<'_, PyAny>,
     ) -> PyResult<Vec<PyCandidate>> {
-        let scan = array2(py, scan_xy, 2, "scan_xy")?;
-        let poses = poses_arg(py, poses, "poses")?;
-        let s = scan.pairs();
-        let r = py
-            .detach(|| guarded(|| self.inner.refine(s, &poses)))
-            .map_err(|e| to_py(py, e))?;
-        Ok(r.into_iter().map(|inner| PyCandidate { inner }).collect())
+        self.at_poses(py, scan_xy, poses, GlobalLocalizer::refine)
     }
 
     /// Score `scan_xy` at each (M, 3) pose without refinement.
@@ -271,13 +265,7 @@ impl PyGlobalLocalizer {
         scan_xy: &Bound<'_, PyAny>,
         poses: &Bound<'_, PyAny>,
     ) -> PyResult<Vec<PyCandidate>> {
-        let scan = array2(py, scan_xy, 2, "scan_xy")?;
-        let poses = poses_arg(py, poses, "poses")?;
-        let s = scan.pairs();
-        let r = py
-            .detach(|| guarded(|| self.inner.score(s, &poses)))
-            .map_err(|e| to_py(py, e))?;
-        Ok(r.into_iter().map(|inner| PyCandidate { inner }).collect())
+        self.at_poses(py, scan_xy, poses, GlobalLocalizer::score)
     }
 
     /// Are two poses distinct hypotheses (farther apart than distinct_distance or
@@ -344,6 +332,28 @@ impl PyGlobalLocalizer {
             h,
             self.inner.free_cells()
         )
+    }
+}
+
+/// `GlobalLocalizer::refine` or `GlobalLocalizer::score`.
+type AtPoses = fn(&GlobalLocalizer, &[[f64; 2]], &[Pose2]) -> icploc_core::Result<Vec<Candidate>>;
+
+impl PyGlobalLocalizer {
+    /// `op` (refine or score) of one scan at each of the (M, 3) poses, GIL released.
+    fn at_poses(
+        &self,
+        py: Python<'_>,
+        scan_xy: &Bound<'_, PyAny>,
+        poses: &Bound<'_, PyAny>,
+        op: AtPoses,
+    ) -> PyResult<Vec<PyCandidate>> {
+        let scan = array2(py, scan_xy, 2, "scan_xy")?;
+        let poses = poses_arg(py, poses, "poses")?;
+        let s = scan.pairs();
+        let r = py
+            .detach(|| guarded(|| op(&self.inner, s, &poses)))
+            .map_err(|e| to_py(py, e))?;
+        Ok(r.into_iter().map(|inner| PyCandidate { inner }).collect())
     }
 }
 
