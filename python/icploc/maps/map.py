@@ -35,7 +35,21 @@ FORMATS = {
     ".npz": "prepared",
 }
 
-DEFAULT_FIT = {"min_length": 0.2, "min_explained": 0.5}
+#: line-fit settings of grid maps (lengths in metres; see :mod:`icploc.maps.linefit`):
+#: shortest line, share of surface cells lines must explain (else points only), largest
+#: door-sized gap across which collinear pieces are fitted jointly, snapping to the
+#: dominant direction, and the face offset into the occupied side in cells (None: the
+#: ROS YAML's ``icploc_surface_offset``, else 0)
+DEFAULT_FIT: dict[str, Any] = {
+    "min_length": 0.2,
+    "min_explained": 0.5,
+    "max_gap": 1.0,
+    "snap": True,
+    "surface_offset": None,
+}
+
+#: most samples :meth:`Map.sample` makes (a bound against absurd spacings)
+MAX_SAMPLES = 20_000_000
 
 
 def _lines_array(lines: ArrayLike, what: str = "lines") -> FloatArray:
@@ -125,11 +139,15 @@ class Map:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def load(cls, path: str | Path, **options: Any) -> Map:
+    def load(cls, path: str | Path, *, cache: bool | None = None, **options: Any) -> Map:
         """Load a map, choosing the reader by suffix: ``.yaml``/``.yml`` (ROS map_server),
         ``.geojson``/``.json``, ``.dxf``, ``.npy``/``.csv``/``.txt`` (points), ``.npz``
         (prepared, see :meth:`save`). ``options`` go to the reader / line fit (e.g.
-        ``units="mm"`` for DXF, ``min_length=0.3`` for grids)."""
+        ``units="mm"`` for DXF, ``min_length=0.3`` for grids).
+
+        Grid maps are fitted once and kept in the cache of prepared maps (see
+        :mod:`icploc.maps.cache`); ``cache=False`` neither reads nor writes it (``None``, the
+        default, uses it unless ``ICPLOC_NO_CACHE`` is set in the environment)."""
         path = Path(path)
         fmt = FORMATS.get(path.suffix.lower())
         if fmt is None:
@@ -141,15 +159,7 @@ class Map:
         if not path.exists():
             raise MapError(path, None, "file not found")
         if fmt == "ros":
-            from .ros import load_ros
-
-            g = load_ros(path)
-            m = cls.from_grid(
-                g.occupied, g.resolution, g.origin, free=g.free, source=str(path), **options
-            )
-            m.meta.update({"format": "ros", "ros": g.meta})
-            m.occupancy = g.occupancy
-            return m
+            return cls._load_ros(path, cache, options)
         if fmt == "geojson":
             from .geojson import load_geojson
 
@@ -168,6 +178,42 @@ class Map:
         from .prepared import load_prepared
 
         return load_prepared(path)
+
+    @classmethod
+    def _load_ros(cls, path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
+        import os
+
+        from .ros import load_ros, read_yaml
+
+        unknown = set(options) - set(DEFAULT_FIT) - {"fit"}
+        if unknown:
+            raise MapError(path, None, f"unknown map option(s) {sorted(unknown)}")
+        use_cache = (not os.environ.get("ICPLOC_NO_CACHE")) if cache is None else bool(cache)
+        key = None
+        if use_cache:
+            from . import cache as map_cache
+
+            fields = read_yaml(path)
+            settings = {**DEFAULT_FIT, **options}
+            try:
+                key = map_cache.cache_key([path, fields["image"]], settings)
+            except OSError as e:
+                raise MapError(path, None, f"cannot read: {e.strerror or e}") from e
+            hit = map_cache.load_cached(key, str(path))
+            if hit is not None:
+                return hit
+        g = load_ros(path)
+        opts = dict(options)
+        if opts.get("surface_offset") is None:
+            opts["surface_offset"] = g.meta.get("surface_offset", 0.0)
+        m = cls.from_grid(g.occupied, g.resolution, g.origin, free=g.free, source=str(path), **opts)
+        m.meta.update({"format": "ros", "ros": g.meta})
+        m.occupancy = g.occupancy
+        if key is not None:
+            from . import cache as map_cache
+
+            map_cache.store(key, m)
+        return m
 
     @classmethod
     def from_lines(cls, lines: ArrayLike, **meta: Any) -> Map:
@@ -204,15 +250,20 @@ class Map:
         fit: bool = True,
         min_length: float = DEFAULT_FIT["min_length"],
         min_explained: float = DEFAULT_FIT["min_explained"],
+        max_gap: float = DEFAULT_FIT["max_gap"],
+        snap: bool = DEFAULT_FIT["snap"],
+        surface_offset: float | None = DEFAULT_FIT["surface_offset"],
         source: str | None = None,
     ) -> Map:
         """A map from an occupancy grid ``occupancy[iy, ix]`` (row 0 at ``origin``).
 
         ``occupancy`` is boolean (True = occupied; then ``free`` defaults to ``~occupancy``) or
         OccupancyGrid-style numbers (-1 unknown, 0..100: > 65 occupied, < 19.6 free). Walls are
-        fitted as lines (``fit=False`` skips that); pieces shorter than ``min_length`` metres stay
-        as boundary points. If the lines explain less than ``min_explained`` of the wall-surface
-        cells, samples are all surface cells instead (``meta['sample_mode'] == 'points'``).
+        fitted as lines where occupied meets free (``fit=False`` skips that; see
+        :mod:`icploc.maps.linefit` and :data:`DEFAULT_FIT` for ``max_gap``, ``snap`` and
+        ``surface_offset``); pieces shorter than ``min_length`` metres stay as surface points.
+        If the lines explain less than ``min_explained`` of the surface cells, samples are all
+        surface points instead (``meta['sample_mode'] == 'points'``).
         """
         occ_in = np.asarray(occupancy)
         if occ_in.ndim != 2 or occ_in.size == 0:
@@ -243,40 +294,71 @@ class Map:
             source=source,
             meta={"format": "grid"},
         )
-        if fit:
-            m.refit(min_length=min_length, min_explained=min_explained)
-        else:
-            m.refit(min_length=min_length, min_explained=min_explained, lines=False)
+        m.refit(
+            min_length=min_length,
+            min_explained=min_explained,
+            max_gap=max_gap,
+            snap=snap,
+            surface_offset=surface_offset,
+            lines=fit,
+        )
         return m
 
     def refit(
-        self, *, min_length: float = 0.2, min_explained: float = 0.5, lines: bool = True
+        self,
+        *,
+        min_length: float = DEFAULT_FIT["min_length"],
+        min_explained: float = DEFAULT_FIT["min_explained"],
+        max_gap: float = DEFAULT_FIT["max_gap"],
+        snap: bool = DEFAULT_FIT["snap"],
+        surface_offset: float | None = DEFAULT_FIT["surface_offset"],
+        lines: bool = True,
     ) -> None:
-        """(Re)fit the wall lines of a grid map; updates ``lines``, fallback points and ``meta['fit']``."""
+        """(Re)fit the wall lines of a grid map; updates ``lines``, the surface points no
+        line explains and ``meta['fit']`` (see :meth:`from_grid`)."""
         if self.grid is None or self.resolution is None:
             raise MapError(self.source, "grid", "map has no occupancy grid to fit")
         res = self.resolution
-        f = fit_lines(self.grid, self.free, min_length=max(3.0, min_length / res))
+        for name, v in (("min_length", min_length), ("max_gap", max_gap)):
+            if not (math.isfinite(float(v)) and float(v) >= 0):
+                raise MapError(self.source, name, f"must be a finite number >= 0, got {v!r}")
+        offset = 0.0 if surface_offset is None else float(surface_offset)
+        if not 0.0 <= offset <= 0.5:
+            raise MapError(self.source, "surface_offset", f"must lie in [0, 0.5] cells, got {offset!r}")
+        settings = {
+            "min_length": max(3.0, min_length / res),
+            "max_gap": max_gap / res,
+            "snap": bool(snap),
+            "surface_offset": offset,
+        }
+        f = fit_lines(self.grid, self.free, **settings)
         explained = f.explained_fraction if lines else 0.0
-        mode = "lines" if explained >= 0.999 else "lines+points"
-        keep_lines = lines
-        if explained < min_explained:
+        mode = "lines" if len(f.points) == 0 else "lines+points"
+        if explained < min_explained or not lines:
+            # not enough is straight: every surface cell becomes a point
             mode = "points"
-        rest = np.ones(len(f.surface), dtype=bool) if mode == "points" else ~f.explained
-        self.lines = (
-            self.cells_to_world(f.lines.reshape(-1, 2)).reshape(-1, 4)
-            if keep_lines
-            else np.zeros((0, 4))
-        )
-        self.extra_points = self.cells_to_world(f.surface[rest])
-        self.extra_normals = self._rotate(f.surface_normals[rest])
+            everything = dict(settings, min_length=float(sum(self.grid.shape)) * 4)
+            pts = fit_lines(self.grid, self.free, **everything)
+            self.lines = np.zeros((0, 4))
+            self.extra_points = self.cells_to_world(pts.points)
+            self.extra_normals = self._rotate(pts.normals)
+        else:
+            self.lines = self.cells_to_world(f.lines.reshape(-1, 2)).reshape(-1, 4)
+            self.extra_points = self.cells_to_world(f.points)
+            self.extra_normals = self._rotate(f.normals)
         self.meta["sample_mode"] = mode
         self.meta["fit"] = {
             "lines": int(len(f.lines)),
-            "surface_cells": int(len(f.surface)),
+            "surface_cells": f.surface_cells,
             "explained_fraction": round(float(f.explained_fraction), 4),
             "rms_cells_median": round(float(np.median(f.rms)), 4) if len(f.rms) else None,
+            "snapped": int(f.snapped.sum()),
+            "dominant_direction_deg": None
+            if f.dominant_direction is None
+            else round(math.degrees(f.dominant_direction), 4),
             "min_length": min_length,
+            "max_gap": max_gap,
+            "surface_offset": offset,
         }
         self._samples.clear()
         self._indexes.clear()
@@ -343,6 +425,16 @@ class Map:
         if s in self._samples:
             p, n, _ = self._samples[s]
             return p, n
+        if len(self.lines):
+            length = float(np.hypot(*(self.lines[:, 2:] - self.lines[:, :2]).T).sum())
+            if length / s + len(self.lines) > MAX_SAMPLES:
+                raise MapError(
+                    self.source,
+                    "spacing",
+                    f"{spacing!r} m would give about {length / s:.3g} samples along "
+                    f"{length:.1f} m of walls (limit {MAX_SAMPLES:,}); use a spacing of at "
+                    f"least {length / MAX_SAMPLES:.2g} m",
+                )
         lp, ln, _ = sample_lines(self.lines, s)
         counts = {"lines": int(len(lp))}
         parts_p, parts_n = [lp], [ln]

@@ -19,7 +19,9 @@ MAGIC = "icploc-prepared-map"
 VERSION = 1
 
 
-def save_prepared(m: Map, path: str | Path, spacings: list[float]) -> Path:
+def save_prepared(
+    m: Map, path: str | Path, spacings: list[float], *, compress: bool = True
+) -> Path:
     path = Path(path)
     if path.suffix.lower() != ".npz":
         raise MapError(path, None, "prepared maps are .npz files")
@@ -56,7 +58,10 @@ def save_prepared(m: Map, path: str | Path, spacings: list[float]) -> Path:
         meta["spacings"].append({"spacing": s, "counts": m.sample_counts(s)})
     arrays["meta"] = np.array(json.dumps(meta, default=str))
     with open(path, "wb") as fh:
-        np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
+        if compress:
+            np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
+        else:
+            np.savez(fh, **arrays)  # type: ignore[arg-type]
     return path
 
 

@@ -39,6 +39,14 @@ PGM_OCCUPIED = 0
 PGM_FREE = 254
 PGM_UNKNOWN = 205
 
+#: largest image read (pixels): 10,000 x 10,000, e.g. 500 m square at 5 cm
+MAX_PIXELS = 100_000_000
+
+#: optional key (ignored by map_server) saying where wall surfaces lie inside the boundary
+#: cells, in cells into the occupied side (0: on the occupied/free boundary; 0.5: on the
+#: cell centres, as in maps built from laser hits). ``icploc map build`` writes 0.5.
+SURFACE_OFFSET_KEY = "icploc_surface_offset"
+
 
 @dataclass
 class RosGrid:
@@ -121,8 +129,15 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     if not isinstance(mode, str) or mode.lower() not in MODES:
         raise MapError(path, "mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
 
+    offset = 0.0
+    if doc.get(SURFACE_OFFSET_KEY) is not None:
+        offset = _number(path, doc, SURFACE_OFFSET_KEY)
+        if not 0.0 <= offset <= 0.5:
+            raise MapError(path, SURFACE_OFFSET_KEY, f"must lie in [0, 0.5] cells, got {offset!r}")
+
     return {
         "image": image_path,
+        "surface_offset": offset,
         "resolution": resolution,
         "origin": (ox[0], ox[1], ox[2]),
         "negate": neg,
@@ -139,8 +154,30 @@ def _read_image(
     the number of colour channels."""
     from PIL import Image, UnidentifiedImageError
 
+    import warnings
+
+    from PIL import DecompressionBombError, DecompressionBombWarning
+
     try:
-        with Image.open(image_path) as im:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DecompressionBombWarning)
+            im_ctx = Image.open(image_path)
+    except DecompressionBombError as e:
+        raise MapError(
+            yaml_path, "image", f"image {image_path} is too large (limit {MAX_PIXELS:,} pixels)"
+        ) from e
+    except (OSError, UnidentifiedImageError) as e:
+        raise MapError(yaml_path, "image", f"cannot decode image {image_path}: {e}") from e
+    w, h = im_ctx.size
+    if w * h > MAX_PIXELS:
+        im_ctx.close()
+        raise MapError(
+            yaml_path,
+            "image",
+            f"image {image_path} has {w} x {h} = {w * h:,} pixels (limit {MAX_PIXELS:,})",
+        )
+    try:
+        with im_ctx as im:
             im.load()
             mode = im.mode
             if mode in ("I;16", "I;16B", "I;16L", "I"):

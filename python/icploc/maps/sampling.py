@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 FloatArray = NDArray[np.float64]
 
@@ -75,6 +74,7 @@ def estimate_normals(points: FloatArray, radius: float, k: int = 8) -> FloatArra
     n = np.tile([1.0, 0.0], (len(points), 1))
     if len(points) < 2:
         return n
+    from scipy.spatial import cKDTree
     kk = min(k + 1, len(points))
     dist, idx = cKDTree(points).query(points, k=kk, distance_upper_bound=radius)
     valid = np.isfinite(dist)

@@ -12,6 +12,8 @@
 //!   solve kept to a yaw, the point-to-line alternative, convergence rules, covariance and
 //!   degeneracy from the Hessian of the final cost.
 //! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
+//! * [`gridlines`]: wall lines (and leftover surface points) traced from occupancy grids.
+//! * [`gridcast`]: occupancy grids from scans by ray casting (building maps from logs).
 //! * [`raycast`]: ray casting against wall segments (simulation, visibility).
 //! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
 
@@ -20,6 +22,8 @@
 
 pub mod error;
 pub mod global;
+pub mod gridcast;
+pub mod gridlines;
 pub mod icp;
 pub mod index;
 pub mod quaternion;
