@@ -14,12 +14,21 @@ from .errors import MapError
 map_app = typer.Typer(no_args_is_help=True, help="Load, fit, inspect and prepare maps.")
 
 
-def _load(path: Path, min_length: float | None = None):  # type: ignore[no-untyped-def]
+#: help of the ``--no-cache`` option of every command that loads a map
+NO_CACHE_HELP = "fit the map afresh: neither read nor write the cache of prepared maps"
+
+
+def load_map(path: Path, *, no_cache: bool = False, **options: object):  # type: ignore[no-untyped-def]
+    """``Map.load`` for CLI commands: ``no_cache`` is the ``--no-cache`` flag."""
     from .map import Map
 
+    return Map.load(path, cache=False if no_cache else None, **options)
+
+
+def _load(path: Path, min_length: float | None = None, no_cache: bool = False):  # type: ignore[no-untyped-def]
     opts = {} if min_length is None else {"min_length": min_length}
     try:
-        return Map.load(path, **opts)
+        return load_map(path, no_cache=no_cache, **opts)
     except MapError as e:
         typer.echo(f"error: {e}", err=True)
         raise typer.Exit(2) from e
@@ -37,11 +46,12 @@ def show(
     max_range: float = typer.Option(30.0, help="max range with --pose [m]"),
     normals: bool = typer.Option(False, help="draw sample normals"),
     dpi: int = typer.Option(150),
+    no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Draw the grid, the fitted lines and the samples to an image."""
     from .plot import save_map_plot
 
-    m = _load(map_path)
+    m = _load(map_path, no_cache=no_cache)
     p = None
     if pose:
         try:
@@ -67,10 +77,11 @@ def info(
     map_path: Path = typer.Argument(..., help="map file"),
     spacing: float = typer.Option(0.05, help="sample spacing for the point counts [m]"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
+    no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Print what the map holds: format, lines, fit quality, sample counts and timings."""
     t0 = time.perf_counter()
-    m = _load(map_path)
+    m = _load(map_path, no_cache=no_cache)
     t1 = time.perf_counter()
     d = m.info()
     d["samples"] = m.sample_counts(spacing)
@@ -90,9 +101,10 @@ def prepare(
     out: Path = typer.Option(..., "--out", "-o", help="prepared map to write (.npz)"),
     spacing: list[float] = typer.Option([0.05], help="sample spacing(s) to store [m]"),
     min_length: float | None = typer.Option(None, help="shortest fitted line for grids [m]"),  # noqa: UP007
+    no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Fit and sample once; save everything to one .npz that loads fast."""
-    m = _load(map_path, min_length)
+    m = _load(map_path, min_length, no_cache=no_cache)
     try:
         m.save(out, spacing=spacing)
     except MapError as e:
@@ -107,9 +119,10 @@ def convert(
     map_path: Path = typer.Argument(..., help="map file"),
     out: Path = typer.Option(..., "--out", "-o", help=".geojson (lines) or .yaml (ROS grid)"),
     resolution: float = typer.Option(0.05, help="cell size for .yaml output [m]"),
+    no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Write the map's lines as GeoJSON, or rasterise them into a ROS map_server map."""
-    m = _load(map_path)
+    m = _load(map_path, no_cache=no_cache)
     suffix = out.suffix.lower()
     try:
         if suffix in (".geojson", ".json"):
@@ -122,3 +135,39 @@ def convert(
         typer.echo(f"error: {e}", err=True)
         raise typer.Exit(2) from e
     typer.echo(f"wrote {out}")
+
+
+@map_app.command()
+def build(
+    log: Path = typer.Argument(..., help="log file (CARMEN, ROS bag, icploc recording)"),
+    out: Path = typer.Option(..., "--out", "-o", help="map_server YAML to write (.yaml)"),
+    poses: Path | None = typer.Option(  # noqa: UP007
+        None, help="TUM file of laser poses (default: the log's own corrected poses)"
+    ),
+    resolution: float = typer.Option(0.05, help="cell size [m]"),
+    min_hits: int = typer.Option(2, help="beam hits a cell needs to be occupied"),
+    max_range: float = typer.Option(30.0, help="use beams up to this range [m]"),
+) -> None:
+    """Build a map_server map (YAML + PGM) from a log's scans at known poses; free space by
+    ray casting."""
+    from .build import build_grid
+
+    if out.suffix.lower() not in (".yaml", ".yml"):
+        raise typer.BadParameter("--out must end in .yaml")
+    try:
+        if out.resolve() == log.resolve() or (poses is not None and out.resolve() == poses.resolve()):
+            raise MapError(out, None, "the output would overwrite an input")
+        t0 = time.perf_counter()
+        g = build_grid(
+            log, poses=poses, resolution=resolution, min_hits=min_hits, max_range=max_range
+        )
+        g.save(out)
+    except (MapError, OSError, ValueError) as e:
+        typer.echo(f"error: {e}", err=True)
+        raise typer.Exit(2) from e
+    h, w = g.occupied.shape
+    typer.echo(
+        f"wrote {out}: {w} x {h} cells at {resolution} m from {g.scans_used} scans, "
+        f"{int(g.occupied.sum())} occupied, {int(g.free.sum())} free "
+        f"({time.perf_counter() - t0:.1f} s)"
+    )

@@ -42,7 +42,7 @@ FORMATS = {
 #: ROS YAML's ``icploc_surface_offset``, else 0)
 DEFAULT_FIT: dict[str, Any] = {
     "min_length": 0.2,
-    "min_explained": 0.5,
+    "min_explained": 0.2,
     "max_gap": 1.0,
     "snap": True,
     "surface_offset": None,
@@ -561,7 +561,8 @@ class Map:
         """Rasterise the lines into a ROS map_server map (trinary YAML + PGM/PNG); returns the
         YAML path.
 
-        Every cell a line passes through is occupied, all others free. By default the grid
+        Every cell a line passes through is occupied, all others free; the YAML says so
+        (``icploc_surface_offset: 0.5``: walls run through the centres of their cells). By default the grid
         covers :attr:`bounds` plus ``margin`` and is aligned so cell centres sit on multiples
         of ``resolution`` (a wall at x = 2.0 runs through cell centres); ``origin`` (x, y[, yaw])
         overrides that.
@@ -597,7 +598,8 @@ class Map:
             raise MapError(self.source, "resolution", f"grid of {w}x{h} cells is too large")
         occ = rasterize_lines(cells, (h, w))
         yaml_path = Path(yaml_path)
-        save_ros(yaml_path, occ, res, o, image_format=image_format)
+        # a rasterised line runs through its cells: its surface is at their centres
+        save_ros(yaml_path, occ, res, o, image_format=image_format, surface_offset=0.5)
         return yaml_path
 
     def to_geojson(self, path: str | Path) -> Path:

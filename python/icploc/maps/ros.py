@@ -152,11 +152,10 @@ def _read_image(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, int]:
     """Grey levels 0..255 (mean of colour channels), opacity 0..1 (None without alpha) and
     the number of colour channels."""
-    from PIL import Image, UnidentifiedImageError
-
     import warnings
 
-    from PIL import DecompressionBombError, DecompressionBombWarning
+    from PIL import Image, UnidentifiedImageError
+    from PIL.Image import DecompressionBombError, DecompressionBombWarning
 
     try:
         with warnings.catch_warnings():
@@ -254,11 +253,13 @@ def save_ros(
     origin: tuple[float, float, float],
     free: NDArray[np.bool_] | None = None,
     image_format: str = "pgm",
+    surface_offset: float | None = None,
 ) -> Path:
     """Write a trinary map_server map (YAML + PGM/PNG beside it). Returns the image path.
 
     ``occupied``/``free`` are in OccupancyGrid layout (row 0 at the origin). Cells that are
     neither are written as unknown; ``free=None`` means every non-occupied cell is free.
+    ``surface_offset`` (cells) is written as ``icploc_surface_offset`` when given.
     """
     yaml_path = Path(yaml_path)
     if image_format not in ("pgm", "png"):
@@ -293,5 +294,7 @@ def save_ros(
         "occupied_thresh": 0.65,
         "free_thresh": 0.196,
     }
+    if surface_offset is not None:
+        doc[SURFACE_OFFSET_KEY] = float(surface_offset)
     yaml_path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return image_path

@@ -12,16 +12,21 @@
 //!    line between the two cell centres; for a wall whose face lies on the cell boundaries
 //!    (a drawn or rasterised floor plan) it is exact, for a sloping face it is unbiased.
 //! 2. **Chains.** Face edges are linked end to start into chains (open ones end at unknown
-//!    space; closed ones ring a wall or an obstacle). At a saddle vertex the right turn is
-//!    taken, so each occupied 4-connected component gets its own ring.
+//!    space; closed ones ring a wall or an obstacle). At a saddle vertex the left turn is
+//!    taken: occupied cells that touch at a corner belong to one wall (8-connected), so a
+//!    thin diagonal staircase is one chain.
 //! 3. **Split.** Each chain is compressed into straight runs; the run corners are split
-//!    Douglas-Peucker style at `split_tolerance` cells.
+//!    Douglas-Peucker style at `split_tolerance` cells times the extent of a cell across the
+//!    chord (`|ux| + |uy|`: the corners of a digital straight line at 45° spread over √2
+//!    cells).
 //! 4. **Refit without end cells.** A piece of three or more runs is fitted by total least
 //!    squares to the face midpoints of its inner runs only: the first and last run may
 //!    belong to the neighbouring wall (a corner) or be a partial step of a staircase.
-//! 5. **Join.** Pieces with the same free side, directions within `join_angle`, and offsets
-//!    within `join_offset` are fitted jointly when the gap between them is at most
-//!    `max_gap` (a door): they share one line. Pieces that touch become one segment; pieces
+//! 5. **Join.** Pieces with the same free side, directions within `join_angle` (or three
+//!    standard deviations of their fits, at most 10°) and offsets within `join_offset` are
+//!    fitted jointly when the gap between them is at most `max_gap` (a door) and one line
+//!    explains both about as well as each explains itself (RMS at most 0.15 cells above
+//!    theirs, and at most `max_rms`): they share one line. Pieces that touch become one segment; pieces
 //!    across a gap keep their own extents (the door stays open).
 //! 6. **Snap (optional).** The length-weighted dominant direction (mod 90°) is found; a
 //!    line whose direction lies within `snap_sigmas` standard deviations of its own fit
@@ -76,6 +81,10 @@ pub struct LineConfig {
     pub snap_sigmas: f64,
     /// Move every face this far into the occupied side [cells], 0..=0.5 (see module doc).
     pub surface_offset: f64,
+    /// Unknown cells up to this many steps (through unknown cells) from free space count as
+    /// free when finding faces: map editors, thresholds and anti-aliasing leave such a rim
+    /// between free space and walls. 0 turns this off.
+    pub unknown_rim: usize,
 }
 
 impl Default for LineConfig {
@@ -90,6 +99,7 @@ impl Default for LineConfig {
             snap: true,
             snap_sigmas: 2.0,
             surface_offset: 0.0,
+            unknown_rim: 2,
         }
     }
 }
@@ -288,6 +298,13 @@ pub fn extract_lines(
             got: format!("{} cells", cells.len()),
         });
     }
+    let rimmed;
+    let cells = if cfg.unknown_rim > 0 {
+        rimmed = fill_rim(cells, width, height, cfg.unknown_rim);
+        &rimmed[..]
+    } else {
+        cells
+    };
     let edges = face_edges(cells, width, height);
     let chains = link_chains(&edges);
     let mut pieces = Vec::new();
@@ -334,6 +351,45 @@ pub fn extract_lines(
 
 fn line_len(s: &[f64; 4]) -> f64 {
     (s[2] - s[0]).hypot(s[3] - s[1])
+}
+
+/// A copy of `cells` where unknown cells within `rim` 4-steps (through unknown cells) of
+/// free space are free.
+fn fill_rim(cells: &[u8], width: usize, height: usize, rim: usize) -> Vec<u8> {
+    let mut out = cells.to_vec();
+    let mut frontier: Vec<usize> = Vec::new();
+    let is_unknown = |v: u8| v != FREE && v != OCCUPIED;
+    for (k, &v) in cells.iter().enumerate() {
+        if v == FREE {
+            frontier.push(k);
+        }
+    }
+    for _ in 0..rim {
+        let mut next = Vec::new();
+        for &k in &frontier {
+            let (x, y) = (k % width, k / width);
+            let mut visit = |j: usize| {
+                if is_unknown(out[j]) {
+                    out[j] = FREE;
+                    next.push(j);
+                }
+            };
+            if x > 0 {
+                visit(k - 1);
+            }
+            if x + 1 < width {
+                visit(k + 1);
+            }
+            if y > 0 {
+                visit(k - width);
+            }
+            if y + 1 < height {
+                visit(k + width);
+            }
+        }
+        frontier = next;
+    }
+    out
 }
 
 fn face_edges(cells: &[u8], width: usize, height: usize) -> Vec<Edge> {
@@ -402,11 +458,12 @@ fn link_chains(edges: &[Edge]) -> Vec<Vec<usize>> {
                 continue;
             }
             let d = edges[c as usize].dir;
-            // priority: right turn, straight, left turn
+            // priority: left turn, straight, right turn (occupied cells touching at a
+            // corner are one wall: a diagonal staircase one cell thin stays one chain)
             let rank = match (d + 4 - e.dir) % 4 {
-                3 => 0,
+                1 => 0,
                 0 => 1,
-                1 => 2,
+                3 => 2,
                 _ => 3,
             };
             if best.is_none_or(|(r, _)| rank < r) {
@@ -514,7 +571,14 @@ fn split_chain(edges: &[Edge], chain: &[usize], tol: f64, out: &mut Vec<Piece>) 
                 best = (dist, k);
             }
         }
-        if best.0 > tol {
+        // a cell's extent across the chord: vertices of a digital straight line lie within
+        // (|ux| + |uy|) of each other across it
+        let across = if len < 1e-12 {
+            1.0
+        } else {
+            (d[0].abs() + d[1].abs()) / len
+        };
+        if best.0 > tol * across {
             stack.push((i, best.1));
             stack.push((best.1, j));
         } else {
@@ -566,6 +630,19 @@ fn split_chain(edges: &[Edge], chain: &[usize], tol: f64, out: &mut Vec<Piece>) 
             extent_pts,
         });
     }
+}
+
+/// 1/sqrt(12): the standard deviation of a position quantised to a cell.
+const QUANT: f64 = 0.288_675_134_594_812_9;
+
+/// Standard deviation of a TLS direction [rad]: residual (at least the quantisation of a
+/// cell) over the root of the spread along the line.
+fn angle_sigma(s: &Stats) -> f64 {
+    if s.n < 2.0 {
+        return std::f64::consts::PI;
+    }
+    let (_, ss, spread) = s.fit();
+    (ss / s.n).sqrt().max(QUANT) / spread.max(1e-12).sqrt()
 }
 
 fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -635,7 +712,7 @@ fn join_pieces(pieces: &[Piece], cfg: &LineConfig) -> Vec<Vec<usize>> {
             }
         }
     }
-    let cos_max = cfg.join_angle_deg.to_radians().cos();
+    let sigma: Vec<f64> = pieces.iter().map(|p| angle_sigma(&p.stats)).collect();
     let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
     for (k, f) in fits.iter().enumerate() {
         let Some((ck, uk, (lo_k, hi_k))) = f else {
@@ -656,7 +733,13 @@ fn join_pieces(pieces: &[Piece], cfg: &LineConfig) -> Vec<Vec<usize>> {
         seen.dedup();
         for j in seen {
             let Some((cj, uj, _)) = fits[j] else { continue };
-            if uk[0] * uj[0] + uk[1] * uj[1] < cos_max {
+            // directions agree within the join angle or the two fits' own uncertainty
+            let allowed = cfg
+                .join_angle_deg
+                .to_radians()
+                .max(3.0 * sigma[k].hypot(sigma[j]))
+                .min(10f64.to_radians());
+            if uk[0] * uj[0] + uk[1] * uj[1] < allowed.cos() {
                 continue;
             }
             // offset of j's centroid from k's line, and k's from j's
@@ -688,14 +771,11 @@ fn join_pieces(pieces: &[Piece], cfg: &LineConfig) -> Vec<Vec<usize>> {
             continue;
         }
         let m = dsu.stats[ra].merged(&dsu.stats[rb]);
-        let (u, ss, _) = m.fit();
-        let ua = oriented(dsu.stats[ra].fit().0, dsu.hint[ra]);
-        let ub = oriented(dsu.stats[rb].fit().0, dsu.hint[rb]);
-        let u = oriented(u, ua);
-        if (ss / m.n).sqrt() > cfg.max_rms
-            || u[0] * ua[0] + u[1] * ua[1] < cos_max
-            || u[0] * ub[0] + u[1] * ub[1] < cos_max
-        {
+        let (_, ss, _) = m.fit();
+        let rms_of = |s: &Stats| (s.fit().1 / s.n).sqrt();
+        // one line must explain both about as well as each explains itself
+        let own = rms_of(&dsu.stats[ra]).max(rms_of(&dsu.stats[rb])).max(QUANT);
+        if (ss / m.n).sqrt() > cfg.max_rms.min(own + 0.15) {
             continue;
         }
         dsu.parent[rb] = ra;
@@ -720,7 +800,6 @@ fn finish_groups(
     groups: &[Vec<usize>],
     cfg: &LineConfig,
 ) -> (Vec<(GridLine, Vec<usize>)>, Option<f64>) {
-    const QUANT: f64 = 0.288_675_134_594_812_9; // 1/sqrt(12): a cell's position quantisation
     struct G {
         c: [f64; 2],
         u: [f64; 2],
@@ -1006,7 +1085,11 @@ mod tests {
         for y in 0..10 {
             g[y * 10 + 6] = UNKNOWN;
         }
-        let r = extract_lines(&g, 10, 10, &LineConfig::default()).unwrap();
+        let cfg = LineConfig {
+            unknown_rim: 0,
+            ..LineConfig::default()
+        };
+        let r = extract_lines(&g, 10, 10, &cfg).unwrap();
         assert_eq!(r.face_edges, 10); // only the left faces
         assert_eq!(r.lines.len(), 1);
         let s = r.lines[0].segment;

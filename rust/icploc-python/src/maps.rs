@@ -107,6 +107,7 @@ fn config_dict<'py>(py: Python<'py>, c: &LineConfig) -> PyResult<Bound<'py, PyDi
     d.set_item("snap", c.snap)?;
     d.set_item("snap_sigmas", c.snap_sigmas)?;
     d.set_item("surface_offset", c.surface_offset)?;
+    d.set_item("unknown_rim", c.unknown_rim)?;
     Ok(d)
 }
 
@@ -121,7 +122,7 @@ fn grid_line_defaults<'py>(py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
 #[pyfunction]
 #[pyo3(signature = (cells, *, split_tolerance=None, min_length=None, max_gap=None,
     join_angle_deg=None, join_offset=None, max_rms=None, snap=None, snap_sigmas=None,
-    surface_offset=None))]
+    surface_offset=None, unknown_rim=None))]
 #[allow(clippy::too_many_arguments)]
 fn extract_grid_lines(
     py: Python<'_>,
@@ -135,6 +136,7 @@ fn extract_grid_lines(
     snap: Option<bool>,
     snap_sigmas: Option<f64>,
     surface_offset: Option<f64>,
+    unknown_rim: Option<usize>,
 ) -> PyResult<PyGridLines> {
     let d = LineConfig::default();
     let cfg = LineConfig {
@@ -147,6 +149,7 @@ fn extract_grid_lines(
         snap: snap.unwrap_or(d.snap),
         snap_sigmas: snap_sigmas.unwrap_or(d.snap_sigmas),
         surface_offset: surface_offset.unwrap_or(d.surface_offset),
+        unknown_rim: unknown_rim.unwrap_or(d.unknown_rim),
     };
     let shape = cells.shape();
     let (h, w) = (shape[0], shape[1]);
