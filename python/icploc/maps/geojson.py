@@ -22,6 +22,10 @@ from .errors import MapError
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
 
 
+#: deepest nesting of GeometryCollections read
+MAX_NESTING = 32
+
+
 class _Reader:
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -61,6 +65,8 @@ class _Reader:
             raise self.err(field, f"geometry must be an object, got {type(g).__name__}")
         kind = g.get("type")
         if kind == "GeometryCollection":
+            if field.count(".geometries[") >= MAX_NESTING:
+                raise self.err(field, f"GeometryCollections nested more than {MAX_NESTING} deep")
             geoms = g.get("geometries")
             if not isinstance(geoms, list):
                 raise self.err(f"{field}.geometries", "must be an array")
@@ -127,6 +133,8 @@ def load_geojson(path: str | Path) -> tuple[NDArray[np.float64], dict[str, Any]]
         raise MapError(path, None, f"cannot read file: {e.strerror or e}") from e
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise MapError(path, None, f"not valid JSON: {e}") from e
+    except RecursionError as e:
+        raise MapError(path, None, "JSON nested too deeply to be a map") from e
     units = doc.get("units", "m") if isinstance(doc, dict) else "m"
     if units not in UNITS:
         raise MapError(path, "units", f"must be one of {', '.join(UNITS)}, got {units!r}")

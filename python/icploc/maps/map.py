@@ -498,9 +498,43 @@ class Map:
         sample hides an arc of half-width ``point_radius`` (default ``spacing / 2``: the
         piece of wall it stands for). ``exact=True``: ray-segment tests in numpy
         against the lines plus a ``spacing``-long piece of wall at every non-line sample
-        (slower; a reference).
+        (slower; a reference). For grid maps with unknown cells, a point behind unknown cells
+        is hidden too (:func:`icploc.maps.visibility.visible_in_grid`).
         """
         s = _check_spacing(spacing)
+        idx = self._visible_lines(pose, fov, max_range, s, exact, point_radius, tolerance)
+        if self.grid is None or self.free is None or self.resolution is None:
+            return idx
+        unknown = ~(self.grid | self.free)
+        if not unknown.any() or len(idx) == 0:
+            return idx
+        # unknown cells occlude as walls do; the ray stops short of the point by the rim of
+        # unknown cells a wall may have (see linefit) plus a cell
+        from .linefit import classes, defaults
+        from .visibility import visible_in_grid
+
+        p, _ = self.sample(s)
+        reach = (int(defaults()["unknown_rim"]) + 1) * self.resolution
+        ok = visible_in_grid(
+            classes(self.grid, self.free),
+            self.resolution,
+            self.origin,
+            pose,
+            p[idx],
+            max(tolerance, reach),
+        )
+        return idx[ok]
+
+    def _visible_lines(
+        self,
+        pose: Sequence[float],
+        fov: float,
+        max_range: float,
+        s: float,
+        exact: bool,
+        point_radius: float | None,
+        tolerance: float,
+    ) -> NDArray[np.int64]:
         if exact:
             from .visibility import visible_exact
 

@@ -69,3 +69,38 @@ def visible_exact(
         hit = (np.abs(den) > 1e-12) & (u > 1e-9) & (u < umax[:, None]) & (v >= 0.0) & (v <= 1.0)
         blocked[s : s + step] = hit.any(axis=1)
     return cand[~blocked].astype(np.int64)
+
+
+def visible_in_grid(
+    classes: NDArray[np.uint8],
+    resolution: float,
+    origin: Sequence[float],
+    pose: Sequence[float],
+    points: FloatArray,
+    tolerance: float,
+) -> NDArray[np.bool_]:
+    """Which ``points`` a sensor at ``pose`` sees through an occupancy grid: the ray to a
+    point must cross only free cells (unknown cells occlude, as occupied ones do) up to
+    ``tolerance`` metres before the point. ``classes[iy, ix]``: 0 free, 1 occupied, 2
+    unknown; ``origin`` (x, y, yaw) of the grid's outer corner. The ray walk is in Rust."""
+    from icploc._core import grid_visible
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+
+    def local(xy: FloatArray) -> FloatArray:
+        q = xy - np.array([origin[0], origin[1]])
+        return np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
+
+    sensor = local(np.array([[pose[0], pose[1]]], dtype=np.float64))[0]
+    return np.asarray(
+        grid_visible(
+            np.ascontiguousarray(classes, dtype=np.uint8),
+            (0.0, 0.0),
+            float(resolution),
+            (float(sensor[0]), float(sensor[1])),
+            np.ascontiguousarray(local(pts)),
+            float(tolerance),
+        ),
+        dtype=bool,
+    )
