@@ -41,7 +41,7 @@ FORMATS = {
 #: dominant direction, and the face offset into the occupied side in cells (None: the
 #: ROS YAML's ``icploc_surface_offset``, else 0)
 DEFAULT_FIT: dict[str, Any] = {
-    "min_length": 0.2,
+    "min_length": 0.15,
     "min_explained": 0.2,
     "max_gap": 1.0,
     "snap": True,
