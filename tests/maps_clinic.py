@@ -87,14 +87,13 @@ def grid() -> NDArray[np.bool_]:
     return inside_any((xx + 0.5) * RES, (yy + 0.5) * RES)
 
 
-def inside_facility(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """Within the outer walls (free space beyond them is outside the building)."""
-    return (x > 0.7) & (x < 29.5) & (y > 0.7) & (y < 11.3)
+def inside_grid(x: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Within the grid (free space outside the building is free space too)."""
+    return (x > 0.0) & (x < W) & (y > 0.0) & (y < H)
 
 
 def face_samples(step: float = 0.01) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Points every ``step`` along every polygon edge that free space inside the building
-    sees, their outward unit normals, and the length of the edge each lies on."""
+    """Points every ``step`` along every polygon edge that free space sees, their outward unit normals, and the length of the edge each lies on."""
     pts, nrms, lens = [], [], []
     for poly in polygons():
         for i in range(len(poly)):
@@ -106,7 +105,7 @@ def face_samples(step: float = 0.01) -> tuple[NDArray[np.float64], NDArray[np.fl
             t = (np.arange(int(length / step)) + 0.5) * step
             q = a + t[:, None] * u
             probe = q + 0.02 * n
-            seen = ~inside_any(probe[:, 0], probe[:, 1]) & inside_facility(probe[:, 0], probe[:, 1])
+            seen = ~inside_any(probe[:, 0], probe[:, 1]) & inside_grid(probe[:, 0], probe[:, 1])
             pts.append(q[seen])
             nrms.append(np.tile(n, (int(seen.sum()), 1)))
             lens.append(np.full(int(seen.sum()), length))

@@ -514,6 +514,27 @@ fn split_chain(edges: &[Edge], chain: &[usize], tol: f64, out: &mut Vec<Piece>) 
         let (s, n) = runs.pop().expect("several runs");
         runs[0] = (s, n + runs[0].1);
     }
+    if closed && runs.len() > 2 {
+        // start a ring at one end of its longest extent (the vertex farthest from the
+        // vertex farthest from run 0), so no wall face is cut at an arbitrary start
+        let start_of = |r: &(usize, usize)| {
+            let e = edges[chain[r.0 % chain.len()]];
+            [e.x as f64, e.y as f64]
+        };
+        let v0 = start_of(&runs[0]);
+        let far = |from: [f64; 2]| {
+            (0..runs.len())
+                .max_by(|&a, &b| {
+                    dist2(start_of(&runs[a]), from)
+                        .partial_cmp(&dist2(start_of(&runs[b]), from))
+                        .expect("finite")
+                })
+                .unwrap_or(0)
+        };
+        let f1 = far(v0);
+        let f2 = far(start_of(&runs[f1]));
+        runs.rotate_left(f2);
+    }
     let m = chain.len();
     let vertex = |r: usize| -> [f64; 2] {
         // start vertex of run r
@@ -855,25 +876,36 @@ fn finish_groups(
                 .enumerate()
                 .map(|(i, &w)| (i, w + hist[(i + 89) % 90] + hist[(i + 1) % 90]))
                 .fold((0, -1.0), |b, x| if x.1 > b.1 { x } else { b });
-            let centre = (peak as f64 + 0.5).to_radians();
-            let (mut sc, mut ss) = (0.0, 0.0);
-            for g in fitted.iter().flatten() {
-                if g.n < 6.0 {
-                    continue;
+            // weighted mean of the lines near the peak (within 2 degrees), then again of
+            // those consistent with that mean (within 3 sigma of their own fit + 0.05 deg)
+            let mut centre = (peak as f64 + 0.5).to_radians();
+            for pass in 0..2 {
+                let (mut sc, mut ss) = (0.0, 0.0);
+                for g in fitted.iter().flatten() {
+                    if g.n < 6.0 {
+                        continue;
+                    }
+                    let th = g.u[1].atan2(g.u[0]);
+                    let mut d = (4.0 * (th - centre)).rem_euclid(std::f64::consts::TAU);
+                    if d > std::f64::consts::PI {
+                        d -= std::f64::consts::TAU;
+                    }
+                    let window = if pass == 0 {
+                        2f64.to_radians()
+                    } else {
+                        3.0 * g.sigma + 0.05f64.to_radians()
+                    };
+                    if (0.25 * d).abs() <= window {
+                        let w = g.n / g.sigma.max(1e-6);
+                        sc += w * (4.0 * th).cos();
+                        ss += w * (4.0 * th).sin();
+                    }
                 }
-                let th = g.u[1].atan2(g.u[0]);
-                let mut d = (4.0 * (th - centre)).rem_euclid(std::f64::consts::TAU);
-                if d > std::f64::consts::PI {
-                    d -= std::f64::consts::TAU;
+                if sc == 0.0 && ss == 0.0 {
+                    break;
                 }
-                if d.abs() < (4.0f64 * 2.0).to_radians() {
-                    let w = g.n / g.sigma.max(1e-6);
-                    sc += w * (4.0 * th).cos();
-                    ss += w * (4.0 * th).sin();
-                }
-            }
-            if sc != 0.0 || ss != 0.0 {
-                dominant = Some((0.25 * ss.atan2(sc)).rem_euclid(std::f64::consts::FRAC_PI_2));
+                centre = (0.25 * ss.atan2(sc)).rem_euclid(std::f64::consts::FRAC_PI_2);
+                dominant = Some(centre);
             }
         }
     }
