@@ -302,8 +302,13 @@ def test_from_grid_accepts_occupancy_values() -> None:
     m = Map.from_grid(g, 0.1, (0.0, 0.0))
     assert m.grid is not None and m.free is not None
     assert m.grid.sum() == 20 and not m.free[25, 0]
-    assert len(m.lines) == 1
-    np.testing.assert_allclose(sorted_rows(m.lines), [[0.5, 1.05, 2.5, 1.05]], atol=1e-9)
+    # a one-cell wall: both faces (row 10 spans y 1.0 .. 1.1), normals to their free sides
+    assert len(m.lines) == 2
+    np.testing.assert_allclose(
+        sorted_rows(m.lines), [[0.5, 1.0, 2.5, 1.0], [0.5, 1.1, 2.5, 1.1]], atol=1e-9
+    )
+    up = m.lines[m.lines[:, 1] > 1.05][0]
+    assert up[2] > up[0]  # the upper face runs +x: its left normal faces +y
 
 
 # ----------------------------------------------------------------------------- prepared

@@ -137,12 +137,14 @@ def test_floor_plan_has_no_spurious_lines(plan_map: Map) -> None:
             max(point_segment_distance(s[:2], w), point_segment_distance(s[2:], w)) for w in PLAN
         )
         assert d <= MAX_OVERSHOOT, s
-    # and the fit explains every wall cell, so no fallback points are needed
-    assert plan_map.meta["fit"]["explained_fraction"] == 1.0
-    assert plan_map.meta["sample_mode"] == "lines"
-    assert len(plan_map.extra_points) == 0
-    # one line per straight wall: at most a few extra pieces where walls cross
-    assert len(plan_map.lines) <= len(PLAN) + 4
+    # the fit explains all but the end caps of the thin walls: every leftover point lies
+    # within a cell of a wall's end
+    assert plan_map.meta["fit"]["explained_fraction"] >= 0.99
+    ends = PLAN.reshape(-1, 2)
+    for p in plan_map.extra_points:
+        assert np.hypot(*(ends - p).T).min() <= 2.5 * RES, p
+    # one line per face: two per thin wall, at most a few extra pieces where walls cross
+    assert len(plan_map.lines) <= 2 * len(PLAN) + 4
 
 
 def test_fitted_lines_face_free_space_for_thick_walls() -> None:
@@ -156,14 +158,16 @@ def test_fitted_lines_face_free_space_for_thick_walls() -> None:
     for s in long:
         assert abs(s[1] - s[3]) < 1e-6  # horizontal
         y = s[1]
-        assert y in (25.0, 34.0)  # on the face cell centres (half a cell inside the face)
+        assert min(abs(y - 24.5), abs(y - 34.5)) < 1e-9  # on the faces (cell units)
         nrm_y = np.sign(s[2] - s[0])  # left normal of a +x line is +y
-        assert (nrm_y > 0) == (y == 34.0)
+        assert (nrm_y > 0) == (y > 30)
 
 
 @pytest.mark.parametrize("length", [0.5, 1.0, 2.0, 4.0])
 def test_random_walls_within_raster_limits(length: float) -> None:
-    """Single walls at random angles and sub-cell offsets, rasterised as in ``to_ros``."""
+    """Single walls at random angles and sub-cell offsets, rasterised as in ``to_ros``; with
+    the surface offset of rasterised lines (half a cell) both faces of the thin wall come
+    back on its centre line, one line per face."""
     rng = np.random.default_rng(int(length * 100))
     n = length / RES
     for _ in range(40):
@@ -171,14 +175,15 @@ def test_random_walls_within_raster_limits(length: float) -> None:
         c = rng.uniform(60.0, 61.0, 2)
         half = 0.5 * n * np.array([math.cos(th), math.sin(th)])
         wall_cells = np.concatenate([c - half, c + half])
-        f = fit_lines(rasterize_lines(wall_cells[None], (122, 122)))
-        r = assess(wall_cells[None] * RES, f.lines * RES)[0]
-        assert r["n"] == 1
-        assert r["distance"] <= TOL + 1e-9
-        assert r["overshoot"] <= MAX_OVERSHOOT
+        f = fit_lines(rasterize_lines(wall_cells[None], (122, 122)), surface_offset=0.5)
+        r = assess(wall_cells[None] * RES, f.lines * RES, tol=TOL + 0.005)[0]
+        # one line per face; a face of a sloped staircase may come in two pieces
+        assert 2 <= r["n"] <= 4
+        assert r["distance"] <= TOL + 0.005
+        assert r["overshoot"] <= MAX_OVERSHOOT + 0.005
         assert r["coverage"] >= 0.95
         assert r["angle"] <= max(0.5, raster_angle_bound_deg(length)), (th, r)
-        assert len(f.lines) == 1
+        assert len(f.lines) == r["n"]
 
 
 def test_supercover_touches_every_cell_the_segment_crosses() -> None:
@@ -206,7 +211,7 @@ def test_clutter_falls_back_to_boundary_points() -> None:
     blobs = [(30, 30), (50, 20), (40, 55)]
     for y, x in blobs:
         occ[y - 1 : y + 2, x - 1 : x + 2] = True
-    m = Map.from_grid(occ, RES, (0.0, 0.0, 0.0))
+    m = Map.from_grid(occ, RES, (0.0, 0.0, 0.0), min_length=0.2)  # blob sides are 0.15 m
     assert 0.5 < m.meta["fit"]["explained_fraction"] < 1.0
     assert m.meta["sample_mode"] == "lines+points"
     assert len(m.extra_points) == 3 * 8  # the ring of each 3x3 blob
@@ -229,7 +234,8 @@ def test_grid_without_lines_uses_all_boundary_points() -> None:
     yy, xx = np.mgrid[:40, :40]
     occ[(xx - 20) ** 2 + (yy - 20) ** 2 <= 9] = True  # a round pillar: nothing straight
     m = Map.from_grid(occ, 0.1, (1.0, 2.0, 0.0), min_length=1.0)
-    assert len(m.lines) == 0 or m.meta["sample_mode"] != "lines"
+    assert len(m.lines) == 0
+    assert m.meta["sample_mode"] == "points"
     p, n = m.sample(0.1)
     assert len(p) > 0
     # normals point outwards from the pillar centre

@@ -90,7 +90,7 @@ pub struct LineConfig {
 impl Default for LineConfig {
     fn default() -> Self {
         LineConfig {
-            split_tolerance: 1.0,
+            split_tolerance: 1.5,
             min_length: 4.0,
             max_gap: 20.0,
             join_angle_deg: 2.0,
