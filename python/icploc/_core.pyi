@@ -301,3 +301,73 @@ class GlobalLocalizer:
     def distinct_distance(self) -> float: ...
     @property
     def distinct_angle(self) -> float: ...
+
+# ----------------------------------------------------------------------------- maps
+@final
+class GridLines:
+    """Result of :func:`extract_grid_lines` (cell-corner units)."""
+
+    @property
+    def lines(self) -> NDArray[np.float64]: ...
+    @property
+    def rms(self) -> NDArray[np.float64]: ...
+    @property
+    def support(self) -> NDArray[np.int64]: ...
+    @property
+    def sigma_angle(self) -> NDArray[np.float64]: ...
+    @property
+    def snapped(self) -> NDArray[np.bool_]: ...
+    @property
+    def points(self) -> NDArray[np.float64]: ...
+    @property
+    def normals(self) -> NDArray[np.float64]: ...
+    @property
+    def surface_cells(self) -> int: ...
+    @property
+    def explained_cells(self) -> int: ...
+    @property
+    def explained_fraction(self) -> float: ...
+    @property
+    def face_edges(self) -> int: ...
+    @property
+    def dominant_direction(self) -> float | None: ...
+
+def grid_line_defaults() -> dict[str, float | bool | int]:
+    """The defaults of :func:`extract_grid_lines` (lengths in cells)."""
+
+def extract_grid_lines(
+    cells: NDArray[np.uint8],
+    *,
+    split_tolerance: float | None = None,
+    min_length: float | None = None,
+    max_gap: float | None = None,
+    join_angle_deg: float | None = None,
+    join_offset: float | None = None,
+    max_rms: float | None = None,
+    snap: bool | None = None,
+    snap_sigmas: float | None = None,
+    surface_offset: float | None = None,
+    unknown_rim: int | None = None,
+) -> GridLines:
+    """Wall lines of a class grid ``cells[iy, ix]`` (0 free, 1 occupied, else unknown)."""
+
+def cast_rays(
+    origins: ArrayLike,
+    ends: ArrayLike,
+    hit: NDArray[np.bool_],
+    origin: tuple[float, float],
+    resolution: float,
+    width: int,
+    height: int,
+) -> tuple[NDArray[np.uint32], NDArray[np.uint32]]:
+    """Ray casting into a grid: (hits, passes) per cell, (height, width)."""
+
+def grid_visible(
+    cells: NDArray[np.uint8],
+    origin: tuple[float, float],
+    resolution: float,
+    sensor: tuple[float, float],
+    targets: ArrayLike,
+    tolerance: float,
+) -> NDArray[np.bool_]:
+    """Which targets a sensor sees through a class grid (non-free cells block)."""

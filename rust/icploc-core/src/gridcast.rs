@@ -130,8 +130,16 @@ fn trace(g: &GridGeometry, o: [f64; 2], e: [f64; 2], is_hit: bool, out: &mut Ray
         }
     };
     let delta = [
-        if step[0] == 0 { f64::INFINITY } else { 1.0 / d[0].abs() },
-        if step[1] == 0 { f64::INFINITY } else { 1.0 / d[1].abs() },
+        if step[0] == 0 {
+            f64::INFINITY
+        } else {
+            1.0 / d[0].abs()
+        },
+        if step[1] == 0 {
+            f64::INFINITY
+        } else {
+            1.0 / d[1].abs()
+        },
     ];
     let mut tx = next_t(cx, step[0], a[0], d[0]);
     let mut ty = next_t(cy, step[1], a[1], d[1]);
@@ -222,8 +230,16 @@ pub fn grid_visible(
                 }
             };
             let delta = [
-                if step[0] == 0 { f64::INFINITY } else { 1.0 / d[0].abs() },
-                if step[1] == 0 { f64::INFINITY } else { 1.0 / d[1].abs() },
+                if step[0] == 0 {
+                    f64::INFINITY
+                } else {
+                    1.0 / d[0].abs()
+                },
+                if step[1] == 0 {
+                    f64::INFINITY
+                } else {
+                    1.0 / d[1].abs()
+                },
             ];
             let mut tx = next(cx, step[0], a[0], d[0]);
             let mut ty = next(cy, step[1], a[1], d[1]);

@@ -206,7 +206,10 @@ impl Edge {
     }
     fn mid(&self) -> [f64; 2] {
         let (dx, dy) = DIRS[self.dir as usize];
-        [self.x as f64 + 0.5 * dx as f64, self.y as f64 + 0.5 * dy as f64]
+        [
+            self.x as f64 + 0.5 * dx as f64,
+            self.y as f64 + 0.5 * dy as f64,
+        ]
     }
     /// Left normal (towards free).
     fn normal(&self) -> [f64; 2] {
@@ -410,13 +413,28 @@ fn face_edges(cells: &[u8], width: usize, height: usize) -> Vec<Edge> {
             let (x, y) = (ix as i64, iy as i64);
             let cell = iy * width + ix;
             if at(x, y + 1) == FREE {
-                edges.push(Edge { x, y: y + 1, dir: 0, cell });
+                edges.push(Edge {
+                    x,
+                    y: y + 1,
+                    dir: 0,
+                    cell,
+                });
             }
             if at(x + 1, y) == FREE {
-                edges.push(Edge { x: x + 1, y: y + 1, dir: 3, cell });
+                edges.push(Edge {
+                    x: x + 1,
+                    y: y + 1,
+                    dir: 3,
+                    cell,
+                });
             }
             if at(x, y - 1) == FREE {
-                edges.push(Edge { x: x + 1, y, dir: 2, cell });
+                edges.push(Edge {
+                    x: x + 1,
+                    y,
+                    dir: 2,
+                    cell,
+                });
             }
             if at(x - 1, y) == FREE {
                 edges.push(Edge { x, y, dir: 1, cell });
@@ -627,8 +645,7 @@ fn split_chain(edges: &[Edge], chain: &[usize], tol: f64, out: &mut Vec<Piece>) 
             .max()
             .unwrap_or(0);
         let inner = j - i >= 3 && runs[i].1.max(runs[j - 1].1) <= longest_inner;
-        for r in i..j {
-            let (s, n) = runs[r];
+        for (r, &(s, n)) in runs.iter().enumerate().take(j).skip(i) {
             let fit_this = !inner || (r != i && r != j - 1);
             for q in 0..n {
                 let k = chain[(s + q) % m];
@@ -680,10 +697,11 @@ fn oriented(u: [f64; 2], hint: [f64; 2]) -> [f64; 2] {
 
 /// (t_min, t_max) of points projected on a line through c with direction u.
 fn extent(pts: &[[f64; 2]], c: [f64; 2], u: [f64; 2]) -> (f64, f64) {
-    pts.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-        let t = (p[0] - c[0]) * u[0] + (p[1] - c[1]) * u[1];
-        (lo.min(t), hi.max(t))
-    })
+    pts.iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            let t = (p[0] - c[0]) * u[0] + (p[1] - c[1]) * u[1];
+            (lo.min(t), hi.max(t))
+        })
 }
 
 struct Dsu {
@@ -702,11 +720,14 @@ impl Dsu {
     }
 }
 
+/// (centroid, unit direction, (t_min, t_max)) of a piece's fit.
+type LineFitOf = ([f64; 2], [f64; 2], (f64, f64));
+
 /// Group pieces that lie on one line (same free side, close direction and offset, gap at
 /// most `max_gap`). Returns groups of piece indices.
 fn join_pieces(pieces: &[Piece], cfg: &LineConfig) -> Vec<Vec<usize>> {
     let n = pieces.len();
-    let fits: Vec<Option<([f64; 2], [f64; 2], (f64, f64))>> = pieces
+    let fits: Vec<Option<LineFitOf>> = pieces
         .iter()
         .map(|p| {
             if p.stats.n < 2.0 {
@@ -795,13 +816,18 @@ fn join_pieces(pieces: &[Piece], cfg: &LineConfig) -> Vec<Vec<usize>> {
         let (_, ss, _) = m.fit();
         let rms_of = |s: &Stats| (s.fit().1 / s.n).sqrt();
         // one line must explain both about as well as each explains itself
-        let own = rms_of(&dsu.stats[ra]).max(rms_of(&dsu.stats[rb])).max(QUANT);
+        let own = rms_of(&dsu.stats[ra])
+            .max(rms_of(&dsu.stats[rb]))
+            .max(QUANT);
         if (ss / m.n).sqrt() > cfg.max_rms.min(own + 0.15) {
             continue;
         }
         dsu.parent[rb] = ra;
         dsu.stats[ra] = m;
-        let h = [dsu.hint[ra][0] + dsu.hint[rb][0], dsu.hint[ra][1] + dsu.hint[rb][1]];
+        let h = [
+            dsu.hint[ra][0] + dsu.hint[rb][0],
+            dsu.hint[ra][1] + dsu.hint[rb][1],
+        ];
         dsu.hint[ra] = h;
     }
     let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
@@ -936,7 +962,7 @@ fn finish_groups(
             .collect();
         spans.sort_by(|a, b| a.0.partial_cmp(&b.0).expect("finite"));
         let mut cur: Option<(f64, f64, Vec<usize>)> = None;
-        let mut emit = |lo: f64, hi: f64, mem: Vec<usize>, out: &mut Vec<(GridLine, Vec<usize>)>| {
+        let emit = |lo: f64, hi: f64, mem: Vec<usize>, out: &mut Vec<(GridLine, Vec<usize>)>| {
             let support = mem.iter().map(|&p| pieces[p].edges.len()).sum();
             out.push((
                 GridLine {
@@ -1061,7 +1087,11 @@ mod tests {
     }
 
     fn find(r: &GridLines, pred: impl Fn(&[f64; 4]) -> bool) -> Vec<[f64; 4]> {
-        r.lines.iter().map(|l| l.segment).filter(|s| pred(s)).collect()
+        r.lines
+            .iter()
+            .map(|l| l.segment)
+            .filter(|s| pred(s))
+            .collect()
     }
 
     #[test]
@@ -1070,14 +1100,24 @@ mod tests {
         let g = grid(30, 20, |x, y| (5..15).contains(&x) && (6..10).contains(&y));
         let r = extract_lines(&g, 30, 20, &LineConfig::default()).unwrap();
         // four faces
-        let top = find(&r, |s| (s[1] - 10.0).abs() < 1e-9 && (s[3] - 10.0).abs() < 1e-9);
+        let top = find(&r, |s| {
+            (s[1] - 10.0).abs() < 1e-9 && (s[3] - 10.0).abs() < 1e-9
+        });
         assert_eq!(top.len(), 1);
         let t = top[0];
         // left normal faces +y: direction +x
-        assert!((t[0] - 5.0).abs() < 1e-9 && (t[2] - 15.0).abs() < 1e-9, "{t:?}");
-        let bottom = find(&r, |s| (s[1] - 6.0).abs() < 1e-9 && (s[3] - 6.0).abs() < 1e-9);
+        assert!(
+            (t[0] - 5.0).abs() < 1e-9 && (t[2] - 15.0).abs() < 1e-9,
+            "{t:?}"
+        );
+        let bottom = find(&r, |s| {
+            (s[1] - 6.0).abs() < 1e-9 && (s[3] - 6.0).abs() < 1e-9
+        });
         assert_eq!(bottom.len(), 1);
-        assert!(bottom[0][0] > bottom[0][2], "bottom runs -x so its normal faces -y");
+        assert!(
+            bottom[0][0] > bottom[0][2],
+            "bottom runs -x so its normal faces -y"
+        );
         assert_eq!(r.explained_cells, r.surface_cells);
     }
 
@@ -1105,9 +1145,13 @@ mod tests {
 
     #[test]
     fn door_gap_stays_open_and_shares_the_line() {
-        let g = grid(60, 10, |x, y| (3..=5).contains(&y) && !(25..40).contains(&x));
+        let g = grid(60, 10, |x, y| {
+            (3..=5).contains(&y) && !(25..40).contains(&x)
+        });
         let r = extract_lines(&g, 60, 10, &LineConfig::default()).unwrap();
-        let top = find(&r, |s| (s[1] - 6.0).abs() < 1e-9 && (s[3] - 6.0).abs() < 1e-9);
+        let top = find(&r, |s| {
+            (s[1] - 6.0).abs() < 1e-9 && (s[3] - 6.0).abs() < 1e-9
+        });
         assert_eq!(top.len(), 2, "{:?}", r.lines);
     }
 
@@ -1139,11 +1183,19 @@ mod tests {
         let long = r
             .lines
             .iter()
-            .max_by(|a, b| line_len(&a.segment).partial_cmp(&line_len(&b.segment)).unwrap())
+            .max_by(|a, b| {
+                line_len(&a.segment)
+                    .partial_cmp(&line_len(&b.segment))
+                    .unwrap()
+            })
             .unwrap();
         let s = long.segment;
         let ang = (s[3] - s[1]).atan2(s[2] - s[0]);
-        assert!((ang - m.atan()).abs() < 0.1f64.to_radians(), "{}", ang.to_degrees());
+        assert!(
+            (ang - m.atan()).abs() < 0.1f64.to_radians(),
+            "{}",
+            ang.to_degrees()
+        );
         let xm = 0.5 * (s[0] + s[2]);
         let ym = 0.5 * (s[1] + s[3]);
         let d = (ym - (m * xm + b)) * m.atan().cos();

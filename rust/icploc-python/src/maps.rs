@@ -9,7 +9,9 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use icploc_core::gridcast::{cast_rays as core_cast_rays, grid_visible as core_grid_visible, GridGeometry};
+use icploc_core::gridcast::{
+    cast_rays as core_cast_rays, grid_visible as core_grid_visible, GridGeometry,
+};
 use icploc_core::gridlines::{extract_lines, GridLines, LineConfig};
 
 use crate::{array2, guarded, input_err, pairs_to_array, to_py};
