@@ -202,48 +202,110 @@ def _read_image(
     return a.mean(axis=2), None, nch
 
 
-def load_ros(path: str | Path) -> RosGrid:
-    """Load a map_server YAML + image into an occupancy grid (OccupancyGrid layout)."""
-    path = Path(path)
-    f = read_yaml(path)
-    grey, alpha, ncolour = _read_image(path, f["image"])
-    if grey.size == 0:
-        raise MapError(path, "image", f"image {f['image']} is empty")
+def _classify(
+    grey: NDArray[np.float64], alpha: NDArray[np.float64] | None, ncolour: int, f: dict[str, Any]
+) -> tuple[NDArray[np.int8], NDArray[np.bool_], NDArray[np.bool_]]:
+    """map_server's pixel rules: (occupancy -1/0..100, occupied, free) of grey levels."""
     mode, occ_t, free_t = f["mode"], f["occupied_thresh"], f["free_thresh"]
-
     if mode == "raw":
         v = np.rint(grey)
         occupancy = np.where((v >= 0) & (v <= 100), v, -1).astype(np.int8)
         pct = occupancy.astype(np.float64) / 100.0
         known = occupancy >= 0
-        occupied = known & (pct > occ_t)
-        free = known & (pct < free_t)
+        return occupancy, known & (pct > occ_t), known & (pct < free_t)
+    if mode == "trinary" and alpha is not None:
+        # map_server averages the opacity in with the colour channels in trinary mode
+        grey = (grey * ncolour + alpha * 255.0) / (ncolour + 1)
+    occ = grey / 255.0 if f["negate"] else (255.0 - grey) / 255.0
+    occupied = occ > occ_t
+    free = occ < free_t
+    occupancy = np.full(grey.shape, -1, dtype=np.int8)
+    occupancy[occupied] = 100
+    occupancy[free] = 0
+    if mode == "scale":
+        mid = ~occupied & ~free
+        if alpha is not None:
+            mid &= alpha >= 1.0
+        scaled = np.rint((occ - free_t) / (occ_t - free_t) * 100.0)
+        occupancy[mid] = np.clip(scaled[mid], 0, 100).astype(np.int8)
+    return occupancy, occupied, free
+
+
+def load_ros(path: str | Path) -> RosGrid:
+    """Load a map_server YAML + image into an occupancy grid (OccupancyGrid layout)."""
+    path = Path(path)
+    f = read_yaml(path)
+    grey_u8 = _read_grey_u8(path, f["image"])
+    if grey_u8 is not None:
+        # 8-bit grey without alpha (PGM, grey PNG): classify the 256 levels once, then look
+        # every pixel up (the same rules, one pass over bytes)
+        if grey_u8.size == 0:
+            raise MapError(path, "image", f"image {f['image']} is empty")
+        lut_occ, lut_o, lut_f = _classify(np.arange(256, dtype=np.float64), None, 1, f)
+        flipped = grey_u8[::-1]
+        occupancy, occupied, free = lut_occ[flipped], lut_o[flipped], lut_f[flipped]
     else:
-        if mode == "trinary" and alpha is not None:
-            # map_server averages the opacity in with the colour channels in trinary mode
-            grey = (grey * ncolour + alpha * 255.0) / (ncolour + 1)
-        occ = grey / 255.0 if f["negate"] else (255.0 - grey) / 255.0
-        occupied = occ > occ_t
-        free = occ < free_t
-        occupancy = np.full(grey.shape, -1, dtype=np.int8)
-        occupancy[occupied] = 100
-        occupancy[free] = 0
-        if mode == "scale":
-            mid = ~occupied & ~free
-            if alpha is not None:
-                mid &= alpha >= 1.0
-            scaled = np.rint((occ - free_t) / (occ_t - free_t) * 100.0)
-            occupancy[mid] = np.clip(scaled[mid], 0, 100).astype(np.int8)
-    # image row 0 is the top; OccupancyGrid row 0 is the bottom (the origin)
+        grey, alpha, ncolour = _read_image(path, f["image"])
+        if grey.size == 0:
+            raise MapError(path, "image", f"image {f['image']} is empty")
+        occupancy, occupied, free = _classify(grey, alpha, ncolour, f)
+        # image row 0 is the top; OccupancyGrid row 0 is the bottom (the origin)
+        occupancy, occupied, free = occupancy[::-1], occupied[::-1], free[::-1]
     meta = {k: (str(v) if isinstance(v, Path) else v) for k, v in f.items()}
     return RosGrid(
-        occupancy=np.ascontiguousarray(occupancy[::-1]),
-        occupied=np.ascontiguousarray(occupied[::-1]),
-        free=np.ascontiguousarray(free[::-1]),
+        occupancy=np.ascontiguousarray(occupancy),
+        occupied=np.ascontiguousarray(occupied),
+        free=np.ascontiguousarray(free),
         resolution=f["resolution"],
         origin=f["origin"],
         meta=meta,
     )
+
+
+def _read_grey_u8(yaml_path: Path, image_path: Path) -> NDArray[np.uint8] | None:
+    """The pixels of a binary PGM (P5, maxval 255) as uint8, read directly; None for any
+    other image (then PIL decodes it)."""
+    try:
+        with open(image_path, "rb") as fh:
+            head = fh.read(512)
+            if not head.startswith(b"P5"):
+                return None
+            fields: list[bytes] = []
+            pos = 2
+            while len(fields) < 3:
+                while pos < len(head) and head[pos : pos + 1].isspace():
+                    pos += 1
+                if pos < len(head) and head[pos : pos + 1] == b"#":
+                    nl = head.find(b"\n", pos)
+                    if nl < 0:
+                        return None
+                    pos = nl + 1
+                    continue
+                end = pos
+                while end < len(head) and head[end : end + 1].isdigit():
+                    end += 1
+                if end == pos:
+                    return None
+                fields.append(head[pos:end])
+                pos = end
+            w, h, maxval = (int(v) for v in fields)
+            if maxval != 255 or w <= 0 or h <= 0:
+                return None
+            if w * h > MAX_PIXELS:
+                raise MapError(
+                    yaml_path,
+                    "image",
+                    f"image {image_path} has {w} x {h} = {w * h:,} pixels (limit {MAX_PIXELS:,})",
+                )
+            fh.seek(pos + 1)  # one whitespace byte ends the header
+            data = np.fromfile(fh, dtype=np.uint8, count=w * h)
+    except OSError as e:
+        raise MapError(yaml_path, "image", f"cannot read image {image_path}: {e.strerror or e}") from e
+    if data.size != w * h:
+        raise MapError(
+            yaml_path, "image", f"cannot decode image {image_path}: truncated, {data.size} of {w * h} pixels"
+        )
+    return data.reshape(h, w)
 
 
 def save_ros(
