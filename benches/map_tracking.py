@@ -19,9 +19,8 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
 import icploc
+import numpy as np
 from icploc.logs import open_log
 from icploc.maps import Map
 from icploc.maps.build import build_grid
