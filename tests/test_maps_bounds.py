@@ -74,27 +74,6 @@ def test_deeply_nested_geojson_arrays_are_a_map_error(tmp_path: Path) -> None:
         Map.load(p)
 
 
-def test_huge_png_is_refused_too(tmp_path: Path) -> None:
-    pytest.importorskip("PIL")
-    import struct
-    import zlib
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        body = kind + data
-        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
-
-    ihdr = struct.pack(">IIBBBBB", 20000, 20000, 8, 0, 0, 0, 0)
-    png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b"")
-    (tmp_path / "huge.png").write_bytes(png)
-    y = tmp_path / "huge.yaml"
-    y.write_text(
-        "image: huge.png\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\n"
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
-    )
-    with pytest.raises(MapError, match=r"field .image.: .*too large \(limit 100,000,000 pixels\)"):
-        Map.load(y, cache=False)
-
-
 def test_deeply_nested_geometry_collections_are_a_map_error(tmp_path: Path) -> None:
     g: dict[str, object] = {"type": "LineString", "coordinates": [[0, 0], [1, 0]]}
     for _ in range(40):
