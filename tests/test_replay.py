@@ -120,6 +120,13 @@ def test_malformed_log_error_names_the_line(tmp_path: Path, sim_run: dict) -> No
     bad = tmp_path / "bad.log"
     bad.write_text("ODOM 0 0 0 0 0 0 0.0 h 0.0\nFLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
     with pytest.raises(LogFormatError, match=r"bad\.log:2"):
+        replay(bad, sim_run["map"], strict=True)
+
+
+def test_log_whose_only_scan_is_malformed_says_so(tmp_path: Path, sim_run: dict) -> None:
+    bad = tmp_path / "bad.log"
+    bad.write_text("ODOM 0 0 0 0 0 0 0.0 h 0.0\nFLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
+    with pytest.raises(ValueError, match=r"no laser scans \(dropped 1 malformed line.*line 2:"):
         replay(bad, sim_run["map"])
 
 
