@@ -98,9 +98,7 @@ class ReplayResult:
                 "the output files hold all of them"
             )
         if self.log_info is not None:
-            dmg = self.log_info.damage_lines()
-            if dmg:
-                parts.append("log: " + "; ".join(d.strip() for d in dmg))
+            parts.extend("log: " + d.strip() for d in self.log_info.damage_lines())
         if self.dropped_stamps:
             parts.append(f"log: dropped {self.dropped_stamps} message(s) with a non-finite stamp")
         if self.metrics:

@@ -132,7 +132,7 @@ class Damage:
         if self.strict:
             raise err
         self.n_dropped += 1
-        if len(self.dropped) < MAX_REPORTED:
+        if len(self.dropped) < 100_000:  # sorted by line, then cut to MAX_REPORTED
             self.dropped.append((err.line, err.reason))
 
     def readings(self, kind: str, n: int, line: int | None, example: float) -> None:
@@ -145,7 +145,9 @@ class Damage:
 
     def fill(self, info: LogInfo) -> LogInfo:
         info.n_dropped = self.n_dropped
-        info.dropped = list(self.dropped)
+        info.dropped = sorted(self.dropped, key=lambda d: (d[0] is None, d[0] or 0))[
+            :MAX_REPORTED
+        ]
         info.invalid_readings = dict(self.invalid)
         if self.n_dropped:
             log.warning("%s: dropped %d malformed line(s)", self.path, self.n_dropped)

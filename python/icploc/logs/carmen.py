@@ -79,36 +79,49 @@ MAX_LOG_BYTES = 1 << 30
 
 
 def _open_text(path: str | os.PathLike[str], max_bytes: int, damage: Damage) -> str:
-    """The file as text, gunzipped when it is gzip, read in chunks up to ``max_bytes``
-    (a gzip bomb is stopped there). A gzip stream cut short keeps what it held (lenient)."""
+    """The file as text, gunzipped when it is gzip, decompressed in bounded steps up to
+    ``max_bytes`` (a gzip bomb is stopped there). A gzip stream cut short or corrupted
+    part-way keeps what it held before (lenient; ``strict`` refuses it)."""
     limit = int(max_bytes)
     with open(path, "rb") as fh:
-        head = fh.read(2)
-    gz = head == b"\x1f\x8b"
-    chunks: list[bytes] = []
-    size = 0
-    opener: Callable[..., Any] = gzip.open if gz else open
-    try:
-        with opener(path, "rb") as fh:
-            while True:
-                b = fh.read(1 << 22)
-                if not b:
-                    break
-                size += len(b)
-                if size > limit:
-                    what = "decompresses to" if gz else "is"
-                    raise LogFormatError(
-                        path,
-                        f"{what} more than {limit:,} bytes; refusing to read it whole "
-                        f"(raise the bound with max_bytes= if the log is genuine)",
-                    )
-                chunks.append(b)
-    except (OSError, EOFError, zlib.error) as exc:
-        if not gz:
-            raise
+        if fh.read(2) != b"\x1f\x8b":
+            size = os.fstat(fh.fileno()).st_size
+            if size > limit:
+                raise LogFormatError(path, f"is {size:,} bytes, more than the {limit:,} allowed")
+            fh.seek(0)
+            return fh.read().decode("latin-1")
+        fh.seek(0)
+        chunks: list[bytes] = []
+        size = 0
+        d = zlib.decompressobj(31)
+        broken = ""
+        fed = False  # the current member has been given input
+        try:
+            while comp := fh.read(1 << 20):
+                while comp:
+                    fed = True
+                    out = d.decompress(comp, 1 << 22)
+                    size += len(out)
+                    if size > limit:
+                        raise LogFormatError(
+                            path,
+                            f"decompresses to more than {limit:,} bytes; refusing to read it "
+                            "whole (raise the bound with max_bytes= if the log is genuine)",
+                        )
+                    chunks.append(out)
+                    comp = d.unconsumed_tail
+                    if d.eof:  # a multi-member gzip: the next member follows
+                        comp = d.unused_data
+                        d = zlib.decompressobj(31)
+                        fed = False
+            if fed and not d.eof:
+                broken = "the gzip stream ends before its end marker"
+        except zlib.error as exc:
+            broken = f"corrupt gzip data: {exc}"
+    if broken:
         if damage.strict or not chunks:
-            raise LogFormatError(path, f"broken gzip stream: {exc}") from exc
-        damage.drop(LogFormatError(path, f"gzip stream broken after {size:,} bytes: {exc}"))
+            raise LogFormatError(path, f"broken gzip stream: {broken}")
+        damage.drop(LogFormatError(path, f"{broken} (after {size:,} bytes)"))
     return b"".join(chunks).decode("latin-1")
 
 
@@ -244,6 +257,7 @@ def _exact_flaser(path: str, lineno: int, line: str) -> list[float]:
         raise LogFormatError(
             path, f"FLASER: {len(t)} tokens, expected {need + 2} for {n} readings", lineno
         )
+    _check_tail(path, lineno, "FLASER", t, need)
     _check_not_short(
         path, lineno, "FLASER", t, 2, need, f"{n} readings, 6 pose values and a timestamp"
     )
@@ -278,6 +292,15 @@ def _check_not_short(
             return
 
 
+def _check_tail(path: str, lineno: int, kind: str, t: list[str], need: int) -> None:
+    """Every message ends ``timestamp hostname logger_timestamp``: a line that stops at the
+    timestamp (or the hostname) was cut off, and its last number may be cut too."""
+    if len(t) < need + 2:
+        raise LogFormatError(
+            path, f"{kind}: truncated line: it ends before the hostname and logger timestamp", lineno
+        )
+
+
 def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
     t = line.split()
     if len(t) < 8:
@@ -288,6 +311,7 @@ def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
         )
     if len(t) > 10:
         raise LogFormatError(path, f"ODOM: {len(t)} tokens, expected 10", lineno)
+    _check_tail(path, lineno, "ODOM", t, 8)
     _check_not_short(path, lineno, "ODOM", t, 1, 8, "x y theta tv rv accel timestamp")
     return [_num(path, lineno, "ODOM value", t[k]) for k in range(1, 8)]
 
@@ -318,6 +342,7 @@ def _exact_rawlaser(path: str, lineno: int, line: str, robot: bool) -> list[floa
         )
     if len(t) > need + 2:
         raise LogFormatError(path, f"{kind}: {len(t)} tokens, expected {need + 2}", lineno)
+    _check_tail(path, lineno, kind, t, need)
     _check_not_short(path, lineno, kind, t, 10 + n, need, f"{m} remissions, poses and a timestamp")
     vals.extend(_num(path, lineno, f"{kind} value", t[k]) for k in range(10 + n, need))
     return vals
