@@ -12,6 +12,7 @@ Formats: ``carmen`` (:mod:`icploc.logs.carmen`), ``rosbag1`` / ``rosbag2``
 
 from __future__ import annotations
 
+import errno
 import importlib
 import importlib.util
 import os
@@ -146,7 +147,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
     """Name of the registered format that reads ``path`` (by content, then by extension)."""
     p = os.fspath(path)
     if not os.path.exists(p):
-        raise FileNotFoundError(p)
+        raise FileNotFoundError(errno.ENOENT, "no such log file", p)
     for f in FORMATS.values():
         if f.sniff(p):
             return f.name

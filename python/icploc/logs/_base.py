@@ -150,7 +150,7 @@ class Damage:
         ]
         info.invalid_readings = dict(self.invalid)
         if self.n_dropped:
-            log.warning("%s: dropped %d malformed line(s)", self.path, self.n_dropped)
+            log.info("%s: dropped %d malformed line(s)", self.path, self.n_dropped)
         return info
 
 
