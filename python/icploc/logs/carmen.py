@@ -421,11 +421,12 @@ def _drop_rows(
     path: str,
     m: NDArray[np.float64],
     idx: list[int],
-    bad: NDArray[np.bool_],
+    flags: ArrayLike,
     why: str,
     damage: Damage,
 ) -> tuple[NDArray[np.float64], list[int]]:
     """Remove the rows flagged ``bad`` (each a malformed line: ``why``) from ``m`` / ``idx``."""
+    bad = np.asarray(flags, dtype=bool).reshape(len(idx))
     if not bad.any():
         return m, idx
     for r in np.flatnonzero(bad):
