@@ -69,9 +69,7 @@ def test_round_trip(tmp_path: Path, version: int) -> None:
 
 
 def test_rep117_beams(tmp_path: Path) -> None:
-    ang = np.linspace(-1, 1, 6)
     r = np.array([0.01, np.nan, -np.inf, np.inf, 12.0, 3.0])  # < min, nan, -inf, +inf, > max, ok
-    assert len(ang) == len(r)
     # our writer turns flagged beams into inf: write the raw values through rosbags directly
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
