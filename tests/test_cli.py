@@ -116,7 +116,9 @@ def test_replay_bad_initial_pose_and_bad_log(carmen_run: dict[str, Path], tmp_pa
     assert "X,Y,THETA" in r.output
 
 
-def test_replay_strict_refuses_a_malformed_line(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+def test_replay_strict_refuses_a_malformed_line(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
     bad = tmp_path / "bad.log"
     bad.write_text(
         "FLASER 3 1.0 1.0 1.0 0 0 0 0 0 0 0.1 h 0.1\nFLASER 3 1.0 oops 1.0 0 0 0 0 0 0 0.2 h 0.2\n"
@@ -272,9 +274,7 @@ def test_estimates_csv_header(carmen_run: dict[str, Path], tmp_path: Path) -> No
     est = tmp_path / "e.csv"
     _replay(carmen_run, "--estimates", str(est))
     head = est.read_text().splitlines()[0]
-    assert head.startswith(
-        "stamp,x,y,theta,status,reason,inlier_ratio,cov_xx,cov_xy,cov_yy,cov_tt"
-    )
+    assert head.startswith("stamp,x,y,theta,status,reason,inlier_ratio,cov_xx,cov_xy,cov_yy,cov_tt")
 
 
 def test_replay_that_loses_most_scans_exits_3(carmen_run: dict[str, Path], tmp_path: Path) -> None:
@@ -348,7 +348,11 @@ def test_map_convert_write_error_is_one_error_line(
     _register()
     dest = tmp_path / "missing_dir" / "m.geojson"
     r = runner.invoke(app, ["map", "convert", str(carmen_run["map"]), "-o", str(dest)])
-    assert (r.exit_code, r.output.startswith("error: "), "Traceback" in r.output) == (1, True, False)
+    assert (r.exit_code, r.output.startswith("error: "), "Traceback" in r.output) == (
+        1,
+        True,
+        False,
+    )
 
 
 def test_map_prepare_write_error_is_one_error_line(

@@ -51,6 +51,7 @@ def test_demo_paths_match_the_paper() -> None:
     for p in (walk.path, circles.path):
         assert np.all(np.abs(p) < 3.0)  # stays inside the room, away from the walls
 
+
 def test_demo_lab_is_the_papers_room() -> None:
     """The paper's lab is 7.5 m x 7.5 m (56.25 m^2) around the start: measured by casting
     rays from the origin along the axes onto the demo map's walls and glass."""

@@ -309,7 +309,9 @@ def test_repair_stamps_monotone_scans() -> None:
     t[rng.choice(500, 10, replace=False)] = 0.0
     is_scan = rng.random(500) < 0.5
     r = repair_stamps(t, is_scan)
-    assert r.status == "repaired"  # 13 of ~250 scan stamps bad: under the 10 % that forces synthetic
+    assert (
+        r.status == "repaired"
+    )  # 13 of ~250 scan stamps bad: under the 10 % that forces synthetic
     assert np.all(np.diff(r.stamps[is_scan]) >= 0)
     assert np.all(np.isfinite(r.stamps))
     r2 = repair_stamps(t, is_scan)

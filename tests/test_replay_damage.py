@@ -117,9 +117,7 @@ def test_nan_scan_stamp_in_memory_is_dropped_and_counted(logs: dict) -> None:
 
 def test_nan_scan_stamp_in_memory_refused_when_strict(logs: dict) -> None:
     fr = logs["frames"][:10]
-    items: list = [f.odometry for f in fr] + [
-        Scan(math.nan, fr[0].scan.ranges, fr[0].scan.angles)
-    ]
+    items: list = [f.odometry for f in fr] + [Scan(math.nan, fr[0].scan.ranges, fr[0].scan.angles)]
     with pytest.raises(ValueError, match="non-finite stamp"):
         replay(items, Map.load(logs["map"]), initial_pose=fr[0].truth, strict=True)
 

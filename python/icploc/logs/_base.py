@@ -145,9 +145,7 @@ class Damage:
 
     def fill(self, info: LogInfo) -> LogInfo:
         info.n_dropped = self.n_dropped
-        info.dropped = sorted(self.dropped, key=lambda d: (d[0] is None, d[0] or 0))[
-            :MAX_REPORTED
-        ]
+        info.dropped = sorted(self.dropped, key=lambda d: (d[0] is None, d[0] or 0))[:MAX_REPORTED]
         info.invalid_readings = dict(self.invalid)
         if self.n_dropped:
             log.info("%s: dropped %d malformed line(s)", self.path, self.n_dropped)

@@ -297,7 +297,9 @@ def _check_tail(path: str, lineno: int, kind: str, t: list[str], need: int) -> N
     timestamp (or the hostname) was cut off, and its last number may be cut too."""
     if len(t) < need + 2:
         raise LogFormatError(
-            path, f"{kind}: truncated line: it ends before the hostname and logger timestamp", lineno
+            path,
+            f"{kind}: truncated line: it ends before the hostname and logger timestamp",
+            lineno,
         )
 
 
@@ -947,7 +949,8 @@ def read_carmen(
         why = "; ".join(d.strip() for d in info.damage_lines())
         raise LogFormatError(
             spath,
-            "no FLASER, ROBOTLASER1, RAWLASER1 or ODOM message found" + (f" ({why})" if why else ""),
+            "no FLASER, ROBOTLASER1, RAWLASER1 or ODOM message found"
+            + (f" ({why})" if why else ""),
         )
     log.info("read %s: %d scans, %d odometry, stamps %s", spath, len(scans), len(odoms), rep.status)
     return LogData(
