@@ -191,3 +191,74 @@ def test_replay_prefers_the_odometry_recorded_with_each_scan(sim_run: dict, tmp_
     assert stream.metrics["ate_rmse_m"] > 2 * auto.metrics["ate_rmse_m"]
     with pytest.raises(ValueError, match="odometry must be"):
         replay(log, sim_run["map"], odometry="wheels")
+
+
+# ----------------------------------------------------------------------------- issue 14 outputs
+
+
+def test_out_equal_to_the_log_is_refused_before_reading_it(sim_run: dict, tmp_path: Path) -> None:
+    from icploc.outputs import OutputError
+
+    log = _write("carmen", sim_run)
+    before = log.read_bytes()
+    with pytest.raises(OutputError, match="is an input"):
+        replay(log, sim_run["map"], out=log)
+    assert log.read_bytes() == before
+
+
+def test_out_through_a_symlink_to_the_log_is_refused(sim_run: dict, tmp_path: Path) -> None:
+    from icploc.outputs import OutputError
+
+    log = _write("carmen", sim_run)
+    link = tmp_path / "looks_new.tum"
+    link.symlink_to(log)
+    with pytest.raises(OutputError, match="is an input"):
+        replay(log, sim_run["map"], out=link)
+
+
+def test_plot_equal_to_the_map_image_is_refused(sim_run: dict) -> None:
+    from icploc.outputs import OutputError
+
+    img = Path(sim_run["map"]).with_suffix(".pgm")
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), sim_run["map"], plot=img)
+
+
+def test_estimates_equal_to_the_truth_is_refused(sim_run: dict) -> None:
+    from icploc.outputs import OutputError
+
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), sim_run["map"], truth=sim_run["truth"],
+               estimates=sim_run["truth"])  # fmt: skip
+
+
+def test_existing_out_untouched_when_the_log_fails(sim_run: dict, tmp_path: Path) -> None:
+    out = tmp_path / "keep.tum"
+    out.write_text("precious\n")
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
+    with pytest.raises(LogFormatError):
+        replay(bad, sim_run["map"], out=out, strict=True)
+    assert out.read_text() == "precious\n"
+
+
+def test_interrupted_replay_keeps_every_row_so_far(
+    sim_run: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from icploc.localizer import Localizer
+
+    real = Localizer.update
+    calls = [0]
+
+    def update(self, scan):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        if calls[0] == 101:
+            raise KeyboardInterrupt
+        return real(self, scan)
+
+    monkeypatch.setattr(Localizer, "update", update)
+    out, est = tmp_path / "t.tum", tmp_path / "e.csv"
+    res = replay(_write("carmen", sim_run), sim_run["map"], initial_pose=sim_run["frames"][0].truth,
+                 out=out, estimates=est)  # fmt: skip
+    got = (res.interrupted, res.scans, len(read_tum(out)[0]), len(est.read_text().splitlines()))
+    assert got == (True, 100, 100, 101)
