@@ -36,20 +36,23 @@ def damage(
     nan_odometry: int = 2,
     nan_stamps: int = 1,
 ) -> Damaged:
-    """``text`` (a FLASER + ODOM log from ``write_carmen``) with the given damage."""
+    """``text`` (a FLASER or ROBOTLASER1 + ODOM log from ``write_carmen``) with the given
+    damage."""
     lines = text.split("\n")
-    scan_rows = [i for i, ln in enumerate(lines) if ln.startswith("FLASER ")]
+    scan_rows = [i for i, ln in enumerate(lines) if ln.startswith(("FLASER ", "ROBOTLASER1 "))]
+    # the beam count's token: FLASER n ...; ROBOTLASER1 type start fov res max acc mode n ...
+    nk = 1 if lines[scan_rows[0]].startswith("FLASER ") else 8
     odom_rows = [i for i, ln in enumerate(lines) if ln.startswith("ODOM ")]
     out = Damaged(b"")
     kinds = {"NaN": 0, "negative": 0, "beyond max range": 0}
     # impossible readings, spread over all scans
     for i in scan_rows:
         t = lines[i].split(" ")
-        n = int(t[1])
+        n = int(t[nk])
         hit = np.flatnonzero(rng.random(n) < reading_share)
         for k in hit:
             kind = ("NaN", "negative", "beyond max range")[int(rng.integers(3))]
-            t[2 + k] = {"NaN": "nan", "negative": "-0.01", "beyond max range": "123456.7"}[kind]
+            t[nk + 1 + k] = {"NaN": "nan", "negative": "-0.01", "beyond max range": "123456.7"}[kind]
             kinds[kind] += 1
         lines[i] = " ".join(t)
     out.readings = {k: v for k, v in kinds.items() if v}
@@ -62,7 +65,7 @@ def damage(
     for j in picks[torn : torn + beam_counts]:  # count says one beam more than written
         i = scan_rows[int(j)]
         t = lines[i].split(" ")
-        t[1] = str(int(t[1]) + 1)
+        t[nk] = str(int(t[nk]) + 1)
         lines[i] = " ".join(t)
         out.lost_scans.add(i)
     for j in picks[torn + beam_counts :]:  # the scan's stamps are NaN: kept, stamp repaired

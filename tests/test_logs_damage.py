@@ -19,7 +19,7 @@ from log_damage import DAMAGE_CLASSES, damage
 N_SCANS = 40
 
 
-def _clean_text(tmp_path: Path) -> str:
+def _clean_text(tmp_path: Path, fmt: str = "FLASER") -> str:
     rng = np.random.default_rng(0)
     ang = flaser_angles(181)
     scans = [
@@ -28,7 +28,7 @@ def _clean_text(tmp_path: Path) -> str:
     ]
     odoms = [Odometry(0.95 + 0.1 * k, (0.01 * k, 0.0, 0.001 * k)) for k in range(2 * N_SCANS + 2)]
     p = tmp_path / "clean.log"
-    write_carmen(p, scans, odoms, precision=3)
+    write_carmen(p, scans, odoms, precision=3, fmt=fmt)
     return p.read_text()
 
 
@@ -51,31 +51,38 @@ hyp = settings(
 )
 
 
-def _damaged(tmp_path: Path, classes: set[str], seed: int, gz: bool = False):  # type: ignore[no-untyped-def]
+def _damaged(  # type: ignore[no-untyped-def]
+    tmp_path: Path, classes: set[str], seed: int, gz: bool = False, fmt: str = "FLASER"
+):
     kw = dict(NONE)
     for c in classes:
         kw.update(CLASS_ARGS[c])
-    dm = damage(_clean_text(tmp_path), np.random.default_rng(seed), **kw)  # type: ignore[arg-type]
+    dm = damage(_clean_text(tmp_path, fmt), np.random.default_rng(seed), **kw)  # type: ignore[arg-type]
     p = tmp_path / ("d.log.gz" if gz else "d.log")
     p.write_bytes(gzip.compress(dm.data) if gz else dm.data)
     return p, dm
 
 
+formats = st.sampled_from(["FLASER", "ROBOTLASER1"])
+
+
 @hyp
-@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1), gz=st.booleans())
+@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1), gz=st.booleans(), fmt=formats)
 def test_lenient_reader_keeps_every_intact_scan(
-    tmp_path: Path, classes: set[str], seed: int, gz: bool
+    tmp_path: Path, classes: set[str], seed: int, gz: bool, fmt: str
 ) -> None:
-    p, dm = _damaged(tmp_path, classes, seed, gz)
+    p, dm = _damaged(tmp_path, classes, seed, gz, fmt)
     d = open_log(p)
     assert len(d.scans) == N_SCANS - len(dm.lost_scans)
 
 
 @hyp
-@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1))
-def test_lenient_reader_output_is_usable(tmp_path: Path, classes: set[str], seed: int) -> None:
+@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1), fmt=formats)
+def test_lenient_reader_output_is_usable(
+    tmp_path: Path, classes: set[str], seed: int, fmt: str
+) -> None:
     """Every beam is a real reading or inf; every stamp and pose finite; scans in order."""
-    p, _ = _damaged(tmp_path, classes, seed)
+    p, _ = _damaged(tmp_path, classes, seed, fmt=fmt)
     d = read_carmen(p)
     ranges = np.concatenate([s.ranges for s in d.scans])
     stamps = np.array([s.stamp for s in d.scans])
@@ -98,21 +105,21 @@ def test_impossible_readings_are_flagged_invalid(tmp_path: Path, seed: int) -> N
 
 
 @hyp
-@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1))
+@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1), fmt=formats)
 def test_lenient_reader_lists_the_malformed_lines(
-    tmp_path: Path, classes: set[str], seed: int
+    tmp_path: Path, classes: set[str], seed: int, fmt: str
 ) -> None:
-    p, dm = _damaged(tmp_path, classes, seed)
+    p, dm = _damaged(tmp_path, classes, seed, fmt=fmt)
     info = read_carmen(p).info
     assert [ln for ln, _ in info.dropped] == sorted(dm.malformed_lines)[:10]
 
 
 @hyp
-@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1))
+@given(classes=damage_sets, seed=st.integers(0, 2**32 - 1), fmt=formats)
 def test_strict_reader_raises_at_a_damaged_line(
-    tmp_path: Path, classes: set[str], seed: int
+    tmp_path: Path, classes: set[str], seed: int, fmt: str
 ) -> None:
-    p, dm = _damaged(tmp_path, classes, seed)
+    p, dm = _damaged(tmp_path, classes, seed, fmt=fmt)
     with pytest.raises(LogFormatError) as ei:
         read_carmen(p, strict=True)
     assert ei.value.line is None or ei.value.line in _damaged_lines(p, dm)
@@ -123,7 +130,7 @@ def _damaged_lines(p: Path, dm) -> set[int]:  # type: ignore[no-untyped-def]
     lines = p.read_bytes().split(b"\n")
     bad = set(dm.malformed_lines)
     for k, ln in enumerate(lines, 1):
-        if ln.startswith(b"FLASER") and (b"nan" in ln or b" -0.01 " in ln or b"123456.7" in ln):
+        if ln.startswith((b"FLASER", b"ROBOTLASER1")) and (b"nan" in ln or b" -0.01 " in ln or b"123456.7" in ln):
             bad.add(k)
     return bad
 

@@ -17,8 +17,8 @@ from icploc.types import Scan
 from log_damage import damage
 
 
-@pytest.fixture(scope="module")
-def logs(tmp_path_factory: pytest.TempPathFactory) -> dict:
+@pytest.fixture(scope="module", params=["FLASER", "ROBOTLASER1"])
+def logs(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> dict:
     d = tmp_path_factory.mktemp("damage")
     w = worlds.lab(people=2)
     path = worlds.lab_random_walk(20.0, seed=21)
@@ -31,6 +31,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict:
         poses=[f.truth for f in frames],
         scan_odometry=[f.odometry.pose for f in frames],
         precision=3,
+        fmt=request.param,
     )
     truth = d / "truth.tum"
     truth.write_text("".join(tum_row(f.scan.stamp, f.truth) for f in frames))
@@ -90,7 +91,7 @@ def test_strict_replay_refuses_the_damaged_log_at_a_damaged_line(logs: dict) -> 
 def test_one_negative_reading_does_not_stop_the_replay(logs: dict, tmp_path: Path) -> None:
     """Issue 14: a 90 m log with a -0.01 m reading stopped at that line, writing nothing."""
     lines = logs["clean"].read_text().split("\n")
-    k = [i for i, ln in enumerate(lines) if ln.startswith("FLASER")][300]
+    k = [i for i, ln in enumerate(lines) if ln.startswith(("FLASER", "ROBOTLASER1"))][300]
     t = lines[k].split(" ")
     t[100] = "-0.01"
     lines[k] = " ".join(t)
