@@ -494,6 +494,8 @@ def _check_clean(d: object) -> None:
 def test_real_radish_logs_parse_clean(path: Path) -> None:
     d = open_log(path)
     _check_clean(d)
+    # no false damage on real logs: nothing dropped, no reading called impossible
+    assert (d.info.n_dropped, d.info.invalid_readings) == (0, {})
     assert d.info.has_truth and d.truth_poses.shape == (d.info.n_scans, 3)
     assert d.info.beams[0] in (180, 181, 360, 361)
     assert d.info.skipped.get("NEFF", 0) == d.info.n_scans
