@@ -220,6 +220,8 @@ def replay(
     before any work starts."""
     from icploc.replay import replay as do_replay
 
+    if odometry not in ("auto", "stream", "scan"):
+        raise typer.BadParameter(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     kw: dict[str, Any] = dict(
