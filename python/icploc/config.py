@@ -42,8 +42,16 @@ class _Section:
 
     def __post_init__(self) -> None:
         sec = _section_name(self)
+        d = self.__dict__
         for name, hint in _hints(type(self)).items():
-            setattr(self, name, _coerce(getattr(self, name), hint, f"{sec}.{name}"))
+            v = d[name]
+            t = type(v)
+            # the common cases inline (a section is built often), the rest by _coerce
+            if hint is float and t is float and math.isfinite(v):
+                continue
+            if (hint is int and t is int) or (hint is bool and t is bool) or (hint is str and t is str):
+                continue
+            d[name] = _coerce(v, hint, f"{sec}.{name}")
         self.validate()
 
     def validate(self) -> None:  # pragma: no cover - every section overrides it
