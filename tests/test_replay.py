@@ -262,3 +262,23 @@ def test_interrupted_replay_keeps_every_row_so_far(
                  out=out, estimates=est)  # fmt: skip
     got = (res.interrupted, res.scans, len(read_tum(out)[0]), len(est.read_text().splitlines()))
     assert got == (True, 100, 100, 101)
+
+
+def test_plot_equal_to_a_png_map_image_is_refused_and_the_image_kept(
+    sim_run: dict, tmp_path: Path
+) -> None:
+    """Issue 14: --plot pointing at a PNG map image overwrote the map."""
+    from icploc.outputs import OutputError
+
+    y = Map.load(sim_run["map"]).to_ros(tmp_path / "m.yaml", 0.05, image_format="png")
+    img = tmp_path / "m.png"
+    before = img.read_bytes()
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), y, plot=img)
+    assert img.read_bytes() == before
+
+
+@pytest.mark.parametrize("fmt", ["carmen_gz", "robotlaser1", "rosbag1", "rosbag2"])
+def test_strict_replay_of_a_clean_log_keeps_every_scan(fmt: str, sim_run: dict) -> None:
+    res = replay(_write(fmt, sim_run), sim_run["map"], truth=sim_run["truth"], strict=True)
+    assert res.scans == len(sim_run["scans"])
