@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
 from icploc import worlds
-from icploc.cli import app
+from icploc.cli import _register, app
 from icploc.config import LocalizerConfig
 from icploc.live import tum_row
 from icploc.logs import write_carmen
@@ -113,18 +114,28 @@ def test_replay_bad_initial_pose_and_bad_log(carmen_run: dict[str, Path], tmp_pa
     )
     assert r.exit_code == 2
     assert "X,Y,THETA" in r.output
+
+
+def test_replay_strict_refuses_a_malformed_line(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
     bad = tmp_path / "bad.log"
     bad.write_text(
         "FLASER 3 1.0 1.0 1.0 0 0 0 0 0 0 0.1 h 0.1\nFLASER 3 1.0 oops 1.0 0 0 0 0 0 0 0.2 h 0.2\n"
     )
-    r = runner.invoke(app, ["replay", str(bad), "--map", str(carmen_run["map"]), "--no-progress"])
-    assert r.exit_code == 1
-    assert "bad.log:2" in r.output
     r = runner.invoke(
-        app, ["replay", str(tmp_path / "missing.log"), "--map", str(carmen_run["map"])]
+        app, ["replay", str(bad), "--map", str(carmen_run["map"]), "--no-progress", "--strict"]
     )
-    assert r.exit_code == 1
-    assert "error" in r.output
+    assert (r.exit_code, r.output.strip().splitlines()[-1]) == (
+        1,
+        f"error: {bad}:2: FLASER reading 2: 'oops' is not a number",
+    )
+
+
+def test_replay_missing_log_is_one_error_line(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    missing = tmp_path / "missing.log"
+    r = runner.invoke(app, ["replay", str(missing), "--map", str(carmen_run["map"])])
+    assert (r.exit_code, r.output) == (1, f"error: {missing}: no such log file\n")
 
 
 def test_replay_with_config_file(carmen_run: dict[str, Path], tmp_path: Path) -> None:
@@ -156,8 +167,7 @@ def test_replay_with_config_file(carmen_run: dict[str, Path], tmp_path: Path) ->
 
 def test_run_needs_ports_unless_simulated() -> None:
     r = runner.invoke(app, ["run"])
-    assert r.exit_code != 0
-    assert "--map and --laser are required" in r.output
+    assert (r.exit_code, "--map and --laser are required" in r.output) == (2, True)
 
 
 @pytest.mark.slow
@@ -193,3 +203,169 @@ def test_run_simulate_without_start_pose_localizes_globally(tmp_path: Path) -> N
         float(np.hypot(e.pose[0] - t[0], e.pose[1] - t[1])) for e, t in zip(tracked, T, strict=True)
     ]
     assert float(np.median(err)) < 0.02
+
+
+# ----------------------------------------------------------------------------- issue 14
+
+
+def _replay(carmen_run: dict[str, Path], *extra: str) -> Any:
+    args = ["replay", str(carmen_run["log"]), "--map", str(carmen_run["map"]), "--no-progress"]
+    return runner.invoke(app, [*args, "--initial-pose", "0,0,0", *extra])
+
+
+def test_help_documents_the_exit_codes() -> None:
+    r = runner.invoke(app, ["--help"])
+    codes = [ln.split()[0] for ln in r.output.split("Exit codes:")[1].splitlines() if ln.strip()]
+    assert codes[:5] == ["0", "1", "2", "3", "130"]
+
+
+def test_out_pointing_at_the_log_is_refused_and_the_log_kept(
+    carmen_run: dict[str, Path],
+) -> None:
+    before = carmen_run["log"].read_bytes()
+    r = _replay(carmen_run, "--out", str(carmen_run["log"]))
+    assert (r.exit_code, "is an input" in r.output, carmen_run["log"].read_bytes() == before) == (
+        1,
+        True,
+        True,
+    )
+
+
+def test_plot_pointing_at_the_map_image_is_refused(carmen_run: dict[str, Path]) -> None:
+    img = carmen_run["map"].with_suffix(".pgm")
+    before = img.read_bytes()
+    r = _replay(carmen_run, "--plot", str(img))
+    assert (r.exit_code, "is an input" in r.output, img.read_bytes() == before) == (1, True, True)
+
+
+def test_estimates_pointing_at_the_config_is_refused(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("scan:\n  decimation: 1\n")
+    r = _replay(carmen_run, "--config", str(cfg), "--estimates", str(cfg))
+    assert (r.exit_code, cfg.read_text()) == (1, "scan:\n  decimation: 1\n")
+
+
+def test_unwritable_output_is_refused_before_any_work(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
+    r = _replay(carmen_run, "--out", str(tmp_path / "no" / "such" / "dir" / "t.tum"))
+    assert (r.exit_code, "does not exist" in r.output, "scans" in r.output) == (1, True, False)
+
+
+def test_same_path_for_two_outputs_is_refused(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    p = tmp_path / "x"
+    r = _replay(carmen_run, "--out", str(p), "--estimates", str(p))
+    assert (r.exit_code, "is also the --out" in r.output) == (1, True)
+
+
+def test_estimates_csv_has_one_row_per_scan(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    import csv
+
+    est = tmp_path / "e.csv"
+    r = _replay(carmen_run, "--estimates", str(est))
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(est.read_text().splitlines()))
+    assert [len(rows), {row["status"] for row in rows}] == [120, {"tracking"}]
+
+
+def test_estimates_csv_header(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    est = tmp_path / "e.csv"
+    _replay(carmen_run, "--estimates", str(est))
+    head = est.read_text().splitlines()[0]
+    assert head.startswith("stamp,x,y,theta,status,reason,inlier_ratio,cov_xx,cov_xy,cov_yy,cov_tt")
+
+
+def test_replay_that_loses_most_scans_exits_3(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("localizer:\n  relocalization: local\n")
+    args = ["replay", str(carmen_run["log"]), "--map", str(carmen_run["map"]), "--no-progress"]
+    r = runner.invoke(app, [*args, "--initial-pose", "30,30,0", "--config", str(cfg)])
+    assert (r.exit_code, "ended lost, more than --max-lost 0.5" in r.output) == (3, True)
+
+
+def test_max_lost_1_accepts_a_lost_replay(carmen_run: dict[str, Path], tmp_path: Path) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("localizer:\n  relocalization: local\n")
+    args = ["replay", str(carmen_run["log"]), "--map", str(carmen_run["map"]), "--no-progress"]
+    r = runner.invoke(
+        app, [*args, "--initial-pose", "30,30,0", "--config", str(cfg), "--max-lost", "1"]
+    )
+    assert r.exit_code == 0, r.output
+
+
+def test_ctrl_c_ends_with_summary_and_complete_files(
+    carmen_run: dict[str, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from icploc.localizer import Localizer
+
+    real = Localizer.update
+    calls = [0]
+
+    def update(self, scan):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        if calls[0] == 50:
+            raise KeyboardInterrupt
+        return real(self, scan)
+
+    monkeypatch.setattr(Localizer, "update", update)
+    out, est = tmp_path / "t.tum", tmp_path / "e.csv"
+    r = _replay(carmen_run, "--out", str(out), "--estimates", str(est))
+    got = (r.exit_code, "interrupted: 49 of 120 scans" in r.output)
+    assert got + (len(out.read_text().splitlines()), len(est.read_text().splitlines())) == (
+        130, True, 49, 50,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("icp:\n  robust_scale: 0\n", "icp.robust_scale"),
+        ("icp:\n  min_inliers: -5\n", "icp.min_inliers"),
+        ("scan:\n  laser_x: .inf\n", "scan.laser_x"),
+        ("scan:\n  laser_x: 0.1\n  laser_x: 0.2\n", "c.yaml:3: duplicate key 'laser_x'"),
+    ],
+)
+def test_config_check_rejects_what_replay_rejects(tmp_path: Path, text: str, needle: str) -> None:
+    """Issue 14: config check accepted robust_scale 0, min_inliers -5, laser_x .inf."""
+    p = tmp_path / "c.yaml"
+    p.write_text(text)
+    r = runner.invoke(app, ["config", "check", str(p)])
+    assert (r.exit_code, needle in r.output) == (2, True)
+
+
+def test_non_utf8_config_is_a_clear_error(tmp_path: Path) -> None:
+    p = tmp_path / "c.yaml"
+    p.write_bytes(b"scan:\n  laser_x: 0.1 # \xe9t\xe9\n")
+    r = runner.invoke(app, ["config", "check", str(p)])
+    assert (r.exit_code, f"{p}:2: not UTF-8" in r.output) == (2, True)
+
+
+def test_map_convert_write_error_is_one_error_line(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
+    _register()
+    dest = tmp_path / "missing_dir" / "m.geojson"
+    r = runner.invoke(app, ["map", "convert", str(carmen_run["map"]), "-o", str(dest)])
+    assert (r.exit_code, r.output.startswith("error: "), "Traceback" in r.output) == (
+        1,
+        True,
+        False,
+    )
+
+
+def test_map_prepare_write_error_is_one_error_line(
+    carmen_run: dict[str, Path], tmp_path: Path
+) -> None:
+    _register()
+    dest = tmp_path / "missing_dir" / "m.npz"
+    r = runner.invoke(app, ["map", "prepare", str(carmen_run["map"]), "--out", str(dest)])
+    assert (r.exit_code, r.output.startswith("error: ")) == (1, True)
+
+
+def test_demo_into_a_file_is_one_error_line(tmp_path: Path) -> None:
+    f = tmp_path / "afile"
+    f.write_text("x")
+    r = runner.invoke(app, ["demo", "--quick", "--out", str(f)])
+    assert (r.exit_code, r.output) == (1, f"error: --out {f}: exists and is not a directory\n")

@@ -76,3 +76,90 @@ def test_replace_updates_a_section() -> None:
     cfg = LocalizerConfig().replace(scan={"laser_x": 0.3})
     assert cfg.scan.laser_x == 0.3
     assert LocalizerConfig().scan.laser_x == 0.0
+
+
+# ----------------------------------------------------------------------------- issue 14
+
+
+@pytest.mark.parametrize(
+    ("section", "kw", "needle"),
+    [
+        ("icp", {"robust_scale": 0.0}, "icp.robust_scale"),
+        ("icp", {"min_inliers": -5}, "icp.min_inliers"),
+        ("icp", {"max_iterations": -1}, "icp.max_iterations"),
+        ("icp", {"max_iterations": 2.5}, "icp.max_iterations: expected an integer"),
+        ("scan", {"laser_x": float("inf")}, "scan.laser_x"),
+        ("scan", {"decimation": "2"}, "scan.decimation: expected an integer"),
+        ("localizer", {"recover_after": True}, "localizer.recover_after: expected an integer"),
+        ("gating", {"max_translation_jump": float("nan")}, "gating.max_translation_jump"),
+        ("map", {"spacing": 1e-6}, "map.spacing must be at least"),
+    ],
+)
+def test_sections_are_validated_at_construction_naming_the_field(
+    section: str, kw: dict, needle: str
+) -> None:
+    from icploc import config as c
+
+    cls = {
+        "icp": c.IcpSection,
+        "scan": c.ScanSection,
+        "gating": c.GatingSection,
+        "localizer": c.LocalizerSection,
+        "map": c.MapSection,
+    }[section]
+    with pytest.raises(ConfigError, match=needle):
+        cls(**kw)
+
+
+def test_replace_validates_too() -> None:
+    import dataclasses
+
+    with pytest.raises(ConfigError, match="icp.robust_scale"):
+        dataclasses.replace(LocalizerConfig().icp, robust_scale=-1.0)
+
+
+def test_wrong_section_type_is_an_error() -> None:
+    with pytest.raises(ConfigError, match="icp: expected a IcpSection"):
+        LocalizerConfig(icp={"metric": "point_to_point"})  # type: ignore[arg-type]
+
+
+def test_icp_section_checked_by_the_core(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Rust IcpConfig's own validation runs at construction (not a copy of it)."""
+    from icploc import _core
+    from icploc.config import IcpSection
+
+    class Refusing:
+        def __init__(self, **kw: object) -> None:
+            raise _core.InvalidConfigError("invalid config: mse_change = 7: refused by the core")
+
+    monkeypatch.setattr(_core, "IcpConfig", Refusing)
+    with pytest.raises(ConfigError, match="icp.mse_change = 7: refused by the core"):
+        IcpSection()
+
+
+def test_duplicated_yaml_key_is_an_error(tmp_path: Path) -> None:
+    p = tmp_path / "d.yaml"
+    p.write_text("scan:\n  laser_x: 0.1\n  laser_x: 0.2\n")
+    with pytest.raises(ConfigError, match=r"d\.yaml:3: duplicate key 'laser_x' \(first at line 2\)"):
+        LocalizerConfig.from_yaml(p)
+
+
+def test_duplicated_yaml_section_is_an_error(tmp_path: Path) -> None:
+    p = tmp_path / "d.yaml"
+    p.write_text("scan:\n  laser_x: 0.1\nicp: {}\nscan:\n  laser_y: 0.2\n")
+    with pytest.raises(ConfigError, match=r"d\.yaml:4: duplicate key 'scan'"):
+        LocalizerConfig.from_yaml(p)
+
+
+def test_non_utf8_config_names_file_and_line(tmp_path: Path) -> None:
+    p = tmp_path / "l1.yaml"
+    p.write_bytes(b"# r\xe9glages\nscan:\n  laser_x: 0.1\n")
+    with pytest.raises(ConfigError, match=r"l1\.yaml:1: not UTF-8 text \(byte 0xe9"):
+        LocalizerConfig.from_yaml(p)
+
+
+def test_huge_file_is_not_parsed_as_a_config(tmp_path: Path) -> None:
+    p = tmp_path / "big.yaml"
+    p.write_bytes(b"#" * (2 << 20))
+    with pytest.raises(ConfigError, match="not a config file"):
+        LocalizerConfig.from_yaml(p)

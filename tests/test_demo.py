@@ -50,7 +50,26 @@ def test_demo_paths_match_the_paper() -> None:
     assert lab.walls.shape[0] > 4 and lab.glass.shape[0] == 1
     for p in (walk.path, circles.path):
         assert np.all(np.abs(p) < 3.0)  # stays inside the room, away from the walls
-    area = 7.5 * 7.5
+
+
+def test_demo_lab_is_the_papers_room() -> None:
+    """The paper's lab is 7.5 m x 7.5 m (56.25 m^2) around the start: measured by casting
+    rays from the origin along the axes onto the demo map's walls and glass."""
+    import numpy as np
+    from icploc import worlds
+
+    segs = np.asarray(worlds.lab().lines, dtype=np.float64)
+
+    def cast(dx: float, dy: float) -> float:
+        p, r = segs[:, :2], segs[:, 2:] - segs[:, :2]
+        den = dx * r[:, 1] - dy * r[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (p[:, 0] * r[:, 1] - p[:, 1] * r[:, 0]) / den  # distance along the ray
+            u = (p[:, 0] * dy - p[:, 1] * dx) / den  # position along the segment
+        hit = (den != 0) & (t > 0) & (u >= 0) & (u <= 1)
+        return float(t[hit].min())
+
+    area = (cast(1, 0) + cast(-1, 0)) * (cast(0, 1) + cast(0, -1))
     assert area == pytest.approx(56.25)
 
 

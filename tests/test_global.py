@@ -136,7 +136,7 @@ def test_one_shot_relocalize_with_following_scans(lab, lab_glob) -> None:
     assert close(res.pose, frames[res.scans - 1][0])
     # a Scan object is accepted too
     res = relocalize(frames[0][1], lab.lines)
-    assert res.status in ("confirming", "locked") and close(res.pose, start)
+    assert (res.status, close(res.pose, start)) == ("confirming", True)  # one scan: unconfirmed
 
 
 def test_localizer_without_initial_pose_localizes_globally(lab, lab_glob) -> None:
@@ -195,8 +195,7 @@ def _kidnap(
 
 
 def test_kidnap_in_the_middle_of_a_run(lab, lab_glob) -> None:
-    a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)  # carried 5.4 m and turned
-    assert math.hypot(b[0] - a[0], b[1] - a[1]) >= 5.0
+    a, b = (-2.0, -1.5, 0.4), (2.2, 2.0, -2.6)  # carried 5.5 m and turned 3.0 rad
     lost_at, recovered = _kidnap(lab, lab_glob, a, b, before=20, after=30, seed=3)
     assert lost_at is not None and lost_at <= 10
     assert recovered is not None and recovered <= 20

@@ -127,4 +127,7 @@ def test_module_cli_prints_summaries(tmp_path: Path, capsys: pytest.CaptureFixtu
     bad.write_text("FLASER 3 1 2\n")
     assert main([str(bad), str(tmp_path / "missing.log")]) == 1
     err = capsys.readouterr().err
-    assert "bad.log:1" in err and "missing.log" in err
+    assert "bad.log: no FLASER" in err and "line 1: FLASER: truncated" in err
+    assert "missing.log" in err
+    assert main(["--strict", str(bad)]) == 1
+    assert "bad.log:1: FLASER: truncated" in capsys.readouterr().err

@@ -69,9 +69,7 @@ def test_round_trip(tmp_path: Path, version: int) -> None:
 
 
 def test_rep117_beams(tmp_path: Path) -> None:
-    ang = np.linspace(-1, 1, 6)
     r = np.array([0.01, np.nan, -np.inf, np.inf, 12.0, 3.0])  # < min, nan, -inf, +inf, > max, ok
-    assert len(ang) == len(r)
     # our writer turns flagged beams into inf: write the raw values through rosbags directly
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
@@ -256,3 +254,22 @@ def test_damaged_ros1_bags_parse_or_raise_log_format_error(
 
 
 _MAGIC = b"#ROSBAG V2.0\n"
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_nan_odometry_message_is_dropped_and_counted(tmp_path: Path, version: int) -> None:
+    scans, odoms = _data()
+    odoms[5] = Odometry(stamp=odoms[5].stamp, pose=(math.nan, 0.0, 0.0))
+    p = tmp_path / ("n.bag" if version == 1 else "n_bag2")
+    write_rosbag(p, scans, odoms, version=version)
+    d = read_rosbag(p)
+    assert (len(d.scans), len(d.odometry), d.info.n_dropped) == (8, len(odoms) - 1, 1)
+
+
+def test_nan_odometry_message_refused_when_strict(tmp_path: Path) -> None:
+    scans, odoms = _data()
+    odoms[5] = Odometry(stamp=odoms[5].stamp, pose=(math.nan, 0.0, 0.0))
+    p = tmp_path / "n.bag"
+    write_rosbag(p, scans, odoms)
+    with pytest.raises(LogFormatError, match="non-finite pose"):
+        read_rosbag(p, strict=True)

@@ -120,6 +120,13 @@ def test_malformed_log_error_names_the_line(tmp_path: Path, sim_run: dict) -> No
     bad = tmp_path / "bad.log"
     bad.write_text("ODOM 0 0 0 0 0 0 0.0 h 0.0\nFLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
     with pytest.raises(LogFormatError, match=r"bad\.log:2"):
+        replay(bad, sim_run["map"], strict=True)
+
+
+def test_log_whose_only_scan_is_malformed_says_so(tmp_path: Path, sim_run: dict) -> None:
+    bad = tmp_path / "bad.log"
+    bad.write_text("ODOM 0 0 0 0 0 0 0.0 h 0.0\nFLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
+    with pytest.raises(ValueError, match=r"no laser scans \(dropped 1 malformed line.*line 2:"):
         replay(bad, sim_run["map"])
 
 
@@ -184,3 +191,94 @@ def test_replay_prefers_the_odometry_recorded_with_each_scan(sim_run: dict, tmp_
     assert stream.metrics["ate_rmse_m"] > 2 * auto.metrics["ate_rmse_m"]
     with pytest.raises(ValueError, match="odometry must be"):
         replay(log, sim_run["map"], odometry="wheels")
+
+
+# ----------------------------------------------------------------------------- issue 14 outputs
+
+
+def test_out_equal_to_the_log_is_refused_before_reading_it(sim_run: dict, tmp_path: Path) -> None:
+    from icploc.outputs import OutputError
+
+    log = _write("carmen", sim_run)
+    before = log.read_bytes()
+    with pytest.raises(OutputError, match="is an input"):
+        replay(log, sim_run["map"], out=log)
+    assert log.read_bytes() == before
+
+
+def test_out_through_a_symlink_to_the_log_is_refused(sim_run: dict, tmp_path: Path) -> None:
+    from icploc.outputs import OutputError
+
+    log = _write("carmen", sim_run)
+    link = tmp_path / "looks_new.tum"
+    link.symlink_to(log)
+    with pytest.raises(OutputError, match="is an input"):
+        replay(log, sim_run["map"], out=link)
+
+
+def test_plot_equal_to_the_map_image_is_refused(sim_run: dict) -> None:
+    from icploc.outputs import OutputError
+
+    img = Path(sim_run["map"]).with_suffix(".pgm")
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), sim_run["map"], plot=img)
+
+
+def test_estimates_equal_to_the_truth_is_refused(sim_run: dict) -> None:
+    from icploc.outputs import OutputError
+
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), sim_run["map"], truth=sim_run["truth"],
+               estimates=sim_run["truth"])  # fmt: skip
+
+
+def test_existing_out_untouched_when_the_log_fails(sim_run: dict, tmp_path: Path) -> None:
+    out = tmp_path / "keep.tum"
+    out.write_text("precious\n")
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 3 1.0 1.0 zz 0 0 0 0 0 0 0.1 h 0.1\n")
+    with pytest.raises(LogFormatError):
+        replay(bad, sim_run["map"], out=out, strict=True)
+    assert out.read_text() == "precious\n"
+
+
+def test_interrupted_replay_keeps_every_row_so_far(
+    sim_run: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from icploc.localizer import Localizer
+
+    real = Localizer.update
+    calls = [0]
+
+    def update(self, scan):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        if calls[0] == 101:
+            raise KeyboardInterrupt
+        return real(self, scan)
+
+    monkeypatch.setattr(Localizer, "update", update)
+    out, est = tmp_path / "t.tum", tmp_path / "e.csv"
+    res = replay(_write("carmen", sim_run), sim_run["map"], initial_pose=sim_run["frames"][0].truth,
+                 out=out, estimates=est)  # fmt: skip
+    got = (res.interrupted, res.scans, len(read_tum(out)[0]), len(est.read_text().splitlines()))
+    assert got == (True, 100, 100, 101)
+
+
+def test_plot_equal_to_a_png_map_image_is_refused_and_the_image_kept(
+    sim_run: dict, tmp_path: Path
+) -> None:
+    """Issue 14: --plot pointing at a PNG map image overwrote the map."""
+    from icploc.outputs import OutputError
+
+    y = Map.load(sim_run["map"]).to_ros(tmp_path / "m.yaml", 0.05, image_format="png")
+    img = tmp_path / "m.png"
+    before = img.read_bytes()
+    with pytest.raises(OutputError, match="is an input"):
+        replay(_write("carmen", sim_run), y, plot=img)
+    assert img.read_bytes() == before
+
+
+@pytest.mark.parametrize("fmt", ["carmen_gz", "robotlaser1", "rosbag1", "rosbag2"])
+def test_strict_replay_of_a_clean_log_keeps_every_scan(fmt: str, sim_run: dict) -> None:
+    res = replay(_write(fmt, sim_run), sim_run["map"], truth=sim_run["truth"], strict=True)
+    assert res.scans == len(sim_run["scans"])

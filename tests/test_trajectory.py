@@ -247,3 +247,50 @@ def test_path_length_and_sorted() -> None:
     tr = Trajectory(np.array([2.0, 0.0, 1.0]), np.array([[2, 0, 0], [0, 0, 0], [1, 0, 0.0]]))
     assert tr.path_length() == pytest.approx(2.0)
     assert list(tr.sorted().stamps) == [0.0, 1.0, 2.0]
+
+
+# ----------------------------------------------------------------------------- streaming writers
+
+
+def test_tum_writer_rows_are_on_disk_before_close(tmp_path: Path) -> None:
+    from icploc.trajectory import TumWriter
+
+    p = tmp_path / "t.tum"
+    w = TumWriter(p, flush_every=0.0)
+    for k in range(5):
+        w.write(0.1 * k, (k, -k, 0.1 * k))
+    on_disk = len(p.read_text().splitlines())
+    w.close()
+    assert on_disk == 5
+
+
+def test_tum_writer_output_reads_back(tmp_path: Path) -> None:
+    from icploc.trajectory import TumWriter
+
+    p = tmp_path / "t.tum"
+    with TumWriter(p) as w:
+        for k in range(5):
+            w.write(0.1 * k, (k, -k, 0.3 * k))
+    tr = read_tum(p)
+    assert np.allclose(tr.poses, [(k, -k, 0.3 * k) for k in range(5)], atol=1e-6)
+
+
+def test_estimates_writer_row_per_estimate(tmp_path: Path) -> None:
+    import csv
+    from types import SimpleNamespace
+
+    from icploc.trajectory import ESTIMATE_COLUMNS, EstimatesWriter
+
+    e = SimpleNamespace(
+        stamp=1.5, pose=(1.0, 2.0, 0.5), status=SimpleNamespace(value="degraded"),
+        reason="jump, far", inlier_ratio=0.5, covariance=np.diag([1e-4, 2e-4, 3e-4]),
+        accepted=False, iterations=7, num_points=300, degeneracy=0.9,
+    )  # fmt: skip
+    p = tmp_path / "e.csv"
+    with EstimatesWriter(p) as w:
+        w.write(e)
+        w.write(e)
+    rows = list(csv.DictReader(p.read_text().splitlines()))
+    assert [tuple(rows[0]), len(rows), rows[1]["reason"], rows[1]["cov_tt"]] == [
+        ESTIMATE_COLUMNS, 2, "jump, far", "0.0003",
+    ]  # fmt: skip

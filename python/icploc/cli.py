@@ -2,28 +2,88 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperGroup
+
+#: exit codes (also in ``icploc --help``)
+EXIT_OK = 0  #: done
+EXIT_ERROR = 1  #: an error: a missing or malformed file, a bad value in it, a write error
+EXIT_USAGE = 2  #: bad usage: an unknown option, a bad option value, a bad config file
+EXIT_LOST = 3  #: replay finished but lost more than --max-lost of its scans
+EXIT_INTERRUPTED = 130  #: stopped by Ctrl-C (the files written so far are complete)
+
+HELP = """Real-time 2D robot localization by ICP against a known map.
+
+\b
+Exit codes:
+  0    done
+  1    error (missing or malformed file, bad value in it, write error)
+  2    usage error (unknown option, bad option value, bad config file)
+  3    replay finished but lost more than --max-lost of its scans
+  130  interrupted by Ctrl-C (the summary is printed, the files are complete)
+"""
+
+
+class UserError(ValueError):
+    """An error the user can fix: printed as one ``error: ...`` line (exit 1), no traceback."""
+
+
+class _Guarded(TyperGroup):
+    """Every command: a user error (OSError, ValueError) becomes one ``error: ...`` line and
+    exit 1, Ctrl-C exit 130, instead of a traceback."""
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            typer.secho("interrupted", fg="yellow", err=True)
+            raise typer.Exit(EXIT_INTERRUPTED) from None
+        except MemoryError:
+            _fail("out of memory (is the input far larger than it should be?)")
+        except (OSError, ValueError) as e:
+            _fail(_describe(e))
+
+
+def _fail(msg: str) -> None:
+    typer.secho(f"error: {msg}", fg="red", err=True)
+    raise typer.Exit(EXIT_ERROR)
+
+
+def _describe(e: BaseException) -> str:
+    """One line for an OSError / ValueError, naming the file where there is one."""
+    if isinstance(e, OSError) and e.filename is not None:
+        return f"{e.filename}: {e.strerror or e}"
+    return str(e) or type(e).__name__
+
 
 app = typer.Typer(
     name="icploc",
-    help="Real-time 2D robot localization by ICP against a known map.",
+    help=HELP,
+    cls=_Guarded,
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
 
 
+_REGISTERED: list[bool] = []
+
+
 def _register() -> None:
-    """Attach the sub-command groups that live beside the code they drive."""
+    """Attach the sub-command groups that live beside the code they drive (once)."""
+    if _REGISTERED:
+        return
     from icploc.maps.cli import map_app
 
     app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.")
+    _REGISTERED.append(True)
 
 
-config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True)
+config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True, cls=_Guarded)
 app.add_typer(config_app, name="config")
 
 
@@ -37,7 +97,8 @@ def config_defaults() -> None:
 
 @config_app.command("check")
 def config_check(path: Annotated[Path, typer.Argument(help="YAML file to validate")]) -> None:
-    """Validate a configuration file (unknown keys and bad values are errors)."""
+    """Validate a configuration file exactly as replay and run do (unknown or duplicated
+    keys and bad values are errors, exit 2); print the full configuration it gives."""
     cfg = _load_config(path)
     typer.echo(cfg.to_yaml(), nl=False)
 
@@ -51,7 +112,7 @@ def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
         return LocalizerConfig.from_yaml(path)
     except ConfigError as e:
         typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(2) from None
+        raise typer.Exit(EXIT_USAGE) from None
 
 
 def _pose_option(text: str | None):  # type: ignore[no-untyped-def]
@@ -74,10 +135,18 @@ def demo(
 ) -> None:
     """The paper's lab experiments (random walk, circles) with a simulated PowerBot and
     PLS on pseudo-terminals: writes plots and Tables 3-5 style results."""
+    import os
     import time
 
     from icploc.demo import run_demo
 
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    base = out.absolute()
+    while not base.exists():  # the demo makes the missing directories
+        base = base.parent
+    if not base.is_dir() or not os.access(base, os.W_OK | os.X_OK):
+        raise UserError(f"--out {out}: cannot create a directory in {base}")
     t0 = time.perf_counter()
     results = run_demo(out, quick=quick, people=people, seed=seed, log=typer.echo)
     for r in results:
@@ -102,7 +171,17 @@ def replay(
     initial_pose: Annotated[
         str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")
     ] = None,
-    out: Annotated[Path | None, typer.Option("--out", help="Write the trajectory (TUM)")] = None,
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Write the trajectory (TUM), row by row")
+    ] = None,
+    estimates: Annotated[
+        Path | None,
+        typer.Option(
+            "--estimates",
+            help="Write one CSV row per scan as it goes: stamp,x,y,theta,status,reason,"
+            "inlier_ratio,cov_xx,cov_xy,cov_yy,cov_tt,...",
+        ),
+    ] = None,
     truth: Annotated[
         Path | None, typer.Option("--truth", help="True trajectory (TUM): ATE/RPE")
     ] = None,
@@ -114,36 +193,69 @@ def replay(
     odometry: Annotated[
         str, typer.Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
     ] = "auto",
+    strict: Annotated[
+        bool,
+        typer.Option(
+            "--strict",
+            help="Refuse a log with a malformed line or an impossible reading (default: skip "
+            "and count them, and say so in the summary)",
+        ),
+    ] = False,
+    max_lost: Annotated[
+        float,
+        typer.Option(
+            "--max-lost",
+            min=0.0,
+            max=1.0,
+            help="Exit 3 when more than this share of the scans ends lost (1 = never)",
+        ),
+    ] = 0.5,
 ) -> None:
-    """Localize a recorded log against a map, deterministically and as fast as possible."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    """Localize a recorded log against a map, deterministically and as fast as possible.
 
+    Malformed log lines are skipped and impossible readings ignored, each counted in the
+    summary (--strict refuses them). The TUM and CSV files are written as the replay goes;
+    Ctrl-C stops it with the summary and complete files. An output that is an input (the
+    log, the map or its image, the truth, the config) or cannot be written is refused
+    before any work starts."""
     from icploc.replay import replay as do_replay
 
+    if odometry not in ("auto", "stream", "scan"):
+        raise typer.BadParameter(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
-    try:
-        if progress:
-            with Progress(
-                TextColumn("[bold]replay"), BarColumn(), TextColumn("{task.completed}/{task.total} scans"),
-                TimeRemainingColumn(), transient=True,
-            ) as bar:  # fmt: skip
-                task = bar.add_task("replay", total=None)
+    kw: dict[str, Any] = dict(
+        config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
+        estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
+    )  # fmt: skip
+    if progress and sys.stdout.isatty():
+        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-                def on_progress(done: int, total: int) -> None:
-                    bar.update(task, completed=done, total=total)
+        with Progress(
+            TextColumn("[bold]replay"), BarColumn(), TextColumn("{task.completed}/{task.total} scans"),
+            TimeRemainingColumn(), transient=True,
+        ) as bar:  # fmt: skip
+            task = bar.add_task("replay", total=None)
 
-                res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
-                                plot=plot, on_progress=on_progress, odometry=odometry)  # fmt: skip
-        else:
-            res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
-                            plot=plot, odometry=odometry)  # fmt: skip
-    except (OSError, ValueError) as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(1) from None
+            def on_progress(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            res = do_replay(log, map_path, on_progress=on_progress, **kw)
+    else:
+        res = do_replay(log, map_path, **kw)
     typer.echo(res.summary())
     for k, p in res.files.items():
         typer.echo(f"{k}: {p}")
+    if res.interrupted:
+        raise typer.Exit(EXIT_INTERRUPTED)
+    if res.lost_share > max_lost:
+        typer.secho(
+            f"error: {res.status_counts.get('lost', 0)} of {res.scans} scans "
+            f"({res.lost_share:.0%}) ended lost, more than --max-lost {max_lost:g}",
+            fg="red",
+            err=True,
+        )
+        raise typer.Exit(EXIT_LOST)
 
 
 @app.command("run")

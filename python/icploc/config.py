@@ -9,8 +9,13 @@ One dataclass per section::
     map:       how the map is sampled for the ICP index (spacing, visibility culling)
 
 ``LocalizerConfig.from_yaml(path)`` reads a (possibly partial) YAML file over the
-defaults; an unknown section or key, or a value of the wrong type, raises
+defaults; an unknown or duplicated section or key, or a value of the wrong type, raises
 :class:`ConfigError` naming the file, the section and the key.
+
+Validation lives here, in one place, and runs when a section is constructed (also by
+``dataclasses.replace``): every value is type-checked (ints are ints, floats finite) and
+range-checked with its field named; the ``icp`` section is also checked by the Rust core's
+own ``IcpConfig``. ``icploc config check``, ``replay`` and ``run`` all go through it.
 ``icploc config defaults`` prints :meth:`LocalizerConfig.to_yaml` of the defaults.
 """
 
@@ -32,6 +37,43 @@ class ConfigError(ValueError):
     """A configuration file or value is invalid (unknown key, wrong type, out of range)."""
 
 
+class _Section:
+    """Base of the config sections: type-check and validate at construction."""
+
+    def __post_init__(self) -> None:
+        sec = _section_name(self)
+        d = self.__dict__
+        for name, hint in _hints(type(self)).items():
+            v = d[name]
+            t = type(v)
+            # the common cases inline (a section is built often), the rest by _coerce
+            if hint is float and t is float and math.isfinite(v):
+                continue
+            if (hint is int and t is int) or (hint is bool and t is bool) or (hint is str and t is str):
+                continue
+            d[name] = _coerce(v, hint, f"{sec}.{name}")
+        self.validate()
+
+    def validate(self) -> None:  # pragma: no cover - every section overrides it
+        pass
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    """The field types of a section class (cached: sections are built often)."""
+    got = _HINTS.get(cls)
+    if got is None:
+        h = get_type_hints(cls)
+        got = _HINTS[cls] = {f.name: h[f.name] for f in dataclasses.fields(cls)}
+    return got
+
+
+def _section_name(obj: Any) -> str:
+    return type(obj).__name__.replace("Section", "").lower()
+
+
 Metric = Literal["point_to_point", "point_to_line"]
 Robust = Literal["none", "huber", "cauchy"]
 Relocalization = Literal["global", "local"]
@@ -39,7 +81,7 @@ LostCheck = Literal["inline", "background"]
 
 
 @dataclass
-class IcpSection:
+class IcpSection(_Section):
     """Settings passed to the Rust ICP core (see ``icploc.IcpConfig``).
 
     The paper uses point-to-point ICP with a fixed rejection threshold; point-to-line
@@ -82,6 +124,14 @@ class IcpSection:
             raise ConfigError("icp.trim_fraction must be in (0, 1]")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError("icp.min_inlier_ratio must be in [0, 1]")
+        _positive(self, "correspondence_sigmas", "max_correspondence_cap")
+        _at_least(self, 0, "min_inliers")
+        # everything the core checks, checked by the core itself
+        try:
+            self.to_icp_config()
+        except (ValueError, OverflowError, TypeError) as e:
+            msg = str(e).removeprefix("invalid config: ")
+            raise ConfigError(f"icp.{msg}" if " = " in msg else f"icp: {msg}") from None
 
     def to_icp_config(self) -> IcpConfig:
         """The ``icploc.IcpConfig`` for the Rust core."""
@@ -94,7 +144,7 @@ class IcpSection:
 
 
 @dataclass
-class ScanSection:
+class ScanSection(_Section):
     """Which beams are used and where the laser sits on the robot."""
 
     #: beams nearer than this are dropped (m): the robot's own body, dust
@@ -130,7 +180,7 @@ class ScanSection:
 
 
 @dataclass
-class GatingSection:
+class GatingSection(_Section):
     """The paper's "referring to the past value": a correction the odometry cannot
     explain is rejected, and the odometry prediction is kept instead."""
 
@@ -176,7 +226,7 @@ class GatingSection:
 
 
 @dataclass
-class LocalizerSection:
+class LocalizerSection(_Section):
     """The outer loop: odometry noise model, lost detection, start pose."""
 
     #: start pose (x, y, theta) of the robot in the map frame; null = must be given in code
@@ -269,7 +319,7 @@ class LocalizerSection:
 
 
 @dataclass
-class MapSection:
+class MapSection(_Section):
     """How the map is turned into the ICP index."""
 
     #: uniform sampling interval along the fitted wall lines (m), the paper's §2.2
@@ -282,6 +332,14 @@ class MapSection:
 
     def validate(self) -> None:
         _positive(self, "spacing", "visibility_fov_deg", "visibility_max_range")
+        if self.spacing < MIN_MAP_SPACING:
+            raise ConfigError(
+                f"map.spacing must be at least {MIN_MAP_SPACING} m (1 mm), got {self.spacing!r}"
+            )
+
+
+#: the finest map sampling accepted (m): finer multiplies the index size for no accuracy
+MIN_MAP_SPACING = 0.001
 
 
 @dataclass
@@ -293,6 +351,15 @@ class LocalizerConfig:
     gating: GatingSection = field(default_factory=GatingSection)
     localizer: LocalizerSection = field(default_factory=LocalizerSection)
     map: MapSection = field(default_factory=MapSection)
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            want = f.default_factory  # type: ignore[misc]
+            got = getattr(self, f.name)
+            if not isinstance(got, want):  # type: ignore[arg-type]
+                raise ConfigError(
+                    f"{f.name}: expected a {want.__name__}, got {type(got).__name__}"  # type: ignore[union-attr]
+                )
 
     # -- validation ----------------------------------------------------------------------
     def validate(self) -> LocalizerConfig:
@@ -343,7 +410,10 @@ class LocalizerConfig:
                     f"{source}: section {key!r} must be a mapping, got {type(value).__name__}"
                 )
             sec = getattr(cfg, key)
-            setattr(cfg, key, _update_section(sec, value, f"{source}: {key}"))
+            try:
+                setattr(cfg, key, _update_section(sec, value, key))
+            except ConfigError as e:
+                raise ConfigError(f"{source}: {e}") from None
         try:
             return cfg.validate()
         except ConfigError as e:
@@ -353,11 +423,23 @@ class LocalizerConfig:
     def from_yaml(cls, path: str | Path) -> LocalizerConfig:
         p = Path(path)
         try:
-            text = p.read_text()
+            if p.stat().st_size > MAX_CONFIG_BYTES:
+                raise ConfigError(f"{p}: not a config file (more than {MAX_CONFIG_BYTES:,} bytes)")
+            raw = p.read_bytes()
         except OSError as e:
             raise ConfigError(f"{p}: cannot read config file: {e.strerror or e}") from None
         try:
-            data = yaml.safe_load(text)
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as e:
+            line = raw[: e.start].count(b"\n") + 1
+            raise ConfigError(
+                f"{p}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); "
+                "save the config file as UTF-8"
+            ) from None
+        try:
+            data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
+        except _DuplicateKey as e:
+            raise ConfigError(f"{p}:{e.line}: {e}") from None
         except yaml.YAMLError as e:
             raise ConfigError(f"{p}: invalid YAML: {e}") from None
         return cls.from_dict(data, str(p))
@@ -373,17 +455,52 @@ class LocalizerConfig:
         return new.validate()
 
 
+#: a config file larger than this is not one (a wrong path): refused before parsing
+MAX_CONFIG_BYTES = 1 << 20
+
+
+class _DuplicateKey(yaml.YAMLError):
+    def __init__(self, key: Any, first: int, line: int) -> None:
+        super().__init__(f"duplicate key {key!r} (first at line {first})")
+        self.line = line
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """The safe loader, with a duplicated mapping key an error (not a silent override)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            try:
+                dup = key in seen
+            except TypeError:
+                continue  # an unhashable key: the base class reports it
+            if dup:
+                raise _DuplicateKey(key, seen[key].line + 1, key_node.start_mark.line + 1)
+            seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+
 def _positive(obj: Any, *names: str) -> None:
-    sec = type(obj).__name__.replace("Section", "").lower()
+    sec = _section_name(obj)
     for n in names:
         v = getattr(obj, n)
         if not (v > 0) or (isinstance(v, float) and not math.isfinite(v)):
             raise ConfigError(f"{sec}.{n} must be a finite positive number, got {v!r}")
 
 
+def _at_least(obj: Any, low: int, *names: str) -> None:
+    sec = _section_name(obj)
+    for n in names:
+        v = getattr(obj, n)
+        if v < low:
+            raise ConfigError(f"{sec}.{n} must be >= {low}, got {v!r}")
+
+
 def _update_section(sec: Any, values: dict[str, Any], where: str) -> Any:
-    hints = get_type_hints(type(sec))
-    names = [f.name for f in dataclasses.fields(sec)]
+    hints = _hints(type(sec))
+    names = list(hints)
     changes: dict[str, Any] = {}
     for key, raw in values.items():
         if key not in names:
@@ -407,8 +524,8 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         v = float(value)
-        if math.isnan(v):
-            raise ConfigError(f"{where}: NaN is not allowed")
+        if not math.isfinite(v):
+            raise ConfigError(f"{where}: must be a finite number, got {v!r}")
         return v
     if origin is Literal:
         if value not in args:
@@ -425,7 +542,7 @@ def _coerce(value: Any, hint: Any, where: str) -> Any:
         if not isinstance(value, (list, tuple)) or len(value) != len(args):
             raise ConfigError(f"{where}: expected a list of {len(args)} numbers, got {value!r}")
         return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))
-    raise ConfigError(f"{where}: unsupported type {hint!r}")  # pragma: no cover
+    return value  # a type this checker does not know: the section's validate() checks it
 
 
 def default_yaml() -> str:

@@ -5,6 +5,12 @@ The log (CARMEN, ROS 1 / ROS 2 bag, or our raw-byte recording; :func:`icploc.log
 is merged in time order; each scan is localized with the odometry interpolated to its
 stamp (a scan waits for the first odometry sample at or after it). One TUM row is
 written per scan with the scan's stamp, also while lost (the best guess).
+
+Nothing is lost: the readers skip and count malformed lines and turn impossible readings
+into invalid beams (``strict=True`` refuses instead); the TUM and estimates CSV rows are
+written and flushed as the replay goes; Ctrl-C ends the loop with the files complete up to
+there and ``ReplayResult.interrupted`` set; an output path that is an input (the log, the
+map or its image, the truth, the config) or cannot be written is refused before any work.
 """
 
 from __future__ import annotations
@@ -15,15 +21,17 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
-from icploc.live import tum_row
 from icploc.localizer import Estimate, Localizer, Status, run
 from icploc.types import Odometry, Scan
+
+if TYPE_CHECKING:
+    from icploc.logs import LogInfo
 
 __all__ = ["ReplayResult", "load_map", "parse_pose", "read_tum", "replay"]
 
@@ -38,10 +46,23 @@ class ReplayResult:
     status_counts: dict[str, int]
     metrics: dict[str, float] = field(default_factory=dict)
     files: dict[str, Path] = field(default_factory=dict)
+    #: what the log reader read, dropped and repaired (None for an in-memory log)
+    log_info: LogInfo | None = None
+    #: scans in the log (``scans`` is fewer when the replay was interrupted)
+    scans_in_log: int = 0
+    #: messages of an in-memory log dropped for a non-finite stamp
+    dropped_stamps: int = 0
+    #: the replay was stopped by Ctrl-C (the files hold every scan localized until then)
+    interrupted: bool = False
 
     @property
     def scans(self) -> int:
         return len(self.estimates)
+
+    @property
+    def lost_share(self) -> float:
+        """Share of the localized scans reported ``lost`` (0 when there are none)."""
+        return self.status_counts.get("lost", 0) / self.scans if self.scans else 0.0
 
     @property
     def total_time(self) -> float:
@@ -71,6 +92,15 @@ class ReplayResult:
         amb = sum(1 for e in self.estimates if e.status.value == "lost" and e.reason == "ambiguous")
         if amb:
             parts[-1] += f" ({amb} of them ambiguous: several places fit the scans equally well)"
+        if self.interrupted:
+            parts.append(
+                f"interrupted: {self.scans} of {self.scans_in_log} scans localized; "
+                "the output files hold all of them"
+            )
+        if self.log_info is not None:
+            parts.extend("log: " + d.strip() for d in self.log_info.damage_lines())
+        if self.dropped_stamps:
+            parts.append(f"log: dropped {self.dropped_stamps} message(s) with a non-finite stamp")
         if self.metrics:
             parts.append(
                 "vs truth: "
@@ -196,25 +226,52 @@ def replay(
     log_options: dict[str, Any] | None = None,
     odometry: str = "auto",
     global_localize: bool = False,
+    estimates: str | Path | None = None,
+    strict: bool = False,
+    inputs: Sequence[str | Path] = (),
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
     else ``config.localizer.initial_pose``, else none: global localization
     (:func:`icploc.relocalize.attach`), also forced by ``global_localize=True``.
     ``odometry``: ``"auto"`` uses the odometry the log records with each scan when it has
-    one for every scan (CARMEN), else the odometry stream; ``"stream"`` / ``"scan"`` force one."""
+    one for every scan (CARMEN), else the odometry stream; ``"stream"`` / ``"scan"`` force one.
+
+    ``out`` (TUM) and ``estimates`` (CSV, :data:`icploc.trajectory.ESTIMATE_COLUMNS`) are
+    written row by row as the replay goes. ``strict``: a malformed line or an impossible
+    reading in the log is an error instead of being skipped and counted. ``inputs``: more
+    files the run reads (a config file) that no output may overwrite. Raises
+    :class:`icploc.outputs.OutputError` before any work for an unusable output path."""
+    from icploc.outputs import check_outputs, map_inputs
+    from icploc.trajectory import EstimatesWriter, TumWriter
+
+    if odometry not in ("auto", "stream", "scan"):
+        raise ValueError(f"odometry must be 'auto', 'stream' or 'scan', got {odometry!r}")
+    ins: list[str | Path] = [*inputs]
+    if isinstance(log, (str, Path)):
+        ins.append(log)
+    if isinstance(map_, (str, Path)):
+        ins.extend(map_inputs(map_))
+    if isinstance(truth, (str, Path)):
+        ins.append(truth)
+    check_outputs({"--out": out, "--estimates": estimates, "--plot": plot}, ins)
+
     cfg = config or LocalizerConfig()
     t0 = time.perf_counter()
     name = str(log) if isinstance(log, (str, Path)) else "<memory>"
+    info = None
+    dropped_stamps = 0
     if isinstance(log, (str, Path)):
         from icploc.logs import open_log
 
-        data = open_log(log, **(log_options or {}))
+        opts = dict(log_options or {})
+        if strict:
+            opts["strict"] = True
+        data = open_log(log, **opts)
+        info = data.info
         scans = list(data.scans)
         odoms = list(data.odometry)
         per_scan = np.asarray(data.scan_odometry, dtype=np.float64).reshape(-1, 3)
-        if odometry not in ("auto", "stream", "scan"):
-            raise ValueError(f"odometry must be 'auto', 'stream' or 'scan', got {odometry!r}")
         if odometry == "scan" and len(per_scan) != len(scans):
             raise ValueError(f"{name}: the log has no odometry recorded with its scans")
         if (
@@ -232,9 +289,17 @@ def replay(
     else:
         scans = [m for m in log if isinstance(m, Scan)]
         odoms = [m for m in log if isinstance(m, Odometry)]
+        # a message without a usable stamp cannot be placed in time: dropped, counted
+        ok_s = [s for s in scans if math.isfinite(s.stamp)]
+        ok_o = [o for o in odoms if math.isfinite(o.stamp) and all(map(math.isfinite, o.pose))]
+        dropped_stamps = len(scans) - len(ok_s) + len(odoms) - len(ok_o)
+        if dropped_stamps and strict:
+            raise ValueError(f"{name}: {dropped_stamps} message(s) with a non-finite stamp or pose")
+        scans, odoms = ok_s, ok_o
     load_time = time.perf_counter() - t0
     if not scans:
-        raise ValueError(f"{name}: the log holds no laser scans")
+        why = "; ".join(d.strip() for d in info.damage_lines()) if info is not None else ""
+        raise ValueError(f"{name}: the log holds no laser scans" + (f" ({why})" if why else ""))
 
     t_true = p_true = None
     if truth is not None:
@@ -259,34 +324,59 @@ def replay(
             loc.reset(loc.pose, loc.covariance, Status.LOST)
         attach(loc)
     n = len(scans)
-    done = [0]
     step = max(1, n // 200)
+    got: list[Estimate] = []
+    writers: list[Any] = []
+    tum = est_csv = None
+    interrupted = False
+    try:
+        # opened only now: a log or map that fails to load leaves an existing file alone
+        if out is not None:
+            tum = TumWriter(out)
+            writers.append(tum)
+        if estimates is not None:
+            est_csv = EstimatesWriter(estimates)
+            writers.append(est_csv)
 
-    def progress(_e: Estimate) -> None:
-        done[0] += 1
-        if on_progress is not None and (done[0] % step == 0 or done[0] == n):
-            on_progress(done[0], n)
+        def each(e: Estimate) -> None:
+            got.append(e)
+            if tum is not None:
+                tum.write(e.stamp, e.pose)
+            if est_csv is not None:
+                est_csv.write(e)
+            k = len(got)
+            if on_progress is not None and (k % step == 0 or k == n):
+                on_progress(k, n)
 
-    from icploc.logs import merge_in_time
+        from icploc.logs import merge_in_time
 
-    estimates = run(loc, merge_in_time(scans, odoms), progress)
+        try:
+            run(loc, merge_in_time(scans, odoms), each)
+        except KeyboardInterrupt:
+            interrupted = True
+    finally:
+        for w in writers:
+            w.close()
     localize_time = time.perf_counter() - t1
     res = ReplayResult(
         log=name,
-        estimates=estimates,
+        estimates=got,
         odometry=odoms,
         load_time=load_time,
         localize_time=localize_time,
-        status_counts=dict(Counter(e.status.value for e in estimates)),
+        status_counts=dict(Counter(e.status.value for e in got)),
+        log_info=info,
+        scans_in_log=n,
+        dropped_stamps=dropped_stamps,
+        interrupted=interrupted,
     )
     if out is not None:
-        p = Path(out)
-        with open(p, "w") as f:
-            f.writelines(tum_row(e.stamp, e.pose) for e in estimates)
-        res.files["trajectory"] = p
+        res.files["trajectory"] = Path(out)
+    if estimates is not None:
+        res.files["estimates"] = Path(estimates)
     if t_true is not None and p_true is not None:
         res.metrics = _metrics(res.stamps, res.poses, t_true, p_true)
-    if plot is not None:
+    if plot is not None and got:
         res.files["plot"] = plot_replay(
             res, m, plot, truth=(t_true, p_true) if t_true is not None else None
         )

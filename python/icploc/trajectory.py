@@ -8,21 +8,27 @@ align with the best SE(2) transform first.
 
 from __future__ import annotations
 
+import csv
 import math
 import os
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import IO, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "ESTIMATE_COLUMNS",
     "AteResult",
     "Association",
+    "EstimatesWriter",
     "ErrorStats",
     "RpeResult",
     "Trajectory",
     "TrajectoryFormatError",
+    "TumWriter",
     "align_se2",
     "associate",
     "ate",
@@ -183,6 +189,93 @@ def write_tum(path: str | os.PathLike[str], traj: Trajectory, *, precision: int 
                 f"{traj.stamps[k]:.{precision}f} {traj.poses[k, 0]:.{precision}f} "
                 f"{traj.poses[k, 1]:.{precision}f} 0 0 0 {qz[k]:.{precision}f} {qw[k]:.{precision}f}\n"
             )
+
+
+class _RowWriter:
+    """A text file written one row at a time and flushed at least every ``flush_every``
+    seconds and on close, so an interrupted run keeps every row written before."""
+
+    def __init__(self, path: str | os.PathLike[str], flush_every: float = 0.2) -> None:
+        self.path = os.fspath(path)
+        self._fh: IO[str] = open(self.path, "w", encoding="ascii", newline="")  # noqa: SIM115
+        self._every = flush_every
+        self._last = time.monotonic()
+        self.rows = 0
+
+    def _put(self, text: str) -> None:
+        self._fh.write(text)
+        self.rows += 1
+        now = time.monotonic()
+        if now - self._last >= self._every:
+            self._fh.flush()
+            self._last = now
+
+    def flush(self) -> None:
+        self._fh.flush()
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.flush()
+            self._fh.close()
+
+    def __enter__(self) -> _RowWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def tum_line(stamp: float, pose: Sequence[float]) -> str:
+    """One TUM row ``stamp x y 0 0 0 qz qw`` (the format ``icploc replay --out`` writes)."""
+    h = 0.5 * float(pose[2])
+    return (
+        f"{stamp:.6f} {float(pose[0]):.6f} {float(pose[1]):.6f} 0 0 0 "
+        f"{math.sin(h):.9f} {math.cos(h):.9f}\n"
+    )
+
+
+class TumWriter(_RowWriter):
+    """A TUM trajectory written as it is produced: ``write(stamp, pose)`` per row."""
+
+    def write(self, stamp: float, pose: Sequence[float]) -> None:
+        self._put(tum_line(stamp, pose))
+
+
+#: the columns of ``icploc replay --estimates``: one row per scan
+ESTIMATE_COLUMNS = (
+    "stamp", "x", "y", "theta", "status", "reason", "inlier_ratio",
+    "cov_xx", "cov_xy", "cov_yy", "cov_tt", "cov_xt", "cov_yt",
+    "accepted", "iterations", "num_points", "degeneracy",
+)  # fmt: skip
+
+
+class EstimatesWriter(_RowWriter):
+    """The localizer's estimates as CSV (:data:`ESTIMATE_COLUMNS`), one row per scan as it
+    is produced. ``status`` is ``tracking``, ``degraded`` or ``lost``."""
+
+    def __init__(self, path: str | os.PathLike[str], flush_every: float = 0.2) -> None:
+        super().__init__(path, flush_every)
+        self._csv = csv.writer(self._fh, lineterminator="\n")
+        self._csv.writerow(ESTIMATE_COLUMNS)
+        self.rows = 0
+
+    def write(self, e: Any) -> None:
+        c = e.covariance
+        st = getattr(e.status, "value", e.status)
+        self._csv.writerow(
+            (
+                f"{e.stamp:.6f}", f"{e.pose[0]:.6f}", f"{e.pose[1]:.6f}", f"{e.pose[2]:.6f}",
+                st, e.reason, f"{e.inlier_ratio:.4f}",
+                f"{c[0][0]:.6g}", f"{c[0][1]:.6g}", f"{c[1][1]:.6g}", f"{c[2][2]:.6g}",
+                f"{c[0][2]:.6g}", f"{c[1][2]:.6g}",
+                int(bool(e.accepted)), int(e.iterations), int(e.num_points), f"{e.degeneracy:.4g}",
+            )
+        )  # fmt: skip
+        self.rows += 1
+        now = time.monotonic()
+        if now - self._last >= self._every:
+            self._fh.flush()
+            self._last = now
 
 
 def read_tum(path: str | os.PathLike[str]) -> Trajectory:

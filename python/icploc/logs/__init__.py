@@ -12,6 +12,7 @@ Formats: ``carmen`` (:mod:`icploc.logs.carmen`), ``rosbag1`` / ``rosbag2``
 
 from __future__ import annotations
 
+import errno
 import importlib
 import importlib.util
 import os
@@ -89,6 +90,7 @@ def _load_recorded(path: str, **opts: Any) -> LogData:
             path, "recorded-session reader (icploc.logs.recorded) is not installed"
         )
     mod = importlib.import_module(_RECORDED)
+    opts.pop("strict", None)  # the recording reader checks every frame's checksum itself
     scans: list[Scan] = []
     odoms: list[Odometry] = []
     try:
@@ -145,7 +147,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
     """Name of the registered format that reads ``path`` (by content, then by extension)."""
     p = os.fspath(path)
     if not os.path.exists(p):
-        raise FileNotFoundError(p)
+        raise FileNotFoundError(errno.ENOENT, "no such log file", p)
     for f in FORMATS.values():
         if f.sniff(p):
             return f.name

@@ -19,6 +19,7 @@ from icploc.types import Odometry, Scan
 log = logging.getLogger("icploc.logs")
 
 __all__ = [
+    "Damage",
     "LogData",
     "LogFormatError",
     "LogInfo",
@@ -57,6 +58,12 @@ class LogInfo:
     n_repaired_stamps: int = 0
     has_truth: bool = False  #: the log carries a reported (corrected / true) pose per scan
     skipped: dict[str, int] = field(default_factory=dict)  #: unknown message types → count
+    #: malformed lines / messages the reader skipped (torn, garbage, wrong counts, NaN poses)
+    n_dropped: int = 0
+    #: the first :data:`MAX_REPORTED` of them: (line number or None, reason)
+    dropped: list[tuple[int | None, str]] = field(default_factory=list)
+    #: impossible readings turned into invalid beams, by kind ("NaN", "negative", ...)
+    invalid_readings: dict[str, int] = field(default_factory=dict)
     topics: dict[str, str] = field(default_factory=dict)  #: bag topics used → message type
     notes: list[str] = field(default_factory=list)
 
@@ -81,8 +88,68 @@ class LogInfo:
             lines.append(
                 "  skipped " + ", ".join(f"{k}×{v}" for k, v in sorted(self.skipped.items()))
             )
+        lines.extend(self.damage_lines())
         lines.extend(f"  note: {n}" for n in self.notes)
         return "\n".join(lines)
+
+    def damage_lines(self) -> list[str]:
+        """What the reader dropped or repaired, one line per kind ([] for a clean log)."""
+        out = []
+        if self.n_dropped:
+            first = "; ".join(
+                (f"line {ln}: {why}" if ln is not None else why) for ln, why in self.dropped
+            )
+            more = f" (first {len(self.dropped)}: {first})" if self.dropped else ""
+            out.append(f"  dropped {self.n_dropped} malformed line(s){more}")
+        if self.invalid_readings:
+            out.append(
+                "  invalid readings (beams not used): "
+                + ", ".join(f"{k} {v}" for k, v in sorted(self.invalid_readings.items()))
+            )
+        if self.n_repaired_stamps and self.stamps == "repaired":
+            out.append(f"  repaired {self.n_repaired_stamps} stamp(s): {self.stamp_note}")
+        return out
+
+
+#: how many dropped lines a :class:`LogInfo` keeps (with their line numbers) for the summary
+MAX_REPORTED = 10
+
+
+class Damage:
+    """Collects what a reader could not use. Lenient (default): a malformed line is
+    skipped and counted, an impossible reading becomes an invalid beam and is counted.
+    ``strict``: the first of either raises :class:`LogFormatError` instead."""
+
+    def __init__(self, path: str | os.PathLike[str], strict: bool = False) -> None:
+        self.path = os.fspath(path)
+        self.strict = strict
+        self.n_dropped = 0
+        self.dropped: list[tuple[int | None, str]] = []
+        self.invalid: dict[str, int] = {}
+
+    def drop(self, err: LogFormatError) -> None:
+        """A malformed line or message: raise when strict, else count it."""
+        if self.strict:
+            raise err
+        self.n_dropped += 1
+        if len(self.dropped) < 100_000:  # sorted by line, then cut to MAX_REPORTED
+            self.dropped.append((err.line, err.reason))
+
+    def readings(self, kind: str, n: int, line: int | None, example: float) -> None:
+        """``n`` impossible readings of ``kind`` (first on ``line``)."""
+        if n <= 0:
+            return
+        if self.strict:
+            raise LogFormatError(self.path, f"{kind} range reading {example!r}", line)
+        self.invalid[kind] = self.invalid.get(kind, 0) + n
+
+    def fill(self, info: LogInfo) -> LogInfo:
+        info.n_dropped = self.n_dropped
+        info.dropped = sorted(self.dropped, key=lambda d: (d[0] is None, d[0] or 0))[:MAX_REPORTED]
+        info.invalid_readings = dict(self.invalid)
+        if self.n_dropped:
+            log.info("%s: dropped %d malformed line(s)", self.path, self.n_dropped)
+        return info
 
 
 @dataclass

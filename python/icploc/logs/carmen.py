@@ -33,6 +33,7 @@ import gzip
 import io
 import math
 import os
+import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -40,7 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icploc.logs._base import LogData, LogFormatError, LogInfo, log, repair_stamps
+from icploc.logs._base import Damage, LogData, LogFormatError, LogInfo, log, repair_stamps
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = [
@@ -73,15 +74,56 @@ def flaser_angles(n: int, fov: float = math.pi) -> NDArray[np.float64]:
     return -fov / 2 + np.arange(n, dtype=np.float64) * (fov / n)
 
 
-def _open_text(path: str | os.PathLike[str]) -> str:
-    with open(path, "rb") as fh:
-        raw = fh.read()
-    if raw[:2] == b"\x1f\x8b":
+#: default bound on a log's (decompressed) size; a bigger file is refused with a clear error
+MAX_LOG_BYTES = 1 << 30
+
+
+def _open_text(path: str | os.PathLike[str], max_bytes: int, damage: Damage) -> str:
+    """The file as text, gunzipped when it is gzip, decompressed in bounded steps up to
+    ``max_bytes`` (a gzip bomb is stopped there). A gzip stream cut short or corrupted
+    part-way keeps what it held before (lenient; ``strict`` refuses it)."""
+    limit = int(max_bytes)
+    # unbuffered: a buffered reader's read() after a seek copies the file twice (10x slower)
+    with open(path, "rb", buffering=0) as fh:
+        if fh.read(2) != b"\x1f\x8b":
+            size = os.fstat(fh.fileno()).st_size
+            if size > limit:
+                raise LogFormatError(path, f"is {size:,} bytes, more than the {limit:,} allowed")
+            fh.seek(0)
+            return fh.read().decode("latin-1")
+        fh.seek(0)
+        chunks: list[bytes] = []
+        size = 0
+        d = zlib.decompressobj(31)
+        broken = ""
+        fed = False  # the current member has been given input
         try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
-            raise LogFormatError(path, f"broken gzip stream: {exc}") from exc
-    return raw.decode("latin-1")
+            while comp := fh.read(1 << 20):
+                while comp:
+                    fed = True
+                    out = d.decompress(comp, 1 << 22)
+                    size += len(out)
+                    if size > limit:
+                        raise LogFormatError(
+                            path,
+                            f"decompresses to more than {limit:,} bytes; refusing to read it "
+                            "whole (raise the bound with max_bytes= if the log is genuine)",
+                        )
+                    chunks.append(out)
+                    comp = d.unconsumed_tail
+                    if d.eof:  # a multi-member gzip: the next member follows
+                        comp = d.unused_data
+                        d = zlib.decompressobj(31)
+                        fed = False
+            if fed and not d.eof:
+                broken = "the gzip stream ends before its end marker"
+        except zlib.error as exc:
+            broken = f"corrupt gzip data: {exc}"
+    if broken:
+        if damage.strict or not chunks:
+            raise LogFormatError(path, f"broken gzip stream: {broken}")
+        damage.drop(LogFormatError(path, f"{broken} (after {size:,} bytes)"))
+    return b"".join(chunks).decode("latin-1")
 
 
 def is_carmen(path: str | os.PathLike[str]) -> bool:
@@ -94,18 +136,21 @@ def is_carmen(path: str | os.PathLike[str]) -> bool:
             chunk = fh.read(65536)
     except (OSError, EOFError):
         return False
-    if b"\x00" in chunk:
-        return False
-    for line in chunk.decode("latin-1").splitlines()[:500]:
+    for line in chunk.decode("latin-1").split("\n")[:500]:
         toks = line.split(None, 1)
         if not toks or toks[0].startswith("#"):
             continue
         if toks[0] in CARMEN_TYPES:
             return True
-        if not (toks[0].isalnum() and toks[0].isupper()):
+        if "\x00" in line or not _is_type_word(toks[0]):
             return False
     name = os.fspath(path).lower()
     return name.endswith((".log", ".log.gz", ".clf", ".clf.gz"))
+
+
+def _is_type_word(tok: str) -> bool:
+    """A CARMEN message type: an upper-case ASCII word (``FLASER``, ``GPS_NMEA`` ...)."""
+    return tok.isascii() and tok.replace("_", "").isalnum() and tok.isupper()
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -213,6 +258,7 @@ def _exact_flaser(path: str, lineno: int, line: str) -> list[float]:
         raise LogFormatError(
             path, f"FLASER: {len(t)} tokens, expected {need + 2} for {n} readings", lineno
         )
+    _check_tail(path, lineno, "FLASER", t, need)
     _check_not_short(
         path, lineno, "FLASER", t, 2, need, f"{n} readings, 6 pose values and a timestamp"
     )
@@ -247,6 +293,17 @@ def _check_not_short(
             return
 
 
+def _check_tail(path: str, lineno: int, kind: str, t: list[str], need: int) -> None:
+    """Every message ends ``timestamp hostname logger_timestamp``: a line that stops at the
+    timestamp (or the hostname) was cut off, and its last number may be cut too."""
+    if len(t) < need + 2:
+        raise LogFormatError(
+            path,
+            f"{kind}: truncated line: it ends before the hostname and logger timestamp",
+            lineno,
+        )
+
+
 def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
     t = line.split()
     if len(t) < 8:
@@ -257,6 +314,7 @@ def _exact_odom(path: str, lineno: int, line: str) -> list[float]:
         )
     if len(t) > 10:
         raise LogFormatError(path, f"ODOM: {len(t)} tokens, expected 10", lineno)
+    _check_tail(path, lineno, "ODOM", t, 8)
     _check_not_short(path, lineno, "ODOM", t, 1, 8, "x y theta tv rv accel timestamp")
     return [_num(path, lineno, "ODOM value", t[k]) for k in range(1, 8)]
 
@@ -287,6 +345,7 @@ def _exact_rawlaser(path: str, lineno: int, line: str, robot: bool) -> list[floa
         )
     if len(t) > need + 2:
         raise LogFormatError(path, f"{kind}: {len(t)} tokens, expected {need + 2}", lineno)
+    _check_tail(path, lineno, kind, t, need)
     _check_not_short(path, lineno, kind, t, 10 + n, need, f"{m} remissions, poses and a timestamp")
     vals.extend(_num(path, lineno, f"{kind} value", t[k]) for k in range(10 + n, need))
     return vals
@@ -303,24 +362,78 @@ def _parse_group(
     idx: list[int],
     ncols: int,
     exact: Callable[[str, int, str], list[float]],
-) -> NDArray[np.float64]:
-    m: NDArray[np.float64] | None = None
+    damage: Damage,
+) -> tuple[NDArray[np.float64], list[int]]:
+    """The rows of ``idx`` as one (rows, ncols) matrix and the line indices it holds.
+
+    The whole group is converted at once; when it does not convert, it is halved until
+    the pieces that do are found, and the lines left over are parsed exactly: a malformed
+    one goes to ``damage`` (skipped and counted, or raised when strict)."""
+    heads: list[str | None]
     try:
         heads = [_head(lines[i]) for i in idx]
     except IndexError:
         heads = []
-        m = None
-    else:
-        m = _fast_matrix(heads, ncols)
-    if m is None:
-        rows = []
         for i in idx:
-            r = exact(path, i + 1, lines[i])
-            if len(r) != ncols:
-                raise LogFormatError(path, f"expected {ncols} values, got {len(r)}", i + 1)
-            rows.append(r)
-        m = np.array(rows, dtype=np.float64).reshape(len(idx), ncols)
-    return m
+            try:
+                heads.append(_head(lines[i]))
+            except IndexError:
+                heads.append(None)
+    mats: list[NDArray[np.float64]] = []
+    kept: list[int] = []
+    # halve a piece until it converts; small leftovers are parsed line by line (no
+    # recursion, no closures: nothing here outlives the call in a reference cycle)
+    todo = [(0, len(idx))]
+    while todo:
+        lo, hi = todo.pop()
+        if lo >= hi:
+            continue
+        hs = heads[lo:hi]
+        m = None if any(h is None for h in hs) else _fast_matrix(hs, ncols)  # type: ignore[arg-type]
+        if m is not None:
+            mats.append(m)
+            kept.extend(idx[lo:hi])
+        elif hi - lo > 16:
+            mid = (lo + hi) // 2
+            todo.append((mid, hi))  # popped after the first half: file order is kept
+            todo.append((lo, mid))
+        else:
+            rows, got = [], []
+            for k in range(lo, hi):
+                i = idx[k]
+                try:
+                    r = exact(path, i + 1, lines[i])
+                    if len(r) != ncols:
+                        raise LogFormatError(path, f"expected {ncols} values, got {len(r)}", i + 1)
+                except LogFormatError as e:
+                    damage.drop(e)
+                    continue
+                rows.append(r)
+                got.append(i)
+            if rows:
+                mats.append(np.array(rows, dtype=np.float64).reshape(len(rows), ncols))
+                kept.extend(got)
+    if not mats:
+        return np.zeros((0, ncols)), []
+    return (mats[0] if len(mats) == 1 else np.concatenate(mats)), kept
+
+
+def _drop_rows(
+    path: str,
+    m: NDArray[np.float64],
+    idx: list[int],
+    flags: ArrayLike,
+    why: str,
+    damage: Damage,
+) -> tuple[NDArray[np.float64], list[int]]:
+    """Remove the rows flagged ``bad`` (each a malformed line: ``why``) from ``m`` / ``idx``."""
+    bad = np.asarray(flags, dtype=bool).reshape(len(idx))
+    if not bad.any():
+        return m, idx
+    for r in np.flatnonzero(bad):
+        damage.drop(LogFormatError(path, why, idx[int(r)] + 1))
+    ok = ~bad
+    return m[ok], [i for i, k in zip(idx, ok, strict=True) if k]
 
 
 def _check_finite(
@@ -347,13 +460,22 @@ class _LaserBlock:
     max_range: float  # nan: unknown (FLASER), decided later
 
 
-def _flaser_block(path: str, lines: list[str], n: int, idx: list[int], fov: float) -> _LaserBlock:
-    m = _parse_group(path, lines, idx, n + 8, lambda p, ln, s: _exact_flaser(p, ln, s))
-    if not np.all(m[:, 0] == n):
-        r = int(np.flatnonzero(m[:, 0] != n)[0])
+def _flaser_block(
+    path: str, lines: list[str], n: int, idx: list[int], fov: float, damage: Damage
+) -> _LaserBlock:
+    m, idx = _parse_group(path, lines, idx, n + 8, _exact_flaser, damage)
+    bad = m[:, 0] != n
+    if bad.any() and damage.strict:
+        r = int(np.flatnonzero(bad)[0])
         _exact_flaser(path, idx[r] + 1, lines[idx[r]])
         raise LogFormatError(path, "FLASER: beam count and values disagree", idx[r] + 1)
-    _check_finite(path, m, slice(n + 1, n + 8), idx, "FLASER pose or timestamp")
+    m, idx = _drop_rows(path, m, idx, bad, "FLASER: beam count and values disagree", damage)
+    if damage.strict:
+        _check_finite(path, m, slice(n + 1, n + 8), idx, "FLASER pose or timestamp")
+    m, idx = _drop_rows(
+        path, m, idx, ~np.isfinite(m[:, n + 1 : n + 7]).all(axis=1),
+        "FLASER pose or odometry is not finite", damage,
+    )  # fmt: skip
     return _LaserBlock(
         idx=idx,
         ranges=m[:, 1 : n + 1],
@@ -366,7 +488,9 @@ def _flaser_block(path: str, lines: list[str], n: int, idx: list[int], fov: floa
     )
 
 
-def _rawlaser_blocks(path: str, lines: list[str], idx: list[int], robot: bool) -> list[_LaserBlock]:
+def _rawlaser_blocks(
+    path: str, lines: list[str], idx: list[int], robot: bool, damage: Damage
+) -> list[_LaserBlock]:
     kind = "ROBOTLASER1" if robot else "RAWLASER1"
     # group by (n, m) read from the line itself; a line that cannot be grouped is parsed exactly
     groups: dict[tuple[int, int], list[int]] = {}
@@ -376,29 +500,49 @@ def _rawlaser_blocks(path: str, lines: list[str], idx: list[int], robot: bool) -
             n = int(t[8])
             rest = t[9].split(None, n + 1)
             mm = int(rest[n])
+            if not (0 < n <= 100_000 and 0 <= mm <= 100_000):
+                raise ValueError
         except (IndexError, ValueError):
-            _exact_rawlaser(path, i + 1, lines[i], robot)
-            raise LogFormatError(path, f"{kind}: malformed line", i + 1) from None
+            try:
+                _exact_rawlaser(path, i + 1, lines[i], robot)
+                raise LogFormatError(path, f"{kind}: malformed line", i + 1) from None
+            except LogFormatError as e:
+                damage.drop(e)
+            continue
         groups.setdefault((n, mm), []).append(i)
     blocks = []
+    tail = 11 if robot else 0
     for (n, mm), gidx in groups.items():
-        tail = 11 if robot else 0
         ncols = 8 + n + 1 + mm + tail + 1
-        mat = _parse_group(
-            path, lines, gidx, ncols, lambda p, ln, s: _exact_rawlaser(p, ln, s, robot)
+        mat, gidx = _parse_group(
+            path, lines, gidx, ncols, lambda p, ln, s: _exact_rawlaser(p, ln, s, robot), damage
         )
-        if not (np.all(mat[:, 7] == n) and np.all(mat[:, 8 + n] == mm)):
-            r = int(np.flatnonzero((mat[:, 7] != n) | (mat[:, 8 + n] != mm))[0])
+        bad = (mat[:, 7] != n) | (mat[:, 8 + n] != mm)
+        if bad.any() and damage.strict:
+            r = int(np.flatnonzero(bad)[0])
             _exact_rawlaser(path, gidx[r] + 1, lines[gidx[r]], robot)
             raise LogFormatError(path, f"{kind}: counts and values disagree", gidx[r] + 1)
-        _check_finite(path, mat, slice(0, 7), gidx, f"{kind} header")
+        mat, gidx = _drop_rows(path, mat, gidx, bad, f"{kind}: counts and values disagree", damage)
         base = 9 + n + mm
-        _check_finite(path, mat, slice(base, ncols), gidx, f"{kind} pose or timestamp")
+        if damage.strict:
+            _check_finite(path, mat, slice(0, 7), gidx, f"{kind} header")
+            _check_finite(path, mat, slice(base, ncols), gidx, f"{kind} pose or timestamp")
+        mat, gidx = _drop_rows(
+            path, mat, gidx, ~np.isfinite(mat[:, 0:7]).all(axis=1), f"{kind} header is not finite",
+            damage,
+        )  # fmt: skip
+        if robot:
+            mat, gidx = _drop_rows(
+                path, mat, gidx, ~np.isfinite(mat[:, base : ncols - 1]).all(axis=1),
+                f"{kind} pose or odometry is not finite", damage,
+            )  # fmt: skip
+        if not gidx:
+            continue
         start, res, maxr = mat[:, 1], mat[:, 3], mat[:, 4]
         if not (np.all(start == start[0]) and np.all(res == res[0]) and np.all(maxr == maxr[0])):
-            # geometry changes within the group: split it one line at a time (rare)
-            for i in gidx:
-                blocks.extend(_rawlaser_blocks_single(path, lines, i, robot, n, mm))
+            # geometry changes within the group: one block per line (rare)
+            for r, i in enumerate(gidx):
+                blocks.append(_rawlaser_row_block(mat[r], i, robot, n, mm))
             continue
         angles = start[0] + np.arange(n, dtype=np.float64) * res[0]
         rows = len(gidx)
@@ -425,23 +569,33 @@ def _rawlaser_blocks(path: str, lines: list[str], idx: list[int], robot: bool) -
     return blocks
 
 
-def _rawlaser_blocks_single(
-    path: str, lines: list[str], i: int, robot: bool, n: int, mm: int
-) -> list[_LaserBlock]:
-    v = np.array(_exact_rawlaser(path, i + 1, lines[i], robot), dtype=np.float64)
+def _rawlaser_row_block(
+    v: NDArray[np.float64], i: int, robot: bool, n: int, mm: int
+) -> _LaserBlock:
+    """One parsed RAWLASER1 / ROBOTLASER1 row (``v``: its values after the type word)."""
     base = 9 + n + mm
-    return [
-        _LaserBlock(
-            idx=[i],
-            ranges=v[None, 8 : 8 + n],
-            angles=v[1] + np.arange(n) * v[3],
-            stamps=v[-1:].copy(),
-            reported=v[None, base : base + 3] if robot else np.full((1, 3), np.nan),
-            odom=v[None, base + 3 : base + 6] if robot else np.full((1, 3), np.nan),
-            velocity=v[None, base + 6 : base + 8] if robot else None,
-            max_range=float(v[4]) if v[4] > 0 else math.inf,
-        )
-    ]
+    return _LaserBlock(
+        idx=[i],
+        ranges=v[None, 8 : 8 + n],
+        angles=v[1] + np.arange(n) * v[3],
+        stamps=v[-1:].copy(),
+        reported=v[None, base : base + 3] if robot else np.full((1, 3), np.nan),
+        odom=v[None, base + 3 : base + 6] if robot else np.full((1, 3), np.nan),
+        velocity=v[None, base + 6 : base + 8] if robot else None,
+        max_range=float(v[4]) if v[4] > 0 else math.inf,
+    )
+
+
+#: no planar laser measures this far (m): a larger reading is impossible, whatever the log says
+ABSURD_RANGE = 1000.0
+
+
+def beyond_limit(max_range: float) -> float:
+    """Readings above this are impossible for a scanner of ``max_range`` (m): more than
+    5 % (at least 0.5 m) beyond it, or beyond :data:`ABSURD_RANGE` when it is unknown."""
+    if not math.isfinite(max_range) or max_range <= 0:
+        return ABSURD_RANGE
+    return min(ABSURD_RANGE, max_range + max(0.5, 0.05 * max_range))
 
 
 def _detect_sentinel(ranges: list[NDArray[np.float64]]) -> float:
@@ -449,19 +603,32 @@ def _detect_sentinel(ranges: list[NDArray[np.float64]]) -> float:
 
     SICK scanners report "no echo" as a saturated value (81.91, 81.83, 32.767, 51.x, 50.0 …)
     that then repeats across the log. If the largest reading, within 25 cm, is such a repeated
-    value, everything from 25 cm below it up is no-return; else the max range is unknown (inf).
+    value, everything from 25 cm below it up is no-return. A thin tail of impossible readings
+    above the saturation value (at most 0.5 % of the readings, none repeated) does not hide
+    it. Else the max range is unknown (inf).
     """
     if not ranges:
         return math.inf
     v = np.concatenate([r.ravel() for r in ranges])
-    v = v[np.isfinite(v) & (v > 0)]
+    v = v[np.isfinite(v) & (v > 0) & (v <= ABSURD_RANGE)]
     if v.size == 0:
         return math.inf
     top = float(v.max())
     near = v[v >= top - _SENTINEL_WINDOW]
     _, counts = np.unique(np.round(near * 1000.0), return_counts=True)
-    if counts.max() >= max(20, 0.001 * v.size):
+    need = max(20, 0.001 * v.size)
+    if counts.max() >= need:
         return top - _SENTINEL_WINDOW
+    # the top is not repeated: the largest saturation value (repeated, and most of the
+    # readings within 25 cm below it) with only a thin tail above it
+    u, c = np.unique(np.round(v * 1000.0), return_counts=True)
+    cum = np.cumsum(c)
+    above = cum[-1] - cum  # readings above each value
+    lo = np.searchsorted(u, u - _SENTINEL_WINDOW * 1000.0, side="left")
+    window = cum - np.where(lo > 0, cum[np.maximum(lo - 1, 0)], 0)
+    cand = np.flatnonzero((c >= need) & (above <= 0.005 * v.size) & (2 * c >= window))
+    if cand.size:
+        return float(u[cand[-1]]) / 1000.0 - _SENTINEL_WINDOW
     return math.inf
 
 
@@ -475,6 +642,8 @@ def read_carmen(
     nan_ranges: str = "invalid",
     fov: float = math.pi,
     stuck_beams: bool = True,
+    strict: bool = False,
+    max_bytes: int = MAX_LOG_BYTES,
 ) -> LogData:
     """Read a CARMEN log into memory.
 
@@ -486,14 +655,23 @@ def read_carmen(
     ``"odom"``, ``"laser"`` or ``"none"``. ``nan_ranges``: ``"invalid"`` (a NaN reading
     becomes an inf beam flagged ``BEAM_INVALID``) or ``"error"``. ``fov``: FLASER coverage.
     ``stuck_beams``: flag as invalid a beam whose reading never changes over ≥ 50 scans.
+
+    Damage: a malformed line (torn, binary garbage, a beam count that disagrees with the
+    readings, a non-finite pose or odometry) is skipped and counted with its line number
+    (:attr:`LogInfo.n_dropped`, the first ten in :attr:`LogInfo.dropped`); an impossible
+    reading (NaN, negative, beyond the max range: :func:`beyond_limit`) becomes an invalid
+    beam, counted in :attr:`LogInfo.invalid_readings`; a non-finite stamp is repaired like a
+    missing one. ``strict=True`` raises :class:`LogFormatError` at the first of these
+    instead. ``max_bytes``: the file (decompressed) may hold at most this many bytes.
     """
     spath = os.fspath(path)
     if odometry not in ("auto", "odom", "laser", "none"):
         raise ValueError(f"odometry must be 'auto', 'odom', 'laser' or 'none', got {odometry!r}")
     if nan_ranges not in ("invalid", "error"):
         raise ValueError(f"nan_ranges must be 'invalid' or 'error', got {nan_ranges!r}")
-    text = _open_text(spath)
-    lines = text.splitlines()
+    damage = Damage(spath, strict)
+    text = _open_text(spath, max_bytes, damage)
+    lines = text.split("\n")  # not splitlines(): \x85, \x0c ... in garbage are no line breaks
 
     flaser: dict[int, list[int]] = {}
     robot: list[int] = []
@@ -507,11 +685,15 @@ def read_carmen(
             continue
         kind = t[0]
         if kind == "FLASER":
-            if len(t) < 2:
-                raise LogFormatError(spath, "FLASER: truncated line (no beam count)", i + 1)
-            n = _count(spath, i + 1, "FLASER beam count", t[1])
-            if n == 0:
-                raise LogFormatError(spath, "FLASER: zero beams", i + 1)
+            try:
+                if len(t) < 2:
+                    raise LogFormatError(spath, "FLASER: truncated line (no beam count)", i + 1)
+                n = _count(spath, i + 1, "FLASER beam count", t[1])
+                if n == 0:
+                    raise LogFormatError(spath, "FLASER: zero beams", i + 1)
+            except LogFormatError as e:
+                damage.drop(e)
+                continue
             flaser.setdefault(n, []).append(i)
         elif kind == "ODOM":
             odom_idx.append(i)
@@ -519,6 +701,8 @@ def read_carmen(
             robot.append(i)
         elif kind == "RAWLASER1":
             raw.append(i)
+        elif "\x00" in line or not _is_type_word(kind):
+            damage.drop(LogFormatError(spath, "not a CARMEN message (unreadable line)", i + 1))
         else:
             if kind == "PARAM" and len(t) == 3:
                 params[t[1]] = t[2].split(None, 1)[0] if t[2].split() else ""
@@ -526,16 +710,18 @@ def read_carmen(
 
     blocks: list[_LaserBlock] = []
     for n, idx in sorted(flaser.items()):
-        blocks.append(_flaser_block(spath, lines, n, idx, fov))
+        fb = _flaser_block(spath, lines, n, idx, fov, damage)
+        if fb.idx:
+            blocks.append(fb)
     flaser_blocks = list(blocks)
     if robot:
-        blocks.extend(_rawlaser_blocks(spath, lines, robot, True))
+        blocks.extend(_rawlaser_blocks(spath, lines, robot, True, damage))
     if raw:
-        blocks.extend(_rawlaser_blocks(spath, lines, raw, False))
+        blocks.extend(_rawlaser_blocks(spath, lines, raw, False, damage))
 
     notes: list[str] = []
-    if robot:
-        rb = [b for b in blocks[len(flaser_blocks) :] if b.velocity is not None]
+    rb = [b for b in blocks[len(flaser_blocks) :] if b.velocity is not None]
+    if rb:
         lp = np.concatenate([b.reported for b in rb])
         rp = np.concatenate([b.odom for b in rb])
         c, s_ = np.cos(rp[:, 2]), np.sin(rp[:, 2])
@@ -583,8 +769,12 @@ def read_carmen(
 
     odo = np.zeros((0, 7))
     if odom_idx:
-        odo = _parse_group(spath, lines, odom_idx, 7, lambda p, ln, s: _exact_odom(p, ln, s))
-        _check_finite(spath, odo, slice(0, 7), odom_idx, "ODOM value")
+        odo, odom_idx = _parse_group(spath, lines, odom_idx, 7, _exact_odom, damage)
+        if damage.strict:
+            _check_finite(spath, odo, slice(0, 7), odom_idx, "ODOM value")
+        odo, odom_idx = _drop_rows(
+            spath, odo, odom_idx, ~np.isfinite(odo).all(axis=1), "ODOM value is not finite", damage
+        )
 
     # ---- flags, per block (vectorised)
     flags_blocks: list[NDArray[np.uint8]] = []
@@ -596,18 +786,29 @@ def read_carmen(
         if n_nan and nan_ranges == "error":
             row = int(np.argwhere(nan)[0][0])
             raise LogFormatError(spath, "NaN range reading", b.idx[row] + 1)
-        neg = r < 0
-        if neg.any():
-            row = int(np.argwhere(neg)[0][0])
-            raise LogFormatError(spath, f"negative range reading {r[neg][0]!r}", b.idx[row] + 1)
         mr = b.max_range if math.isfinite(b.max_range) else math.inf
-        noret = (r == 0) | (r >= mr)  # NaN compares False
+        # impossible readings: negative, or far beyond what the scanner measures
+        detected = max_range is None and any(b is fb for fb in flaser_blocks)
+        limit = beyond_limit(mr + _SENTINEL_WINDOW if detected else mr)
+        impossible = (r < 0) | (r > limit)  # NaN compares False
+        noret = (r == 0) | (r >= mr)
+        if impossible.any():
+            for what, sel in (("negative", r < 0), ("beyond max range", r > limit)):
+                if sel.any():
+                    row = int(np.argwhere(sel)[0][0])
+                    damage.readings(
+                        what, int(np.count_nonzero(sel)), b.idx[row] + 1, float(r[sel][0])
+                    )
+            noret &= ~impossible
+        if n_nan:
+            row = int(np.argwhere(nan)[0][0])
+            damage.readings("NaN", n_nan, b.idx[row] + 1, math.nan)
         fl = noret.view(np.uint8) * np.uint8(BEAM_NO_RETURN)
         bad = noret
-        if n_nan:
-            fl |= nan.view(np.uint8) * np.uint8(BEAM_INVALID)
-            bad = noret | nan
-            notes.append(f"{n_nan} NaN readings flagged invalid")
+        if n_nan or impossible.any():
+            inval = nan | impossible
+            fl |= inval.view(np.uint8) * np.uint8(BEAM_INVALID)
+            bad = noret | inval
         if stuck_beams and r.shape[0] >= _STUCK_MIN_SCANS:
             const = np.all(r == r[0], axis=0) & ~bad[0]
             if 0 < const.sum() < 0.1 * r.shape[1]:
@@ -742,8 +943,14 @@ def read_carmen(
         skipped=skipped,
         notes=notes,
     )
+    damage.fill(info)
     if not scans and not odoms:
-        raise LogFormatError(spath, "no FLASER, ROBOTLASER1, RAWLASER1 or ODOM message found")
+        why = "; ".join(d.strip() for d in info.damage_lines())
+        raise LogFormatError(
+            spath,
+            "no FLASER, ROBOTLASER1, RAWLASER1 or ODOM message found"
+            + (f" ({why})" if why else ""),
+        )
     log.info("read %s: %d scans, %d odometry, stamps %s", spath, len(scans), len(odoms), rep.status)
     return LogData(
         info=info,

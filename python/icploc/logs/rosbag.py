@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.logs._base import LogData, LogFormatError, LogInfo, log, repair_stamps
+from icploc.logs._base import Damage, LogData, LogFormatError, LogInfo, log, repair_stamps
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = ["TopicError", "is_rosbag", "iter_ros1_raw", "read_rosbag", "write_rosbag"]
@@ -232,9 +232,16 @@ def read_rosbag(
     odom_topic: str | None = None,
     timestamps: str = "auto",
     period: float = 0.1,
+    strict: bool = False,
 ) -> LogData:
-    """Read the LaserScan and Odometry messages of a ROS 1 or ROS 2 bag."""
+    """Read the LaserScan and Odometry messages of a ROS 1 or ROS 2 bag.
+
+    Damage: a message that cannot be decoded, a scan with non-finite angles and an odometry
+    message with a non-finite pose are skipped and counted (:attr:`LogInfo.n_dropped`);
+    NaN and out-of-limits readings are invalid beams (REP 117). ``strict=True`` raises
+    :class:`LogFormatError` at the first skipped message instead."""
     spath = os.fspath(path)
+    damage = Damage(spath, strict)
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -277,9 +284,13 @@ def read_rosbag(
                 try:
                     msg = ts.deserialize_ros1(raw, mtype)
                 except Exception as exc2:  # noqa: BLE001
-                    raise LogFormatError(
-                        spath, f"cannot decode a {mtype} message on {topic}: {exc2}"
-                    ) from exc2
+                    damage.drop(
+                        LogFormatError(
+                            spath,
+                            f"cannot decode a {mtype} message on {topic} at {t * 1e-9:.3f} s: {exc2}",
+                        )
+                    )
+                    continue
                 entries.append((topic, mtype, t, msg))
         entries.sort(key=lambda e: e[2])
 
@@ -290,6 +301,14 @@ def read_rosbag(
             f"(topics: {', '.join(f'{k} [{v[0]}]' for k, v in sorted(topics.items())) or 'none'})",
         )
 
+    kept = []
+    for e in entries:
+        why = _unusable(e[3], e[0] == st)
+        if why:
+            damage.drop(LogFormatError(spath, f"{e[0]} message at {e[2] * 1e-9:.3f} s: {why}"))
+        else:
+            kept.append(e)
+    entries = kept
     stamps = np.empty(len(entries))
     is_scan = np.zeros(len(entries), dtype=bool)
     n_bagtime = 0
@@ -344,9 +363,6 @@ def read_rosbag(
     odoms.sort(key=lambda e: (e[0], e[1]))
     scan_list = [replace(sc, seq=seq) for seq, (_, _, sc) in enumerate(scans)]
     odom_list = [o for _, _, o in odoms]
-    for sc in scan_list:
-        if not np.all(np.isfinite(sc.angles)):
-            raise LogFormatError(spath, f"scan at {sc.stamp}: non-finite angles")
     used = {}
     if st is not None:
         used[st] = SCAN_TYPE
@@ -372,7 +388,29 @@ def read_rosbag(
         topics=used,
         notes=notes,
     )
+    damage.fill(info)
     return LogData(info=info, scans=scan_list, odometry=odom_list)
+
+
+def _unusable(msg: Any, is_scan: bool) -> str:
+    """Why a LaserScan / Odometry message cannot be used ("" when it can)."""
+    vals: tuple[Any, ...]
+    try:
+        if is_scan:
+            vals = (msg.angle_min, msg.angle_increment)
+            what = "non-finite angles"
+        else:
+            p = msg.pose.pose
+            vals = (p.position.x, p.position.y, p.orientation.z, p.orientation.w)
+            what = "non-finite pose"
+        hs = float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+    except (AttributeError, TypeError, ValueError) as e:
+        return f"malformed message ({e})"
+    if not all(math.isfinite(float(v)) for v in vals):
+        return what
+    if not math.isfinite(hs):
+        return "non-finite stamp"
+    return ""
 
 
 # ----------------------------------------------------------------------------- writing
