@@ -114,6 +114,7 @@ def replay(
     odometry: Annotated[
         str, typer.Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
     ] = "auto",
+    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
@@ -122,6 +123,7 @@ def replay(
 
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
+    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
     try:
         if progress:
             with Progress(
@@ -134,13 +136,18 @@ def replay(
                     bar.update(task, completed=done, total=total)
 
                 res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
-                                plot=plot, on_progress=on_progress, odometry=odometry)  # fmt: skip
+                                plot=plot, on_progress=on_progress, odometry=odometry,
+                                on_localizer=hooks.on_localizer)  # fmt: skip
         else:
             res = do_replay(log, map_path, config=cfg, initial_pose=pose, out=out, truth=truth,
-                            plot=plot, odometry=odometry)  # fmt: skip
+                            plot=plot, odometry=odometry, on_localizer=hooks.on_localizer)  # fmt: skip
     except (OSError, ValueError) as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(1) from None
+    finally:
+        hooks.close()
+    if mcap is not None:
+        res.files["mcap"] = mcap
     typer.echo(res.summary())
     for k, p in res.files.items():
         typer.echo(f"{k}: {p}")
@@ -164,23 +171,33 @@ def run_cmd(
     config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds")] = None,
     baud: Annotated[int, typer.Option(help="Laser baud rate")] = 38400,
+    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
+    state: Annotated[
+        Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
+    ] = None,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate)."""
     from icploc import live
 
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
+    # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
+    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else ())
 
     def show(e):  # type: ignore[no-untyped-def]
+        hooks.observe(e)
         why = f" ({e.reason})" if e.status.value == "lost" and e.reason != "lost" else ""
         typer.echo(
             f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status}{why} inliers={e.inlier_ratio:.2f}"
         )
 
     if simulate:
-        res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
-                                        map_=str(map_path) if map_path else None, timeout=duration or 120.0,
-                                        global_start=global_start)  # fmt: skip
+        try:
+            res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
+                                            map_=str(map_path) if map_path else None, timeout=duration or 120.0,
+                                            global_start=global_start, on_localizer=hooks.on_localizer)  # fmt: skip
+        finally:
+            hooks.close()
         import numpy as np
 
         if res.estimates:
@@ -193,9 +210,74 @@ def run_cmd(
         return
     if map_path is None or laser is None:
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
-    res = live.run_hardware(map_path, laser, base, config=cfg, initial_pose=pose, out=out, record=record,
-                            laser_baud=baud, duration=duration, on_estimate=show)  # fmt: skip
+    try:
+        res = live.run_hardware(map_path, laser, base, config=cfg, initial_pose=pose, out=out, record=record,
+                                laser_baud=baud, duration=duration, on_estimate=show,
+                                on_localizer=hooks.on_localizer)  # fmt: skip
+    finally:
+        hooks.close()
     typer.echo(f"{len(res.estimates)} scans in {res.wall_time:.1f} s")
+
+
+def _run_hooks(**kw):  # type: ignore[no-untyped-def]
+    """The --mcap / --state extras (icploc.hooks); a clear error if they cannot start."""
+    from icploc.hooks import RunHooks
+    from icploc.mcap_export import McapError
+
+    try:
+        return RunHooks(warn=lambda m: typer.secho(f"warning: {m}", fg="yellow", err=True), **kw)
+    except McapError as e:
+        typer.secho(f"error: {e}", fg="red", err=True)
+        raise typer.Exit(1) from None
+
+
+@app.command()
+def batch(
+    logs: Annotated[list[Path], typer.Argument(help="Logs to replay (any format icploc replay reads)")],
+    map_path: Annotated[Path, typer.Option("--map", help="Map file (one map for all logs)")],
+    out: Annotated[Path, typer.Option("--out", help="Output directory")],
+    scheduler: Annotated[
+        str | None, typer.Option("--scheduler", help="Dask scheduler address (default: a local cluster)")
+    ] = None,
+    workers: Annotated[int | None, typer.Option("--workers", help="Local cluster workers (default: one per core)")] = None,
+    truth_dir: Annotated[
+        Path | None, typer.Option("--truth-dir", help="Directory of <log stem>.tum true trajectories")
+    ] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
+) -> None:
+    """Replay many logs against one map in parallel on Dask (pip install 'icploc[fleet]')."""
+    from icploc.batch import BatchError, batch_replay
+
+    cfg = _load_config(config)
+    try:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        with Progress(TextColumn("[bold]batch"), BarColumn(), MofNCompleteColumn(), TextColumn("logs"),
+                      TimeElapsedColumn(), transient=True, disable=not progress) as bar:  # fmt: skip
+            task = bar.add_task("batch", total=len(logs))
+
+            def on_progress(done: int, total: int, row) -> None:  # type: ignore[no-untyped-def]
+                bar.update(task, completed=done)
+                if row.error:
+                    bar.console.print(f"[red]{row.log}: {row.error}")
+
+            res = batch_replay(logs, map_path, out, config=cfg, scheduler=scheduler, workers=workers,
+                               truth_dir=truth_dir, on_progress=on_progress)  # fmt: skip
+    except (BatchError, OSError, ValueError) as e:
+        typer.secho(f"error: {e}", fg="red", err=True)
+        raise typer.Exit(1) from None
+    ok = len(res.rows) - len(res.failed)
+    scans = sum(r.scans for r in res.rows)
+    typer.echo(f"{ok}/{len(res.rows)} logs, {scans} scans in {res.wall_time:.1f} s; summary: {res.summary}")
+    if res.failed:
+        raise typer.Exit(3)
 
 
 def main() -> None:
