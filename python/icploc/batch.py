@@ -232,6 +232,7 @@ def batch_replay(
     truth_dir: str | Path | None = None,
     on_progress: Callable[[int, int, LogRow], None] | None = None,
     replay_options: dict[str, Any] | None = None,
+    connect_timeout: float = 10.0,
 ) -> BatchResult:
     """Replay ``logs`` against ``map_`` (a path or a Map) on Dask; write the per-log
     trajectories and estimates and ``summary.csv`` into ``out``. ``scheduler``: the address
@@ -239,7 +240,8 @@ def batch_replay(
     ``truth_dir``: where ``<stem>.tum`` true trajectories are (for the start pose and the
     ATE, as ``icploc replay --truth``). ``on_progress(done, total, row)`` after each log.
     ``replay_options``: more keyword arguments of :func:`icploc.replay.replay`
-    (``odometry``, ``initial_pose``, ``global_localize``, ``log_options``)."""
+    (``odometry``, ``initial_pose``, ``global_localize``, ``log_options``).
+    ``connect_timeout``: seconds to wait for the scheduler at ``scheduler``."""
     t0 = time.perf_counter()
     if not logs:
         raise BatchError("no logs given")
@@ -274,7 +276,7 @@ def batch_replay(
             client = distributed.Client(cluster)
         else:
             try:
-                client = distributed.Client(scheduler, timeout="10s")
+                client = distributed.Client(scheduler, timeout=f"{connect_timeout}s")
             except (OSError, TimeoutError) as e:
                 raise BatchError(f"no Dask scheduler at {scheduler}: {e}") from None
         with client:

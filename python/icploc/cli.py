@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from icploc.batch_cli import batch as _batch_command
+
 app = typer.Typer(
     name="icploc",
     help="Real-time 2D robot localization by ICP against a known map.",
@@ -25,6 +27,7 @@ def _register() -> None:
 
 config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True)
 app.add_typer(config_app, name="config")
+app.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
 
 
 @config_app.command("defaults")
@@ -229,55 +232,6 @@ def _run_hooks(**kw):  # type: ignore[no-untyped-def]
     except McapError as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(1) from None
-
-
-@app.command()
-def batch(
-    logs: Annotated[list[Path], typer.Argument(help="Logs to replay (any format icploc replay reads)")],
-    map_path: Annotated[Path, typer.Option("--map", help="Map file (one map for all logs)")],
-    out: Annotated[Path, typer.Option("--out", help="Output directory")],
-    scheduler: Annotated[
-        str | None, typer.Option("--scheduler", help="Dask scheduler address (default: a local cluster)")
-    ] = None,
-    workers: Annotated[int | None, typer.Option("--workers", help="Local cluster workers (default: one per core)")] = None,
-    truth_dir: Annotated[
-        Path | None, typer.Option("--truth-dir", help="Directory of <log stem>.tum true trajectories")
-    ] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
-    progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
-) -> None:
-    """Replay many logs against one map in parallel on Dask (pip install 'icploc[fleet]')."""
-    from icploc.batch import BatchError, batch_replay
-
-    cfg = _load_config(config)
-    try:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-        )
-
-        with Progress(TextColumn("[bold]batch"), BarColumn(), MofNCompleteColumn(), TextColumn("logs"),
-                      TimeElapsedColumn(), transient=True, disable=not progress) as bar:  # fmt: skip
-            task = bar.add_task("batch", total=len(logs))
-
-            def on_progress(done: int, total: int, row) -> None:  # type: ignore[no-untyped-def]
-                bar.update(task, completed=done)
-                if row.error:
-                    bar.console.print(f"[red]{row.log}: {row.error}")
-
-            res = batch_replay(logs, map_path, out, config=cfg, scheduler=scheduler, workers=workers,
-                               truth_dir=truth_dir, on_progress=on_progress)  # fmt: skip
-    except (BatchError, OSError, ValueError) as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(1) from None
-    ok = len(res.rows) - len(res.failed)
-    scans = sum(r.scans for r in res.rows)
-    typer.echo(f"{ok}/{len(res.rows)} logs, {scans} scans in {res.wall_time:.1f} s; summary: {res.summary}")
-    if res.failed:
-        raise typer.Exit(3)
 
 
 def main() -> None:

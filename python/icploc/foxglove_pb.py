@@ -92,14 +92,18 @@ def _vector3(x: float, y: float) -> bytes:
     return _d(0x09, x) + _d(0x11, y)
 
 
-def _quat_yaw(theta: float) -> bytes:
-    h = 0.5 * theta
-    return _d(0x19, math.sin(h)) + _d(0x21, math.cos(h))
+# a Pose with x, y, sin(theta/2), cos(theta/2) all non-zero (almost always): one pack
+_POSE_FULL = struct.Struct("<3BdBd3BdBd")
 
 
 def pose(p: Sequence[float]) -> bytes:
     """``foxglove.Pose`` of a planar pose (x, y, theta)."""
-    return _ld(0x0A, _vector3(p[0], p[1])) + _ld(0x12, _quat_yaw(p[2]))
+    x, y = p[0], p[1]
+    h = 0.5 * p[2]
+    qz, qw = math.sin(h), math.cos(h)
+    if x != 0.0 and y != 0.0 and qz != 0.0 and qw != 0.0:
+        return _POSE_FULL.pack(0x0A, 18, 0x09, x, 0x11, y, 0x12, 18, 0x19, qz, 0x21, qw)
+    return _ld(0x0A, _vector3(x, y)) + _ld(0x12, _d(0x19, qz) + _d(0x21, qw))
 
 
 _ORIGIN = pose((0.0, 0.0, 0.0))
@@ -113,14 +117,13 @@ def poses_in_frame(ns: int, frame: str, poses: Sequence[Sequence[float]]) -> byt
     return _stamp_field(ns) + _string(0x12, frame) + b"".join(_ld(0x1A, pose(p)) for p in poses)
 
 
-def _frame_transform(ts: bytes, parent: str, child: str, p: Sequence[float]) -> bytes:
-    return (
-        _ld(0x0A, ts)
-        + _string(0x12, parent)
-        + _string(0x1A, child)
-        + _ld(0x22, _vector3(p[0], p[1]))
-        + _ld(0x2A, _quat_yaw(p[2]))
-    )
+def _translation_rotation(x: float, y: float, theta: float) -> bytes:
+    """FrameTransform fields 4 (translation) and 5 (rotation) of a planar pose."""
+    h = 0.5 * theta
+    qz, qw = math.sin(h), math.cos(h)
+    if x != 0.0 and y != 0.0 and qz != 0.0 and qw != 0.0:
+        return _POSE_FULL.pack(0x22, 18, 0x09, x, 0x11, y, 0x2A, 18, 0x19, qz, 0x21, qw)
+    return _ld(0x22, _vector3(x, y)) + _ld(0x2A, _d(0x19, qz) + _d(0x21, qw))
 
 
 def frame_transforms(ns: int, transforms: Sequence[tuple[str, str, Sequence[float]]]) -> bytes:
@@ -129,11 +132,25 @@ def frame_transforms(ns: int, transforms: Sequence[tuple[str, str, Sequence[floa
     return b"".join(_ld(0x0A, _frame_transform(ts, a, b, p)) for a, b, p in transforms)
 
 
+def _frame_transform(ts: bytes, parent: str, child: str, p: Sequence[float]) -> bytes:
+    return (
+        _ld(0x0A, ts)
+        + _string(0x12, parent)
+        + _string(0x1A, child)
+        + _translation_rotation(p[0], p[1], p[2])
+    )
+
+
 def laser_scan(
-    ns: int, frame: str, start_angle: float, end_angle: float, ranges: NDArray[np.float64]
+    ns: int,
+    frame: str,
+    start_angle: float,
+    end_angle: float,
+    ranges: NDArray[np.float64] | bytes,
 ) -> bytes:
-    """``foxglove.LaserScan`` at the frame's origin (ranges packed as doubles)."""
-    r = np.ascontiguousarray(ranges, dtype="<f8").tobytes()
+    """``foxglove.LaserScan`` at the frame's origin (ranges packed as doubles; given as
+    an array, or already as little-endian float64 bytes)."""
+    r = ranges if isinstance(ranges, bytes) else np.ascontiguousarray(ranges, "<f8").tobytes()
     return (
         _stamp_field(ns)
         + _string(0x12, frame)

@@ -296,32 +296,32 @@ class McapFileWriter:
 
     def write_rows(self, rows: Sequence[Row]) -> None:
         cnt = self.counts
+        # the channels' raw loggers (bytes, log time): the SDK's Channel.log minus its checks
+        log_scan, log_pose = self._scan.base.log, self._pose.base.log
+        log_cov, log_odom = self._cov.base.log, self._odom.base.log
+        log_tf, log_hyp = self._tf.base.log, self._hyp.base.log
+        laser = ("base_link", "laser", self.laser_mounting)
         for stamp, ranges, a0, a1, pose, cov, status, reason, ir, odo, hyps in rows:
             ns = self._log_time(stamp)
             if self._map is not None:
                 self._flush_map(ns)
-            self._scan.log(pb.laser_scan(ns, "laser", a0, a1, ranges), log_time=ns)
-            self._pose.log(pb.pose_in_frame(ns, "map", pose), log_time=ns)
-            self._cov.log(self._covariance_json(ns, cov, status, reason, ir), log_time=ns)
+            log_scan(pb.laser_scan(ns, "laser", a0, a1, ranges), ns)
+            log_pose(pb.pose_in_frame(ns, "map", pose), ns)
+            log_cov(self._covariance_json(ns, cov, status, reason, ir), ns)
             if odo is not None:
-                self._odom.log(pb.pose_in_frame(ns, "odom", odo), log_time=ns)
+                log_odom(pb.pose_in_frame(ns, "odom", odo), ns)
                 cnt[TOPICS["odometry"]] += 1
                 map_odom, base = compose(pose, inverse(odo)), odo
             else:
                 map_odom, base = (0.0, 0.0, 0.0), pose
-            self._tf.log(
+            log_tf(
                 pb.frame_transforms(
-                    ns,
-                    (
-                        ("map", "odom", map_odom),
-                        ("odom", "base_link", base),
-                        ("base_link", "laser", self.laser_mounting),
-                    ),
+                    ns, (("map", "odom", map_odom), ("odom", "base_link", base), laser)
                 ),
-                log_time=ns,
+                ns,
             )
             if hyps is not None:
-                self._hyp.log(pb.poses_in_frame(ns, "map", hyps), log_time=ns)
+                log_hyp(pb.poses_in_frame(ns, "map", hyps), ns)
                 cnt[TOPICS["hypotheses"]] += 1
         n = len(rows)
         for t in ("scan", "pose", "covariance", "tf"):
@@ -448,7 +448,7 @@ class McapRecorder:
         self._rows.append(
             (
                 e.stamp,
-                scan.ranges,
+                scan.ranges.astype("<f8", copy=False).tobytes(),
                 float(a[0]) if n else 0.0,
                 float(a[-1]) if n else 0.0,
                 e.pose,
