@@ -57,15 +57,17 @@ def _d(tag: int, v: float) -> bytes:
     return _TAG[tag] + _pack_d(v) if v != 0.0 else b""
 
 
-_strings: dict[tuple[int, str], bytes] = {}
+_strings: dict[int, dict[str, bytes]] = {0x12: {}, 0x1A: {}}
 
 
 def _string(tag: int, s: str) -> bytes:
-    f = _strings.get((tag, s))
+    """A string field; the few frame names are encoded once."""
+    cache = _strings.get(tag)
+    f = cache.get(s) if cache is not None else None
     if f is None:
         f = _ld(tag, s.encode()) if s else b""
-        if len(_strings) < 64:  # frame names: a handful
-            _strings[(tag, s)] = f
+        if cache is not None and len(cache) < 64:
+            cache[s] = f
     return f
 
 
