@@ -11,7 +11,8 @@ go on.
 The map is loaded (and sampled for the ICP index) once on the client and sent to every
 worker once (``Client.scatter(..., broadcast=True)``). Without ``scheduler`` a
 ``LocalCluster`` of ``workers`` single-threaded processes is started (default: one per
-core) and stopped at the end; with ``scheduler="tcp://host:8786"`` the batch runs on that
+core; forked from a server process with icploc loaded, where the platform can) and stopped
+at the end; with ``scheduler="tcp://host:8786"`` the batch runs on that
 cluster. Workers need icploc installed and must be able to read the log paths; the
 outputs are written by the client.
 
@@ -20,13 +21,15 @@ Dask is an optional dependency (``pip install 'icploc[fleet]'``), imported only 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import math
+import multiprocessing
 import os
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -144,6 +147,27 @@ def _import_dask() -> Any:
             "pip install 'icploc[fleet]'"
         ) from None
     return distributed
+
+
+#: what the local workers' fork server imports once, so that each worker starts ready
+_WORKER_PRELOAD = ["distributed", "icploc.batch", "icploc.replay", "icploc.localizer", "icploc.maps"]
+
+
+@contextlib.contextmanager
+def _worker_start_method() -> Iterator[None]:
+    """Start LocalCluster workers from a fork server that has Dask and icploc imported
+    (~0.1 s a worker after the server's one import, instead of ~2 s each when spawned on
+    a loaded 2-core machine; the server is a clean process: no threads are forked)."""
+    import dask
+    import distributed.utils
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        yield
+        return
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        ctx = distributed.utils.get_mp_context()  # Dask sets its preload list once ...
+        ctx.set_forkserver_preload(_WORKER_PRELOAD)  # ... ours replaces it
+        yield
 
 
 def _replay_one(
@@ -266,13 +290,14 @@ def batch_replay(
     try:
         if scheduler is None:
             n = workers or len(os.sched_getaffinity(0))
-            cluster = distributed.LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=40,  # logging.ERROR
-            )
+            with _worker_start_method():
+                cluster = distributed.LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=40,  # logging.ERROR
+                )
             client = distributed.Client(cluster)
         else:
             try:
