@@ -179,3 +179,19 @@ def test_unreachable_scheduler_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(BatchError, match="no Dask scheduler at tcp://127.0.0.1:9"):
         batch_replay([tmp_path / "x.log"], m, tmp_path / "o", scheduler="tcp://127.0.0.1:9",
                      connect_timeout=1.0)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_runs_on_an_existing_scheduler(fleet: dict, tmp_path: Path) -> None:
+    import distributed
+
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        res = batch_replay(
+            [fleet["logs"][2]], fleet["map"], tmp_path, scheduler=cluster.scheduler_address
+        )
+    assert (res.rows[0].error, (tmp_path / "robot2.tum").read_bytes()) == (
+        "",
+        (fleet["out"] / "robot2.tum").read_bytes(),
+    )
