@@ -253,3 +253,18 @@ def test_laser_scan_bytes_match_the_sdk(ns: int, ranges: list, a0: float) -> Non
     sdk = fm.LaserScan(timestamp=_ts(ns), frame_id="laser", pose=_pose((0.0, 0.0, 0.0)),
                        start_angle=a0, end_angle=-a0, ranges=ranges).encode()  # fmt: skip
     assert pb.laser_scan(ns, "laser", a0, -a0, np.array(ranges, dtype=np.float64)) == sdk
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("background", [True, False])
+def test_a_full_disk_is_a_clear_error_without_a_flood_of_warnings(background: bool) -> None:
+    from icploc.localizer import Estimate, Status
+    from icploc.types import Scan
+
+    rec = McapRecorder("/dev/full", background=background)
+    scan = Scan(1.0, np.ones(361), np.linspace(-1.5, 1.5, 361))
+    e = Estimate(1.0, (1.0, 2.0, 0.3), np.eye(3), Status.TRACKING, 1.0, 3, 0.0)
+    with pytest.raises(McapError, match=r"/dev/full: .*(No space left|StorageFull)"):
+        for _ in range(600):
+            rec.record(scan, e)
+        rec.close()

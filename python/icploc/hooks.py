@@ -36,6 +36,7 @@ class RunHooks:
         self.recorder: Any = None
         self.saver: Any = None
         self.check: Any = None
+        self.failed = ""  #: why the MCAP could not be finished ("" when it was)
         self._state = Path(state) if state is not None else None
         self._restore = restore
         self._state_every = state_every
@@ -68,9 +69,17 @@ class RunHooks:
             self.saver.observe(e)
 
     def close(self) -> None:
+        """Save the last state and finish the MCAP; a failure is warned about (the run's
+        other outputs are written) and kept in :attr:`failed`."""
         try:
             if self.saver is not None:
                 self.saver.close()
         finally:
             if self.recorder is not None:
-                self.recorder.close()
+                from icploc.mcap_export import McapError
+
+                try:
+                    self.recorder.close()
+                except McapError as e:
+                    self.failed = str(e)
+                    self.warn(self.failed)

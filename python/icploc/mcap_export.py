@@ -37,6 +37,7 @@ core); ``background=False`` writes in-process.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import multiprocessing
 import os
@@ -155,6 +156,18 @@ def map_data(map_: Any, spacing: float = 0.05) -> dict[str, Any]:
     return out
 
 
+class _FirstError(logging.Handler):
+    """Keeps the SDK's first warning (a failed write) in ``writer.write_error``."""
+
+    def __init__(self, writer: McapFileWriter) -> None:
+        super().__init__(logging.WARNING)
+        self.writer = writer
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if not self.writer.write_error:
+            self.writer.write_error = record.getMessage()
+
+
 class McapFileWriter:
     """Writes the topics of the module doc to ``path`` with foxglove-sdk, in this process:
     :meth:`set_map` (written with the first row's log time), :meth:`write_rows`,
@@ -199,6 +212,14 @@ class McapFileWriter:
         self.laser_mounting: Pose = (lm[0], lm[1], lm[2])
         self._last_ns = -1
         self._map: dict[str, Any] | None = None
+        # the SDK reports a failed write (a full disk) as a warning per message logged, not
+        # as an exception: keep the first one, silence the rest, stop at the next batch
+        self.write_error = ""
+        self._sdk_log = logging.getLogger("foxglove")
+        self._handler = _FirstError(self)
+        self._sdk_log.addHandler(self._handler)
+        self._propagate = self._sdk_log.propagate
+        self._sdk_log.propagate = False
         self.counts: dict[str, int] = dict.fromkeys(TOPICS.values(), 0)
         self.closed = False
 
@@ -295,6 +316,8 @@ class McapFileWriter:
         return json.dumps(doc).encode()
 
     def write_rows(self, rows: Sequence[Row]) -> None:
+        if self.write_error:
+            raise McapError(f"{self.path}: {self.write_error}")
         cnt = self.counts
         # the channels' raw loggers (bytes, log time): the SDK's Channel.log minus its checks
         log_scan, log_pose = self._scan.base.log, self._pose.base.log
@@ -328,12 +351,25 @@ class McapFileWriter:
             cnt[TOPICS[t]] += n
 
     def close(self) -> dict[str, int]:
+        """Finish the file; :class:`McapError` (the first failure) if it was not written."""
         if not self.closed:
             self.closed = True
-            if self._map is not None:
-                self._flush_map(max(self._last_ns, 0))
-            self._writer.close()
+            try:
+                if self._map is not None and not self.write_error:
+                    self._flush_map(max(self._last_ns, 0))
+                self._writer.close()
+            except Exception as e:  # the SDK raises its own error types
+                self.write_error = self.write_error or str(e)
+            finally:
+                self._sdk_log.removeHandler(self._handler)
+                self._sdk_log.propagate = self._propagate
+            if self.write_error:
+                raise McapError(f"{self.path}: {self.write_error}")
         return dict(self.counts)
+
+
+def _why(e: Exception) -> str:
+    return str(e) if isinstance(e, McapError) else f"{type(e).__name__}: {e}"
 
 
 def _serve(conn: Any, path: str) -> None:
@@ -362,11 +398,11 @@ def _serve(conn: Any, path: str) -> None:
         except Exception as e:
             if kind == "close":
                 try:
-                    conn.send(("error", error or f"{type(e).__name__}: {e}"))
+                    conn.send(("error", error or _why(e)))
                 except OSError:
                     pass
                 return
-            error = error or f"{type(e).__name__}: {e}"
+            error = error or _why(e)
 
 
 class McapRecorder:
@@ -493,7 +529,8 @@ class McapRecorder:
                 if self._conn is not None:
                     self._conn.close()
         if kind == "error":
-            raise McapError(f"{self.path}: {payload}")
+            why = str(payload)
+            raise McapError(why if why.startswith(str(self.path)) else f"{self.path}: {why}")
         self.counts = payload
 
     def __enter__(self) -> McapRecorder:
