@@ -195,3 +195,14 @@ def test_runs_on_an_existing_scheduler(fleet: dict, tmp_path: Path) -> None:
         "",
         (fleet["out"] / "robot2.tum").read_bytes(),
     )
+
+
+def test_a_map_already_indexed_is_shipped_without_its_index() -> None:
+    import pickle
+
+    from icploc.batch import prepare_map
+
+    m = Map.from_lines(worlds.lab(people=0).lines)
+    m.index(0.05)  # a k-d tree (a Rust object) is cached in the map now
+    shipped = pickle.loads(pickle.dumps(prepare_map(m)))
+    assert np.array_equal(shipped.sample(0.05)[0], m.sample(0.05)[0])

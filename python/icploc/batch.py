@@ -22,6 +22,7 @@ Dask is an optional dependency (``pip install 'icploc[fleet]'``), imported only 
 from __future__ import annotations
 
 import contextlib
+import copy
 import csv
 import io
 import math
@@ -135,7 +136,28 @@ def prepare_map(map_: Any, config: LocalizerConfig | None = None) -> Any:
     sample = getattr(m, "sample", None)
     if callable(sample):
         sample(cfg.map.spacing)
-    return m
+    return _without_indexes(m)
+
+
+def _without_indexes(m: Any) -> Any:
+    """``m``, or a shallow copy without its cached k-d trees (Rust objects that do not
+    pickle; each worker builds its own from the samples)."""
+    from icploc._core import MapIndex
+
+    if isinstance(m, MapIndex):
+        raise BatchError("batch: give a Map (or a map file), not a MapIndex: it cannot be shipped")
+    attrs = getattr(m, "__dict__", {})
+    cached = [
+        k
+        for k, v in attrs.items()
+        if isinstance(v, dict) and any(isinstance(x, MapIndex) for x in v.values())
+    ]
+    if not cached:
+        return m
+    c = copy.copy(m)
+    for k in cached:
+        setattr(c, k, {})
+    return c
 
 
 def _import_dask() -> Any:
