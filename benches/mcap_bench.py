@@ -14,8 +14,8 @@ Logs:
 
 Times, alternating the variants ``--repeats`` times, medians reported:
 
-* in-process ``icploc.replay.replay`` (parse + localize [+ MCAP, closed]) without, with
-  the default background writer process, and with the in-process writer;
+* in-process ``icploc.replay.replay`` (parse + localize [+ MCAP, closed]) without and with
+  the MCAP;
 * the whole ``icploc replay LOG --map MAP [--mcap F]`` process (start-up included).
 
 Target (issue 16): MCAP <= 20 % extra replay time.
@@ -80,17 +80,16 @@ def real_log(d: Path, name: str, scans: int) -> tuple[Path, Path]:
 def bench(log: Path, map_path: Path, repeats: int, exe: str, d: Path) -> None:
     m = Map.load(map_path)
     n = replay(log, m).scans  # warm-up (and the scan count)
-    t: dict[str, list[float]] = {"plain": [], "mcap": [], "mcap in-process": []}
+    t: dict[str, list[float]] = {"plain": [], "mcap": []}
     for _ in range(repeats):
         t0 = time.perf_counter()
         replay(log, m)
         t["plain"].append(time.perf_counter() - t0)
-        for key, bg in (("mcap", True), ("mcap in-process", False)):
-            t0 = time.perf_counter()
-            rec = McapRecorder(d / "bench.mcap", background=bg)
-            replay(log, m, on_localizer=lambda loc, r=rec: attach(loc, r))
-            rec.close()
-            t[key].append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        rec = McapRecorder(d / "bench.mcap")
+        replay(log, m, on_localizer=lambda loc, r=rec: attach(loc, r))
+        rec.close()
+        t["mcap"].append(time.perf_counter() - t0)
     base = statistics.median(t["plain"])
     print(f"{log.name}: {n} scans, {os.path.getsize(d / 'bench.mcap') / 1e6:.1f} MB MCAP")
     for k, v in t.items():

@@ -27,11 +27,10 @@ stamps are all zero still plays back in order); the map messages carry the first
 :class:`McapRecorder`; a failed write is reported (at the latest by :meth:`McapRecorder.close`)
 and the localization goes on.
 
-Speed: encoding and logging five messages per scan costs ~30-60 us of Python, as much as a
-localization step on a small map. By default the recorder therefore only collects each
-scan's numbers (~2 us) and hands them, 256 scans at a time, to a writer process forked
-when the recorder is made (:class:`McapFileWriter` does the writing there, on the other
-core); ``background=False`` writes in-process.
+Speed: the SDK's message objects cost ~10-25 us each to build in Python, five messages a
+scan; the per-scan messages are therefore encoded by :mod:`icploc.foxglove_pb` (the same
+bytes, tested) and logged through the channels' raw loggers, ~40 us a scan in all
+(``benches/mcap_bench.py``).
 """
 
 from __future__ import annotations
@@ -39,9 +38,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import multiprocessing
-import os
-import signal
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -93,8 +89,7 @@ class McapError(RuntimeError):
 
 
 def _check_foxglove() -> None:
-    """A clear error now if foxglove-sdk is missing (without importing it: a writer
-    process is forked later, and the SDK starts threads)."""
+    """A clear error now if foxglove-sdk is missing (it is imported when the file opens)."""
     import importlib.util
 
     if importlib.util.find_spec("foxglove") is None:
@@ -368,56 +363,19 @@ class McapFileWriter:
         return dict(self.counts)
 
 
-def _why(e: Exception) -> str:
-    return str(e) if isinstance(e, McapError) else f"{type(e).__name__}: {e}"
-
-
-def _serve(conn: Any, path: str) -> None:
-    """The writer process: ("open", laser mounting), then ("map", data) / ("rows", rows)
-    in, an MCAP file out; on ("close", None) it answers ("done", counts) or ("error", why)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    error = ""
-    writer: McapFileWriter | None = None
-    while True:
-        try:
-            kind, payload = conn.recv()
-        except (EOFError, OSError):  # the parent is gone: finish the file
-            kind, payload = "close", None
-        try:
-            if kind == "open":
-                writer = McapFileWriter(path, payload)
-            elif kind == "close":
-                counts = writer.close() if writer is not None else {}
-                conn.send(("error", error) if error else ("done", counts))
-                return
-            elif writer is not None and not error:
-                if kind == "map":
-                    writer.set_map(payload)
-                elif kind == "rows":
-                    writer.write_rows(payload)
-        except Exception as e:
-            if kind == "close":
-                try:
-                    conn.send(("error", error or _why(e)))
-                except OSError:
-                    pass
-                return
-            error = error or _why(e)
-
-
 class McapRecorder:
     """Records a localization run into ``path`` (see the module doc): :meth:`write_map`
     once, :meth:`record` per scan, :meth:`close` at the end (or use it as a context
-    manager; ``close`` raises :class:`McapError` if the file could not be written).
-    ``laser_mounting``: the laser pose in the base frame (``config.scan.mounting``;
-    :func:`attach` sets it). ``background``: write in a forked process (default)."""
+    manager). A failed write raises :class:`McapError` (from :meth:`record` at the next
+    batch, or from :meth:`close`). ``laser_mounting``: the laser pose in the base frame
+    (``config.scan.mounting``; :func:`attach` sets it). Scans are written ``chunk`` at a
+    time."""
 
     def __init__(
         self,
         path: str | Path,
         laser_mounting: Sequence[float] = (0.0, 0.0, 0.0),
         *,
-        background: bool = True,
         chunk: int = 256,
     ) -> None:
         _check_foxglove()
@@ -437,41 +395,12 @@ class McapRecorder:
         self._rows: list[Row] = []
         self._map: dict[str, Any] | None = None
         self._writer: McapFileWriter | None = None
-        self._conn: Any = None
-        self._proc: Any = None
-        self._opened = False
-        if background and "fork" in multiprocessing.get_all_start_methods():
-            # fork now, before the run starts its threads (drivers, progress bars)
-            ctx = multiprocessing.get_context("fork")
-            parent, child = ctx.Pipe()
-            self._proc = ctx.Process(
-                target=_serve,
-                args=(child, os.fspath(self.path)),
-                name="icploc-mcap-writer",
-                daemon=True,
-            )
-            self._proc.start()
-            child.close()
-            self._conn = parent
 
-    def _open(self) -> None:
-        """Open the file (at the first message: the laser mounting is known by then)."""
-        self._opened = True
-        if self._conn is None:
+    def _open(self) -> McapFileWriter:
+        """The file is opened at the first message: the laser mounting is known by then."""
+        if self._writer is None:
             self._writer = McapFileWriter(self.path, self.laser_mounting)
-        else:
-            self._conn.send(("open", self.laser_mounting))
-
-    def _send(self, kind: str, payload: Any) -> None:
-        if not self._opened:
-            self._open()
-        if self._writer is not None:
-            if kind == "map":
-                self._writer.set_map(payload)
-            else:
-                self._writer.write_rows(payload)
-        else:
-            self._conn.send((kind, payload))
+        return self._writer
 
     def write_map(self, map_: Any, spacing: float = 0.05) -> None:
         """The map (an icploc Map, a path, a MapIndex or (N, 2) points), drawn once."""
@@ -500,12 +429,13 @@ class McapRecorder:
             self.flush()
 
     def flush(self) -> None:
+        w = self._open()
         if self._map is not None:
             data, self._map = self._map, None
-            self._send("map", data)
+            w.set_map(data)
         if self._rows:
             rows, self._rows = self._rows, []
-            self._send("rows", rows)
+            w.write_rows(rows)
 
     def close(self) -> None:
         """Write what is left and finish the file; :class:`McapError` if it failed."""
@@ -514,24 +444,9 @@ class McapRecorder:
         self.closed = True
         try:
             self.flush()
-            if not self._opened:  # nothing recorded: an MCAP without messages
-                self._open()
+        finally:
             if self._writer is not None:
                 self.counts = self._writer.close()
-                return
-            self._conn.send(("close", None))
-            kind, payload = self._conn.recv()
-        except (OSError, EOFError) as e:
-            raise McapError(f"{self.path}: the MCAP writer stopped ({e})") from None
-        finally:
-            if self._proc is not None:
-                self._proc.join(timeout=30)
-                if self._conn is not None:
-                    self._conn.close()
-        if kind == "error":
-            why = str(payload)
-            raise McapError(why if why.startswith(str(self.path)) else f"{self.path}: {why}")
-        self.counts = payload
 
     def __enter__(self) -> McapRecorder:
         return self
