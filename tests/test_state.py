@@ -235,3 +235,16 @@ def test_run_hooks_warn_about_a_bad_state_and_go_global(lab: dict, tmp_path: Pat
         True,
         Status.TRACKING,
     )
+
+
+def test_run_hooks_say_when_the_saved_pose_is_rejected(lab: dict, tmp_path: Path) -> None:
+    from icploc.hooks import RunHooks
+
+    state = _wrong_state(lab, tmp_path / "state.json")
+    msgs: list[str] = []
+    hooks = RunHooks(state=state, warn=msgs.append)
+    res = replay(lab["second"], lab["map"], on_localizer=hooks.on_localizer)
+    for e in res.estimates:
+        hooks.observe(e)
+    hooks.close()
+    assert msgs == [f"{state}: the saved pose does not match the first scan; localizing globally"]

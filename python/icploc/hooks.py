@@ -37,6 +37,7 @@ class RunHooks:
         self.saver: Any = None
         self.check: Any = None
         self.failed = ""  #: why the MCAP could not be finished ("" when it was)
+        self._told = False  # the saved pose's verdict was reported
         self._state = Path(state) if state is not None else None
         self._restore = restore
         self._state_every = state_every
@@ -65,6 +66,13 @@ class RunHooks:
             self.saver = StateSaver(loc, self._state, every=self._state_every, on_error=self.warn)
 
     def observe(self, e: Estimate) -> None:
+        if self.check is not None and self.check.verdict and not self._told:
+            self._told = True
+            if self.check.verdict == "rejected":
+                self.warn(
+                    f"{self._state}: the saved pose does not match the first scan; "
+                    "localizing globally"
+                )
         if self.saver is not None:
             self.saver.observe(e)
 
