@@ -9,6 +9,8 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperGroup
 
+from icploc.batch_cli import batch as _batch_command
+
 #: exit codes (also in ``icploc --help``)
 EXIT_OK = 0  #: done
 EXIT_ERROR = 1  #: an error: a missing or malformed file, a bad value in it, a write error
@@ -85,6 +87,7 @@ def _register() -> None:
 
 config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True, cls=_Guarded)
 app.add_typer(config_app, name="config")
+app.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
 
 
 @config_app.command("defaults")
@@ -210,6 +213,7 @@ def replay(
             help="Exit 3 when more than this share of the scans ends lost (1 = never)",
         ),
     ] = 0.5,
+    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -228,21 +232,28 @@ def replay(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
     )  # fmt: skip
-    if progress and sys.stdout.isatty():
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
+    kw["on_localizer"] = hooks.on_localizer
+    try:
+        if progress and sys.stdout.isatty():
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-        with Progress(
-            TextColumn("[bold]replay"), BarColumn(), TextColumn("{task.completed}/{task.total} scans"),
-            TimeRemainingColumn(), transient=True,
-        ) as bar:  # fmt: skip
-            task = bar.add_task("replay", total=None)
+            with Progress(
+                TextColumn("[bold]replay"), BarColumn(), TextColumn("{task.completed}/{task.total} scans"),
+                TimeRemainingColumn(), transient=True,
+            ) as bar:  # fmt: skip
+                task = bar.add_task("replay", total=None)
 
-            def on_progress(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
+                def on_progress(done: int, total: int) -> None:
+                    bar.update(task, completed=done, total=total)
 
-            res = do_replay(log, map_path, on_progress=on_progress, **kw)
-    else:
-        res = do_replay(log, map_path, **kw)
+                res = do_replay(log, map_path, on_progress=on_progress, **kw)
+        else:
+            res = do_replay(log, map_path, **kw)
+    finally:
+        hooks.close()
+    if mcap is not None:
+        res.files["mcap"] = mcap
     typer.echo(res.summary())
     for k, p in res.files.items():
         typer.echo(f"{k}: {p}")
@@ -276,23 +287,33 @@ def run_cmd(
     config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many seconds")] = None,
     baud: Annotated[int, typer.Option(help="Laser baud rate")] = 38400,
+    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
+    state: Annotated[
+        Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
+    ] = None,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate)."""
     from icploc import live
 
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
+    # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
+    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else ())
 
     def show(e):  # type: ignore[no-untyped-def]
+        hooks.observe(e)
         why = f" ({e.reason})" if e.status.value == "lost" and e.reason != "lost" else ""
         typer.echo(
             f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status}{why} inliers={e.inlier_ratio:.2f}"
         )
 
     if simulate:
-        res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
-                                        map_=str(map_path) if map_path else None, timeout=duration or 120.0,
-                                        global_start=global_start)  # fmt: skip
+        try:
+            res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
+                                            map_=str(map_path) if map_path else None, timeout=duration or 120.0,
+                                            global_start=global_start, on_localizer=hooks.on_localizer)  # fmt: skip
+        finally:
+            hooks.close()
         import numpy as np
 
         if res.estimates:
@@ -305,9 +326,25 @@ def run_cmd(
         return
     if map_path is None or laser is None:
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
-    res = live.run_hardware(map_path, laser, base, config=cfg, initial_pose=pose, out=out, record=record,
-                            laser_baud=baud, duration=duration, on_estimate=show)  # fmt: skip
+    try:
+        res = live.run_hardware(map_path, laser, base, config=cfg, initial_pose=pose, out=out, record=record,
+                                laser_baud=baud, duration=duration, on_estimate=show,
+                                on_localizer=hooks.on_localizer)  # fmt: skip
+    finally:
+        hooks.close()
     typer.echo(f"{len(res.estimates)} scans in {res.wall_time:.1f} s")
+
+
+def _run_hooks(**kw):  # type: ignore[no-untyped-def]
+    """The --mcap / --state extras (icploc.hooks); a clear error if they cannot start."""
+    from icploc.hooks import RunHooks
+    from icploc.mcap_export import McapError
+
+    try:
+        return RunHooks(warn=lambda m: typer.secho(f"warning: {m}", fg="yellow", err=True), **kw)
+    except McapError as e:
+        typer.secho(f"error: {e}", fg="red", err=True)
+        raise typer.Exit(1) from None
 
 
 def main() -> None:

@@ -156,6 +156,7 @@ def run_hardware(
     laser_baud: int = 38400,
     duration: float | None = None,
     on_estimate: Callable[[Estimate], None] | None = None,
+    on_localizer: Callable[[Localizer], None] | None = None,
 ) -> LiveResult:
     """Open the PLS (and the PowerBot), localize until ``duration`` or Ctrl-C; write the
     trajectory (TUM) to ``out`` and the raw bytes of both devices to ``record``. Without an
@@ -179,6 +180,8 @@ def run_hardware(
         if loc.status is not Status.LOST:
             loc.reset(loc.pose, loc.covariance, Status.LOST)
         attach(loc)
+    if on_localizer is not None:  # hooks: icploc.state (--state), icploc.mcap_export (--mcap)
+        on_localizer(loc)
     rec = Recorder(record) if record is not None else None
     tum = open(out, "w") if out is not None else None  # noqa: SIM115
     try:
@@ -217,6 +220,7 @@ def run_simulated(
     timeout: float = 120.0,
     on_estimate: Callable[[Estimate], None] | None = None,
     global_start: bool = False,
+    on_localizer: Callable[[Localizer], None] | None = None,
 ) -> tuple[LiveResult, list[tuple[float, Pose]]]:
     """The live path against the PLS and PowerBot simulators on pseudo-terminals, in real
     time: the base drives ``path`` (default: the lab random walk) by pure pursuit. Returns
@@ -271,6 +275,8 @@ def run_simulated(
         if loc.status is not Status.LOST:
             loc.reset(loc.pose, loc.covariance, Status.LOST)
         attach(loc)
+    if on_localizer is not None:  # hooks: icploc.state (--state), icploc.mcap_export (--mcap)
+        on_localizer(loc)
     rec = Recorder(record) if record is not None else None
     tum = open(out, "w") if out is not None else None  # noqa: SIM115
     t_end = [math.inf]

@@ -919,6 +919,19 @@ class Localizer:
             return bp, best
         return None
 
+    # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
+    def save_state(self, path: str | os.PathLike[str]) -> Any:
+        """Save the last tracking pose and covariance to ``path``, atomically."""
+        from icploc.state import save_state
+
+        return save_state(self, os.fspath(path))
+
+    def load_state(self, path: str | os.PathLike[str]) -> Any:
+        """Start from the pose saved in ``path``, checked against the map on the first scan."""
+        from icploc.state import restore
+
+        return restore(self, os.fspath(path))
+
 
 def global_search_from(global_localizer: Any, max_candidates: int = 4) -> GlobalSearch:
     """Adapt an ``icploc.GlobalLocalizer`` (branch-and-bound over the whole map) to the

@@ -229,6 +229,7 @@ def replay(
     estimates: str | Path | None = None,
     strict: bool = False,
     inputs: Sequence[str | Path] = (),
+    on_localizer: Callable[[Localizer], None] | None = None,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -323,6 +324,8 @@ def replay(
         if loc.status is not Status.LOST:  # global_localize over a configured pose
             loc.reset(loc.pose, loc.covariance, Status.LOST)
         attach(loc)
+    if on_localizer is not None:  # hooks: icploc.mcap_export (--mcap)
+        on_localizer(loc)
     n = len(scans)
     step = max(1, n // 200)
     got: list[Estimate] = []

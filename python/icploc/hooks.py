@@ -1,0 +1,93 @@
+"""The optional per-run extras of ``icploc replay`` / ``icploc run`` in one object:
+``--mcap FILE`` (:mod:`icploc.mcap_export`) and ``--state FILE`` (:mod:`icploc.state`).
+
+The commands pass :meth:`RunHooks.on_localizer` to the function that builds the
+Localizer, :meth:`RunHooks.observe` every estimate, and call :meth:`RunHooks.close` at
+the end (also after an error or Ctrl-C)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from icploc.localizer import Estimate, Localizer
+
+__all__ = ["RunHooks"]
+
+
+class RunHooks:
+    """``mcap``: record the run there. ``state``: restore the pose saved there (checked on
+    the first scan) unless ``restore`` is False (an explicit initial pose), and save the
+    last tracking pose there every ``state_every`` s of scan time and at the end.
+    ``warn(message)`` reports what the run should tell the user (default: ignore)."""
+
+    def __init__(
+        self,
+        *,
+        mcap: str | Path | None = None,
+        state: str | Path | None = None,
+        restore: bool = True,
+        state_every: float = 1.0,
+        warn: Callable[[str], None] | None = None,
+        inputs: tuple[str | Path, ...] = (),
+    ) -> None:
+        self.warn = warn or (lambda _m: None)
+        self.recorder: Any = None
+        self.saver: Any = None
+        self.check: Any = None
+        self.failed = ""  #: why the MCAP could not be finished ("" when it was)
+        self._told = False  # the saved pose's verdict was reported
+        self._state = Path(state) if state is not None else None
+        self._restore = restore
+        self._state_every = state_every
+        if mcap is not None:
+            from icploc.mcap_export import McapError, McapRecorder
+
+            p = Path(mcap)
+            for i in inputs:
+                if Path(i).exists() and p.exists() and p.resolve() == Path(i).resolve():
+                    raise McapError(f"--mcap {p}: is an input of this run, not overwriting it")
+            self.recorder = McapRecorder(p)  # opens the file now: a bad path fails early
+
+    def on_localizer(self, loc: Localizer) -> None:
+        if self.recorder is not None:
+            from icploc.mcap_export import attach
+
+            attach(loc, self.recorder)
+        if self._state is not None:
+            from icploc.state import StateError, StateSaver, restore
+
+            if self._restore and self._state.exists():
+                try:
+                    self.check = restore(loc, self._state)
+                except StateError as e:
+                    self.warn(f"{e}; localizing without it")
+            self.saver = StateSaver(loc, self._state, every=self._state_every, on_error=self.warn)
+
+    def observe(self, e: Estimate) -> None:
+        if self.check is not None and self.check.verdict and not self._told:
+            self._told = True
+            if self.check.verdict == "rejected":
+                self.warn(
+                    f"{self._state}: the saved pose does not match the first scan; "
+                    "localizing globally"
+                )
+        if self.saver is not None:
+            self.saver.observe(e)
+
+    def close(self) -> None:
+        """Save the last state and finish the MCAP; a failure is warned about (the run's
+        other outputs are written) and kept in :attr:`failed`."""
+        try:
+            if self.saver is not None:
+                self.saver.close()
+        finally:
+            if self.recorder is not None:
+                from icploc.mcap_export import McapError
+
+                try:
+                    self.recorder.close()
+                except McapError as e:
+                    self.failed = str(e)
+                    self.warn(self.failed)
