@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import csv
-import io
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from icploc import worlds
-from icploc.estimates_csv import ESTIMATES_HEADER, write_estimates_csv
 from icploc.live import tum_row
 from icploc.logs import write_carmen
 from icploc.maps import Map
 from icploc.replay import replay
+from icploc.trajectory import ESTIMATE_COLUMNS
 
 pytest.importorskip("distributed")
 
@@ -79,12 +78,10 @@ def _summary(out: Path) -> list[dict[str, str]]:
 def test_each_log_identical_to_replay(fleet: dict, i: int, tmp_path: Path) -> None:
     log = fleet["logs"][i]
     truth = fleet["truth_dir"] / f"{log_stem(log)}.tum"
-    ref_tum = tmp_path / "ref.tum"
-    ref = replay(log, fleet["map"], out=ref_tum, truth=truth if truth.exists() else None)
-    buf = io.StringIO()
-    write_estimates_csv(buf, ref.estimates)
+    ref_tum, ref_csv = tmp_path / "ref.tum", tmp_path / "ref.csv"
+    replay(log, fleet["map"], out=ref_tum, estimates=ref_csv, truth=truth if truth.exists() else None)
     assert (fleet["out"] / f"{log_stem(log)}.tum").read_bytes() == ref_tum.read_bytes()
-    assert (fleet["out"] / f"{log_stem(log)}.csv").read_text() == buf.getvalue()
+    assert (fleet["out"] / f"{log_stem(log)}.csv").read_bytes() == ref_csv.read_bytes()
 
 
 @pytest.mark.slow
@@ -133,7 +130,7 @@ def test_progress_reported_once_per_log(fleet: dict) -> None:
 @pytest.mark.slow
 def test_estimates_csv_header(fleet: dict) -> None:
     with open(fleet["out"] / "robot0.csv", newline="") as f:
-        assert tuple(next(csv.reader(f))) == ESTIMATES_HEADER
+        assert tuple(next(csv.reader(f))) == ESTIMATE_COLUMNS
 
 
 @pytest.mark.slow

@@ -4,7 +4,8 @@ Each log is replayed by :func:`icploc.replay.replay` on a Dask worker, exactly a
 ``icploc replay LOG --map MAP`` (with ``--truth TRUTH_DIR/<stem>.tum`` when that file
 exists) would: the same trajectory and per-scan estimates. For every log the client writes
 ``OUT/<stem>.tum`` (TUM trajectory) and ``OUT/<stem>.csv`` (per-scan estimates,
-:mod:`icploc.estimates_csv`), and at the end ``OUT/summary.csv`` with one row per log. A log
+the columns of ``icploc replay --estimates``,
+:data:`icploc.trajectory.ESTIMATE_COLUMNS`), and at the end ``OUT/summary.csv`` with one row per log. A log
 that fails (unreadable, no scans, a worker that died) gets a row with its error; the others
 go on.
 
@@ -24,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import csv
-import io
 import math
 import multiprocessing
 import os
@@ -200,18 +200,15 @@ def _replay_one(
     options: dict[str, Any],
 ) -> dict[str, Any]:
     """Runs on a worker: replay one log; never raises (the error goes in the row)."""
-    from icploc.estimates_csv import write_estimates_csv
     from icploc.replay import replay
 
     row: dict[str, Any] = {"log": log}
     try:
         with tempfile.TemporaryDirectory(prefix="icploc-batch-") as d:
-            tum = Path(d) / "trajectory.tum"
-            res = replay(log, map_, config=config, out=tum, truth=truth, **options)
+            tum, est = Path(d) / "trajectory.tum", Path(d) / "estimates.csv"
+            res = replay(log, map_, config=config, out=tum, estimates=est, truth=truth, **options)
             row["tum"] = tum.read_text()
-        buf = io.StringIO()
-        write_estimates_csv(buf, res.estimates)
-        row["csv"] = buf.getvalue()
+            row["csv"] = est.read_text()
         c = res.status_counts
         row.update(
             scans=res.scans,
