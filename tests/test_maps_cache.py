@@ -85,3 +85,22 @@ def test_cli_no_cache_flag(yaml_map: Path, tmp_path: Path) -> None:
     r = CliRunner().invoke(map_app, ["info", str(yaml_map), "--no-cache"])
     assert r.exit_code == 0, r.output
     assert entries(tmp_path) == []
+
+
+def test_replay_no_cache_flag_leaves_the_cache_empty(yaml_map: Path, tmp_path: Path) -> None:
+    from icploc.cli import app
+    from icploc.logs import write_carmen
+    from icploc.types import Scan
+    from typer.testing import CliRunner
+
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    scans = [Scan(stamp=0.1 * k, ranges=np.full(181, 1.5), angles=angles) for k in range(3)]
+    log = tmp_path / "r.log"
+    write_carmen(log, scans, [])
+    r = CliRunner().invoke(
+        app,
+        ["replay", str(log), "--map", str(yaml_map), "--initial-pose", "0,0,0", "--no-cache",
+         "--max-lost", "1"],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert entries(tmp_path) == []

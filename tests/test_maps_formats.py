@@ -412,7 +412,8 @@ def test_cli_show_info_prepare_convert(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert len(Map.load(tmp_path / "w.npz").lines) >= 5
     res = r.invoke(map_app, ["info", str(tmp_path / "missing.yaml")])
-    assert res.exit_code == 2 and "not found" in res.output
+    assert res.exit_code == 1
+    assert "not found" in res.output
 
 
 def test_dxf_blocks_and_arcs(tmp_path: Path) -> None:
@@ -462,3 +463,19 @@ def test_info_reports_counts() -> None:
     assert info["lines"] == 5 and info["line_length_m"] == pytest.approx(length, abs=1e-3)
     assert info["samples"]["total"] == len(m.sample(0.5)[0])
     assert info["bounds"] == [0.0, 0.0, 8.0, 5.0]
+
+
+@pytest.mark.parametrize("command", ["convert", "prepare", "show"])
+def test_map_commands_refuse_an_output_that_is_their_input(command: str, tmp_path: Path) -> None:
+    from icploc.maps.cli import map_app
+    from typer.testing import CliRunner
+
+    src = Map.from_lines([[0.0, 0.0, 4.0, 0.0], [4.0, 0.0, 4.0, 3.0]]).to_ros(
+        tmp_path / "m.yaml", 0.05
+    )
+    target = {"convert": src, "prepare": src.with_suffix(".pgm"), "show": src.with_suffix(".pgm")}
+    before = {p: p.read_bytes() for p in (src, src.with_suffix(".pgm"))}
+    r = CliRunner().invoke(map_app, [command, str(src), "--out", str(target[command])])
+    assert r.exit_code == 1, r.output
+    assert "is an input" in r.output
+    assert {p: p.read_bytes() for p in before} == before

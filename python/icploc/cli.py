@@ -214,6 +214,9 @@ def replay(
         ),
     ] = 0.5,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
+    no_cache: Annotated[
+        bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
+    ] = False,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -231,6 +234,7 @@ def replay(
     kw: dict[str, Any] = dict(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
+        map_cache=False if no_cache else None,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
     kw["on_localizer"] = hooks.on_localizer

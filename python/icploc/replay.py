@@ -163,12 +163,14 @@ def read_tum(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]
     return np.array(stamps), np.array(poses).reshape(-1, 3)
 
 
-def load_map(map_arg: Any) -> Any:
-    """A Map from a path (anything ``icploc.Map.load`` reads), or pass a Map / MapIndex through."""
+def load_map(map_arg: Any, cache: bool | None = None) -> Any:
+    """A Map from a path (anything ``icploc.Map.load`` reads; ``cache`` as there: None uses
+    the prepared-map cache unless ICPLOC_NO_CACHE is set, False neither reads nor writes it),
+    or pass a Map / MapIndex through."""
     if isinstance(map_arg, (str, Path)):
         from icploc.maps import Map
 
-        return Map.load(map_arg)
+        return Map.load(map_arg, cache=cache)
     return map_arg
 
 
@@ -230,6 +232,7 @@ def replay(
     strict: bool = False,
     inputs: Sequence[str | Path] = (),
     on_localizer: Callable[[Localizer], None] | None = None,
+    map_cache: bool | None = None,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -315,7 +318,7 @@ def replay(
         elif cfg.localizer.initial_pose is not None:
             initial_pose = cfg.localizer.initial_pose
 
-    m = load_map(map_)
+    m = load_map(map_, map_cache)
     t1 = time.perf_counter()
     loc = Localizer(m, cfg, initial_pose=initial_pose)
     if initial_pose is None:

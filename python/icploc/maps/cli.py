@@ -25,13 +25,41 @@ def load_map(path: Path, *, no_cache: bool = False, **options: object):  # type:
     return Map.load(path, cache=False if no_cache else None, **options)
 
 
+#: exit code of a map that cannot be read or written (icploc's "error", see ``icploc --help``)
+EXIT_ERROR = 1
+
+
+def _fail(e: Exception) -> typer.Exit:
+    typer.echo(f"error: {e}", err=True)
+    return typer.Exit(EXIT_ERROR)
+
+
+def _check_out(out: Path, inputs: list[Path]) -> None:
+    """Refuse, before any work, an output (and the image a .yaml output writes beside it)
+    that is an input or cannot be written."""
+    from icploc.outputs import OutputError, check_outputs
+
+    outs: dict[str, Path] = {"--out": out}
+    if out.suffix.lower() in (".yaml", ".yml"):
+        outs["--out image"] = out.with_suffix(".pgm")
+    try:
+        check_outputs(outs, inputs)
+    except OutputError as e:
+        raise _fail(e) from e
+
+
+def _map_inputs(path: Path) -> list[Path]:
+    from icploc.outputs import map_inputs
+
+    return map_inputs(path)
+
+
 def _load(path: Path, min_length: float | None = None, no_cache: bool = False):  # type: ignore[no-untyped-def]
     opts = {} if min_length is None else {"min_length": min_length}
     try:
         return load_map(path, no_cache=no_cache, **opts)
     except MapError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2) from e
+        raise _fail(e) from e
 
 
 @map_app.command()
@@ -51,6 +79,7 @@ def show(
     """Draw the grid, the fitted lines and the samples to an image."""
     from .plot import save_map_plot
 
+    _check_out(out, _map_inputs(map_path))
     m = _load(map_path, no_cache=no_cache)
     p = None
     if pose:
@@ -104,12 +133,12 @@ def prepare(
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Fit and sample once; save everything to one .npz that loads fast."""
+    _check_out(out, _map_inputs(map_path))
     m = _load(map_path, min_length, no_cache=no_cache)
     try:
         m.save(out, spacing=spacing)
     except MapError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2) from e
+        raise _fail(e) from e
     counts = {s: m.sample_counts(s)["total"] for s in spacing}
     typer.echo(f"wrote {out}: {len(m.lines)} lines, samples {counts}")
 
@@ -122,18 +151,18 @@ def convert(
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Write the map's lines as GeoJSON, or rasterise them into a ROS map_server map."""
-    m = _load(map_path, no_cache=no_cache)
     suffix = out.suffix.lower()
+    if suffix not in (".geojson", ".json", ".yaml", ".yml"):
+        raise typer.BadParameter("--out must end in .geojson or .yaml")
+    _check_out(out, _map_inputs(map_path))
+    m = _load(map_path, no_cache=no_cache)
     try:
         if suffix in (".geojson", ".json"):
             m.to_geojson(out)
-        elif suffix in (".yaml", ".yml"):
-            m.to_ros(out, resolution)
         else:
-            raise typer.BadParameter("--out must end in .geojson or .yaml")
+            m.to_ros(out, resolution)
     except MapError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2) from e
+        raise _fail(e) from e
     typer.echo(f"wrote {out}")
 
 
@@ -154,17 +183,15 @@ def build(
 
     if out.suffix.lower() not in (".yaml", ".yml"):
         raise typer.BadParameter("--out must end in .yaml")
+    _check_out(out, [log] + ([poses] if poses is not None else []))
     try:
-        if out.resolve() == log.resolve() or (poses is not None and out.resolve() == poses.resolve()):
-            raise MapError(out, None, "the output would overwrite an input")
         t0 = time.perf_counter()
         g = build_grid(
             log, poses=poses, resolution=resolution, min_hits=min_hits, max_range=max_range
         )
         g.save(out)
     except (MapError, OSError, ValueError) as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2) from e
+        raise _fail(e) from e
     h, w = g.occupied.shape
     typer.echo(
         f"wrote {out}: {w} x {h} cells at {resolution} m from {g.scans_used} scans, "
