@@ -52,6 +52,8 @@ class PowerBotTimeout(PowerBotError):
 
 
 _STOP = object()
+#: the controller's watchdog (PROTOCOLS.md §B.6): no command for this long stops the robot
+WATCHDOG_S = 2.0
 _open_bots: weakref.WeakSet[PowerBot] = weakref.WeakSet()
 
 
@@ -79,6 +81,10 @@ class PowerBot:
         heartbeat: float = 0.5,
         enable_motors: bool = True,
         stall_timeout: float = 2.0,
+        auto_reconnect: bool = False,
+        reconnect_timeout: float = 30.0,
+        reconnect_backoff: float = 0.2,
+        reconnect_backoff_max: float = 5.0,
         recorder: Recorder | str | Path | None = None,
         queue_size: int = 256,
     ) -> None:
@@ -92,6 +98,11 @@ class PowerBot:
         self.heartbeat = heartbeat
         self.enable_motors = enable_motors
         self.stall_timeout = stall_timeout
+        self.auto_reconnect = auto_reconnect
+        self.watchdog_s = WATCHDOG_S
+        self.reconnect_timeout = reconnect_timeout
+        self.reconnect_backoff = reconnect_backoff
+        self.reconnect_backoff_max = reconnect_backoff_max
         self._own_recorder = isinstance(recorder, (str, Path))
         self.recorder: Recorder | None = (
             Recorder(recorder) if isinstance(recorder, (str, Path)) else recorder
@@ -103,7 +114,7 @@ class PowerBot:
         self.name = self.robot_type = self.subtype = ""
         self.last_sip: Sip | None = None
         self.counters = {"sips": 0, "sync_retries": 0, "dropped_sips": 0, "commands": 0, "read_errors": 0,
-                         "other_packets": 0}  # fmt: skip
+                         "other_packets": 0, "reconnects": 0, "odometry_rebases": 0}  # fmt: skip
         self._sips: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
         self._write_lock = threading.Lock()
         self._last_write = 0.0
@@ -112,6 +123,9 @@ class PowerBot:
         self._error: BaseException | None = None
         self._connected = False
         self._last_sip_time = 0.0
+        self._link_up = False
+        #: set by a reconnect: the next SIP's counters are checked against the last pose
+        self._relinked_at: float | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -133,6 +147,20 @@ class PowerBot:
         if self.recorder is not None and not self._rec_dev:
             self._rec_dev = self.recorder.device("powerbot", {"driver": "powerbot", "port": str(self.port),
                                                              "baudrate": self.baudrate}, clock.now())  # fmt: skip
+        self._link()
+        self._connected = True
+        self._last_sip_time = clock.now()
+        _open_bots.add(self)
+        self._stop.clear()
+        self._threads = [
+            threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
+            threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
+        ]
+        for th in self._threads:
+            th.start()
+
+    def _link(self) -> None:
+        """Open the port and run the handshake, OPEN, PULSE, (HOSTBAUD), ENABLE."""
         self._open_port()
         try:
             self._handshake()
@@ -145,16 +173,70 @@ class PowerBot:
         except BaseException:
             self._close_port()
             raise
-        self._connected = True
-        self._last_sip_time = clock.now()
-        _open_bots.add(self)
-        self._stop.clear()
-        self._threads = [
-            threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
-            threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
-        ]
-        for th in self._threads:
-            th.start()
+        self._link_up = True
+
+    def _relink(self, why: BaseException) -> None:
+        """In the reader thread, after the line failed or SIPs stopped: close the port
+        and connect again (handshake per PROTOCOLS.md §B.6) with an exponential back-off,
+        for at most ``reconnect_timeout`` s, then :class:`PowerBotTimeout`."""
+        self._link_up = False
+        self.counters["reconnects"] += 1
+        if self.recorder is not None:
+            self.recorder.meta(self._rec_dev, clock.now(), {"event": "reconnect", "why": str(why)})
+        deadline = clock.now() + self.reconnect_timeout
+        delay = self.reconnect_backoff
+        last: BaseException = why
+        while not self._stop.is_set():
+            self._close_port()
+            try:
+                self._link()
+            except (OSError, serial.SerialException, PowerBotError) as e:
+                last = e
+            else:
+                self._relinked_at = self._last_sip_time
+                self._last_sip_time = clock.now()
+                return
+            left = deadline - clock.now()
+            if left <= 0:
+                break
+            self._stop.wait(min(delay, left))
+            delay = min(delay * 2.0, self.reconnect_backoff_max)
+        self._close_port()
+        if self._stop.is_set():
+            return
+        raise PowerBotTimeout(
+            f"robot on {self.port} did not come back within {self.reconnect_timeout:g} s "
+            f"(last error: {last})"
+        )
+
+    def _check_continuity(self, pkt: ap.Packet) -> None:
+        """First SIP after a reconnect: if its pose counters moved further from the last
+        SIP than the robot could have driven in the gap (a controller that was power
+        cycled starts again at 0, 0, 0), continue the odometry from the last pose instead
+        (the robot is assumed to have stood still; the watchdog stops it within 2 s)."""
+        since = self._relinked_at
+        self._relinked_at = None
+        unw = self.decoder.unwrapper
+        last = unw.last_counters
+        if since is None or last is None or pkt.type not in ap.SIP_TYPES:
+            return
+        try:
+            raw = ap.parse_sip(pkt.payload)
+        except ap.ArcosProtocolError:
+            return
+        p = self.params
+        # with the link down the controller drives on at the last set-points until its
+        # watchdog (nominally 2 s, §B.6) stops it
+        drive = min(max(0.0, pkt.stamp - since), self.watchdog_s)
+        v, w = (self.last_sip.v, self.last_sip.w) if self.last_sip is not None else (0.0, 0.0)
+        dx = ap.wrap_delta(raw.xpos, last[0], ap.POSE_MOD) * p.dist_conv / 1000.0
+        dy = ap.wrap_delta(raw.ypos, last[1], ap.POSE_MOD) * p.dist_conv / 1000.0
+        dth = abs(ap.wrap_delta(raw.thpos, last[2], ap.HEADING_MOD) * p.angle_conv)
+        reach = 1.5 * abs(v) * drive + 0.1
+        turn = 1.5 * abs(w) * drive + 0.1
+        if math.hypot(dx, dy) > reach or dth > turn:
+            unw.rebase()
+            self.counters["odometry_rebases"] += 1
 
     def _close_port(self) -> None:
         if self.ser is not None:
@@ -174,6 +256,7 @@ class PowerBot:
                     break
             time.sleep(0.01)
         self._connected = False
+        self._link_up = False
         self._stop.set()
         for th in self._threads:
             if th is not threading.current_thread():
@@ -194,6 +277,11 @@ class PowerBot:
     @property
     def connected(self) -> bool:
         return self._connected
+
+    @property
+    def link_up(self) -> bool:
+        """Connected and talking to the robot; False while a reconnect is under way."""
+        return self._connected and self._link_up
 
     @property
     def stats(self) -> dict[str, int]:
@@ -333,43 +421,56 @@ class PowerBot:
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self.heartbeat / 4.0):
+            if not self._link_up:
+                continue  # the reader is reconnecting
             if clock.now() - self._last_write >= self.heartbeat:
                 try:
                     self._send(ap.PULSE)
                 except (OSError, serial.SerialException, PowerBotError):
-                    return
+                    if not self.auto_reconnect:
+                        return
+                    # the reader notices the failed line and reconnects
 
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
-                ser = self.ser
-                if ser is None:
-                    return
                 try:
-                    data = ser.read(max(1, ser.in_waiting))
-                except (OSError, serial.SerialException) as e:
-                    self.counters["read_errors"] += 1
-                    raise PowerBotError(f"serial line failed: {e}") from e
-                if not data:
-                    if clock.now() - self._last_sip_time > self.stall_timeout:
-                        raise PowerBotTimeout(f"no SIP for {self.stall_timeout} s")
-                    continue
-                t = clock.now()
-                if self.recorder is not None:
-                    self.recorder.rx(self._rec_dev, t, data)
-                for pkt in self.parser.feed(data, t):
-                    sip = self.decoder.decode(pkt)
-                    if sip is None:
-                        self.counters["other_packets"] += 1
-                        continue
-                    self.counters["sips"] += 1
-                    self.last_sip = sip
-                    self._last_sip_time = t
-                    self._put(sip)
+                    self._read_once()
+                except (OSError, serial.SerialException, PowerBotError) as e:
+                    if isinstance(e, (OSError, serial.SerialException)):
+                        self.counters["read_errors"] += 1
+                        e = PowerBotError(f"serial line to the robot on {self.port} failed: {e}")
+                    if not self.auto_reconnect or self._stop.is_set():
+                        raise e from None
+                    self._relink(e)
         except BaseException as e:
             if not self._stop.is_set():
                 self._error = e
             self._put(_STOP)
+
+    def _read_once(self) -> None:
+        ser = self.ser
+        if ser is None:
+            raise PowerBotError("port is closed")
+        data = ser.read(max(1, ser.in_waiting))
+        if not data:
+            if clock.now() - self._last_sip_time > self.stall_timeout:
+                raise PowerBotTimeout(f"no SIP from the robot on {self.port} for {self.stall_timeout:g} s")
+            return
+        t = clock.now()
+        if self.recorder is not None:
+            self.recorder.rx(self._rec_dev, t, data)
+        for pkt in self.parser.feed(data, t):
+            if self._relinked_at is not None:
+                self._check_continuity(pkt)
+            sip = self.decoder.decode(pkt)
+            if sip is None:
+                self.counters["other_packets"] += 1
+                continue
+            self.counters["sips"] += 1
+            self.last_sip = sip
+            self._last_sip_time = t
+            self._put(sip)
 
     def _put(self, item: object) -> None:
         self.counters["dropped_sips"] += put_dropping_oldest(self._sips, item)
