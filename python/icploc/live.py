@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 
 from icploc import clock
 from icploc.localizer import Estimate, Localizer, Status
-from icploc.se2 import Pose, between, compose, wrap_angle
+from icploc.se2 import Pose, between, compose, inverse, wrap_angle
 
 __all__ = [
     "LiveResult",
@@ -175,6 +175,11 @@ def run_live(
         return stop.is_set() if isinstance(stop, threading.Event) else bool(stop())
 
     last_odo_t = [t_start]
+    # after an outage of the base the odometry is re-anchored: its first new sample
+    # continues from the pose held meanwhile (the motion in the gap is unknown to it,
+    # and the scans matched without odometry already accounted for it)
+    odo_offset: list[Pose | None] = [None]
+    rebase = [False]
 
     def take_odometry(timeout: float) -> bool:
         if base is None:
@@ -183,6 +188,12 @@ def run_live(
         if sip is None:
             return False
         odo = sip.to_odometry() if hasattr(sip, "to_odometry") else sip
+        if rebase[0]:
+            rebase[0] = False
+            held = res.odometry[-1][1] if res.odometry else odo.pose
+            odo_offset[0] = compose(held, inverse(odo.pose))
+        if odo_offset[0] is not None:
+            odo = replace(odo, pose=compose(odo_offset[0], odo.pose))
         localizer.add_odometry(odo)
         res.odometry.append((odo.stamp, odo.pose))
         last_odo_t[0] = clock.now()
@@ -228,6 +239,7 @@ def run_live(
                 missing = not _link_up(base) or now - last_odo_t[0] > base_timeout
                 if missing and not base_missing:
                     res.base_outages += 1
+                    rebase[0] = True
                 base_missing = missing
             scan = laser.get(timeout=0.1)
             now = clock.now()
@@ -254,7 +266,12 @@ def run_live(
                     left = deadline - clock.now()
                     if left <= 0 or not take_odometry(left):
                         break
-            est = localizer.update(scan)
+            if base_missing:
+                # no odometry: the robot is assumed still (held), ICP takes the motion
+                held = res.odometry[-1][1] if res.odometry else None
+                est = localizer.update(scan, held)
+            else:
+                est = localizer.update(scan)
             res.scans += 1
             if base_missing and est.status is not Status.LOST:
                 est = replace(est, status=Status.DEGRADED, reason=BASE_MISSING)
