@@ -212,14 +212,18 @@ def run_live(
         ref = localizer.last_odometry
         pose: Pose = localizer.pose
         odo: Pose | None = None
+        stamp = now
         if base is not None and not base_missing and ref is not None and res.odometry:
-            odo = res.odometry[-1][1]
+            stamp, odo = res.odometry[-1]  # the pose where the latest odometry puts it
             pose = compose(localizer.pose, between(ref, odo))
             reason = LASER_MISSING
         else:
             reason = BOTH_MISSING
+        prev = res.estimates[-1].stamp if res.estimates else -math.inf
+        if stamp <= max(prev, last.stamp):
+            return None  # no odometry since the last estimate: nothing new to say
         status = Status.LOST if localizer.status is Status.LOST else Status.DEGRADED
-        return Estimate(stamp=max(now, last.stamp), pose=pose, covariance=localizer.covariance,
+        return Estimate(stamp=stamp, pose=pose, covariance=localizer.covariance,
                         status=status, inlier_ratio=0.0, iterations=0, time=0.0, accepted=False,
                         reason=reason, prediction=pose, odometry=odo)  # fmt: skip
 
