@@ -95,13 +95,17 @@ def test_out_pointing_at_a_ros_map_image_is_refused(tmp_path: Path, pty_port: st
     assert (r.exit_code, image.read_bytes() == before) == (2, True)
 
 
-def test_same_file_for_out_and_record_is_a_usage_error(files: dict[str, Path], pty_port: str) -> None:
+def test_same_file_for_out_and_record_is_a_usage_error(
+    files: dict[str, Path], pty_port: str
+) -> None:
     o = str(files["map"].parent / "both")
     r = _run("--map", str(files["map"]), "--laser", pty_port, "--out", o, "--record", o)
     assert (r.exit_code, "are the same file" in r.output) == (2, True)
 
 
-def test_same_port_for_laser_and_base_is_a_usage_error(files: dict[str, Path], pty_port: str) -> None:
+def test_same_port_for_laser_and_base_is_a_usage_error(
+    files: dict[str, Path], pty_port: str
+) -> None:
     r = _run("--map", str(files["map"]), "--laser", pty_port, "--base", pty_port)
     assert (r.exit_code, "are the same port" in r.output) == (2, True)
 
@@ -203,7 +207,9 @@ def test_ctrl_c_ends_the_loop_with_every_row_written(tmp_path: Path) -> None:
 # ------------------------------------------------------------------ vanished devices
 
 
-def _truth_sampler(sess: Any, samples: list[tuple[float, tuple[float, float, float]]]) -> threading.Event:
+def _truth_sampler(
+    sess: Any, samples: list[tuple[float, tuple[float, float, float]]]
+) -> threading.Event:
     """Sample the simulated robot's true pose every 10 ms (also while the laser, which
     logs the truth per scan, is gone)."""
     stop = threading.Event()
@@ -274,7 +280,11 @@ def test_coasting_follows_the_robot(laser_unplugged: dict[str, Any]) -> None:
     drives about a metre while the laser is gone, the coasted error stays at cm level."""
     ev, res = laser_unplugged, laser_unplugged["res"]
     coasted = [e for e in res.estimates if e.reason == "laser_missing"]
-    err = [np.hypot(e.pose[0] - q[0], e.pose[1] - q[1]) for e in coasted for q in [_true_at(ev, e.stamp)]]
+    err = [
+        np.hypot(e.pose[0] - q[0], e.pose[1] - q[1])
+        for e in coasted
+        for q in [_true_at(ev, e.stamp)]
+    ]
     moved = np.hypot(*np.subtract(coasted[-1].pose[:2], coasted[0].pose[:2]))
     assert (moved > 0.3, max(err) < 0.05) == (True, True)
 

@@ -301,7 +301,9 @@ def test_unplugged_robot_is_reconnected_and_the_odometry_continues() -> None:
     robot.reset_odometry((3.0, -2.0, 1.0))
     run = DeviceRunner(PowerBotDevice(robot=robot), unpluggable=True).start()
     try:
-        with PowerBot(run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_backoff=0.05) as bot:
+        with PowerBot(
+            run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_backoff=0.05
+        ) as bot:
             before = list(bot.sips(limit=5))[-1]
             run.unplug()
             assert wait_for(lambda: not bot.link_up, timeout=30.0)
@@ -322,7 +324,9 @@ def test_unplugged_robot_is_reconnected_and_the_odometry_continues() -> None:
 def test_robot_that_never_comes_back_raises_a_clear_timeout() -> None:
     run = DeviceRunner(PowerBotDevice(), unpluggable=True).start()
     try:
-        with PowerBot(run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_timeout=1.0) as bot:
+        with PowerBot(
+            run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_timeout=1.0
+        ) as bot:
             assert len(list(bot.sips(limit=3))) == 3
             run.unplug()
             with pytest.raises(PowerBotTimeout, match="did not come back within 1 s"):

@@ -104,7 +104,9 @@ def test_truncated_recording_yields_every_complete_record(recording: bytes, tmp_
     assert len(list(iter_records(cut))) == len(complete)
 
 
-def test_truncated_recording_replays_like_the_clean_prefix(recording: bytes, tmp_path: Path) -> None:
+def test_truncated_recording_replays_like_the_clean_prefix(
+    recording: bytes, tmp_path: Path
+) -> None:
     """The decoded scans and odometry of a cut recording are those of the recording
     ending at the last complete record: the torn record is dropped, nothing else."""
     cut_at = len(recording) - 500

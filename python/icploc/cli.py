@@ -181,12 +181,13 @@ def run_cmd(
     input); 130 Ctrl-C before the devices answered."""
     from icploc import live
 
+    seconds = "must be a positive number of seconds"
     if duration is not None and not duration > 0:
-        raise typer.BadParameter("must be a positive number of seconds", param_hint="--duration")
+        raise typer.BadParameter(seconds, param_hint="--duration")
     if not reconnect_timeout > 0:
-        raise typer.BadParameter("must be a positive number of seconds", param_hint="--reconnect-timeout")
+        raise typer.BadParameter(seconds, param_hint="--reconnect-timeout")
     if baud not in (9600, 19200, 38400, 500000):
-        raise typer.BadParameter("the PLS speaks 9600, 19200, 38400 or 500000 Bd", param_hint="--baud")
+        raise typer.BadParameter("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
     if not simulate and (map_path is None or laser is None):
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)

@@ -108,9 +108,7 @@ class LiveResult:
         if self.laser_outages or self.base_outages:
             parts.append(f"laser missing {self.laser_outages}x, base missing {self.base_outages}x")
         if any(self.reconnects.values()):
-            parts.append(
-                "reconnects: " + ", ".join(f"{k} {v}" for k, v in self.reconnects.items())
-            )
+            parts.append("reconnects: " + ", ".join(f"{k} {v}" for k, v in self.reconnects.items()))
         return "; ".join(parts)
 
 
@@ -374,7 +372,9 @@ def check_outputs(
     for opt, path in outs.items():
         for label, inp in ins.items():
             if _same(path, inp):
-                raise RunUsageError(f"{opt} {path} is the {label} ({inp}): refusing to overwrite it")
+                raise RunUsageError(
+                    f"{opt} {path} is the {label} ({inp}): refusing to overwrite it"
+                )
         for other, q in seen.items():
             if _same(path, q):
                 raise RunUsageError(f"{opt} and {other} are the same file ({path})")

@@ -455,7 +455,9 @@ class PowerBot:
         data = ser.read(max(1, ser.in_waiting))
         if not data:
             if clock.now() - self._last_sip_time > self.stall_timeout:
-                raise PowerBotTimeout(f"no SIP from the robot on {self.port} for {self.stall_timeout:g} s")
+                raise PowerBotTimeout(
+                    f"no SIP from the robot on {self.port} for {self.stall_timeout:g} s"
+                )
             return
         t = clock.now()
         if self.recorder is not None:
