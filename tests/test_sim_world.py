@@ -127,9 +127,11 @@ def test_session_realtime_rates() -> None:
             dt_sips = np.diff([s.stamp for s in sips])
             # 11 telegram times at least: the line cannot run faster than its byte time
             assert time.monotonic() - t0 > 11 * 732 * 11 / 38400
-    # a 732-byte telegram at 38400 Bd 8E1 occupies the line for 0.21 s; SIPs every 100 ms
-    assert np.median(dt_scans) == pytest.approx(732 * 11 / 38400, rel=0.15)
-    assert np.median(dt_sips) == pytest.approx(0.1, abs=0.02)
+    # a 732-byte telegram at 38400 Bd 8E1 occupies the line for 0.21 s; SIPs every 100 ms.
+    # Never faster than that (the pacing), and a loaded machine may stretch it, not halve it
+    line = 732 * 11 / 38400
+    assert 0.95 * line < np.median(dt_scans) < 2.0 * line
+    assert 0.095 < np.median(dt_sips) < 0.2
     # scan stamps = first byte of the telegram, within a few ms of when the sim took the scan
     taken = np.array([t for t, _, _ in sim.truth])
     lag = [float(np.min(np.abs(taken - s.stamp))) for s in scans[2:]]
