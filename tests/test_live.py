@@ -204,6 +204,35 @@ def test_ctrl_c_ends_the_loop_with_every_row_written(tmp_path: Path) -> None:
     assert (res.interrupted, res.scans, len(rows)) == (True, 7, 7)
 
 
+class _GoneLaser:
+    """A laser whose driver is reconnecting: no scans, ``link_up`` False."""
+
+    link_up = False
+
+    def get(self, timeout: float | None = None) -> None:
+        clock.sleep_until(clock.now() + 0.01)
+        return None
+
+
+def test_with_laser_and_base_gone_the_last_pose_is_held_and_says_so() -> None:
+    loc = _StubLocalizer()
+    loc.update(Scan(stamp=clock.now(), ranges=np.ones(3), angles=np.zeros(3), seq=12))
+    res = live.run_live(loc, _GoneLaser(), None, duration=0.5)  # type: ignore[arg-type]
+    held = {(e.status, e.reason, e.pose) for e in res.estimates}
+    assert held == {(Status.DEGRADED, "laser_and_base_missing", loc.pose)}
+
+
+def test_ctrl_c_while_connecting_exits_130(
+    files: dict[str, Path], pty_port: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def interrupted(*a: object, **k: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(live, "run_hardware", interrupted)
+    r = _run("--map", str(files["map"]), "--laser", pty_port)
+    assert (r.exit_code, "interrupted before the devices answered" in r.output) == (130, True)
+
+
 # ------------------------------------------------------------------ vanished devices
 
 

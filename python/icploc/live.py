@@ -131,6 +131,16 @@ class _TumWriter:
             self.f = None
 
 
+def _device_failures() -> tuple[type[BaseException], ...]:
+    from icploc.drivers.powerbot import PowerBotError
+    from icploc.drivers.sick import SickError
+
+    return (SickError, PowerBotError, OSError)
+
+
+_DEVICE_FAILURES = _device_failures()
+
+
 def _link_up(dev: Any) -> bool:
     return bool(getattr(dev, "link_up", True))
 
@@ -280,7 +290,7 @@ def run_live(
             emit(est)
     except KeyboardInterrupt:
         res.interrupted = True
-    except (RuntimeError, OSError) as e:  # a driver gave up (SickError, PowerBotError)
+    except _DEVICE_FAILURES as e:  # a driver gave up: a device that did not come back
         res.error = str(e)
     res.wall_time = clock.now() - t_start
     if out.error is not None:

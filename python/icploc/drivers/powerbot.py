@@ -147,11 +147,11 @@ class PowerBot:
         if self.recorder is not None and not self._rec_dev:
             self._rec_dev = self.recorder.device("powerbot", {"driver": "powerbot", "port": str(self.port),
                                                              "baudrate": self.baudrate}, clock.now())  # fmt: skip
+        self._stop.clear()  # close() sets it; a handshake in progress watches it
         self._link()
         self._connected = True
         self._last_sip_time = clock.now()
         _open_bots.add(self)
-        self._stop.clear()
         self._threads = [
             threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
             threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
@@ -323,6 +323,8 @@ class PowerBot:
     def _handshake(self) -> None:
         assert self.ser is not None
         for attempt in range(self.sync_tries):
+            if self._stop.is_set():
+                raise PowerBotError("closed while connecting")
             if attempt:
                 self.counters["sync_retries"] += 1
                 time.sleep(min(0.05 * attempt, 0.5))
@@ -356,16 +358,33 @@ class PowerBot:
             f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
         )
 
-    def _switch_baud(self, baud: int) -> None:
+    def _switch_baud(self, baud: int, tries: int = 3, verify: float = 0.9) -> None:
+        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then a packet must arrive at
+        the new rate within ``verify`` s, else back to the old rate and again (ARIA's
+        fallback, PROTOCOLS.md §B.6)."""
         code = ap.HOSTBAUD_CODES[baud]
-        self._send(ap.HOSTBAUD, code)
-        time.sleep(0.01)
+        assert self.ser is not None
+        old = self.ser.baudrate
+        for _ in range(tries):
+            self._send(ap.HOSTBAUD, code)
+            time.sleep(0.01)
+            self._set_line(baud)
+            self._send(ap.PULSE)
+            if self._read_packets(clock.now() + verify):
+                if self.recorder is not None:
+                    self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
+                return
+            self._set_line(old)  # nothing at the new rate: the robot did not switch
+            self._send(ap.PULSE)
+            self._read_packets(clock.now() + verify)  # back in step at the old rate
+        raise PowerBotError(f"the robot on {self.port} did not answer at {baud} Bd after HOSTBAUD")
+
+    def _set_line(self, baud: int) -> None:
         assert self.ser is not None
         self.ser.baudrate = baud
+        self.ser.reset_input_buffer()  # what arrived at the old rate is noise at the new
+        self.parser.reset()
         self.parser.byte_time = 10.0 / baud
-        self._send(ap.PULSE)
-        if self.recorder is not None:
-            self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
 
     # ------------------------------------------------------------------ commands
 

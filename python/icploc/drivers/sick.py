@@ -215,6 +215,8 @@ class SickLaser:
         self.streaming = False
         found = None
         for baud in self.connect_baudrates:
+            if self._reconnecting and self._stop.is_set():
+                raise SickError("closed while reconnecting")
             try:
                 self._set_host_baud(baud)
             except (ValueError, OSError, serial.SerialException):
