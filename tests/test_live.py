@@ -369,3 +369,20 @@ def test_laser_that_never_comes_back_ends_the_run_with_an_error(tmp_path: Path) 
     rows = ev["out"].read_text().splitlines()
     assert "did not come back within 2 s" in (res.error or "")
     assert len(rows) == len(res.estimates) > 0
+
+
+@pytest.mark.slow
+def test_a_base_that_does_not_answer_is_an_error_naming_it(
+    files: dict[str, Path], pty_port: str
+) -> None:
+    """The laser answers, the base port is silent: exit with the base named; the outputs
+    stay as they were (they are only replaced once every device answered)."""
+    from icploc.sim.device import DeviceRunner
+    from icploc.sim.pls_device import PLSDevice, ramp_source
+
+    before = _snapshot(files)
+    with DeviceRunner(PLSDevice(source=ramp_source())) as laser:
+        with pytest.raises(live.RunError, match=r"base \(--base .*\): no SYNC handshake"):
+            live.run_hardware(files["map"], laser.port, pty_port, initial_pose=(5.0, 4.0, 0.0),
+                              out=files["out"], record=files["record"])  # fmt: skip
+    assert _snapshot(files) == before
