@@ -386,3 +386,9 @@ def test_a_base_that_does_not_answer_is_an_error_naming_it(
             live.run_hardware(files["map"], laser.port, pty_port, initial_pose=(5.0, 4.0, 0.0),
                               out=files["out"], record=files["record"])  # fmt: skip
     assert _snapshot(files) == before
+
+
+def test_simulate_refuses_an_output_that_is_the_config(files: dict[str, Path]) -> None:
+    before = _snapshot(files)
+    r = _run("--simulate", "--config", str(files["config"]), "--out", str(files["config"]))
+    assert (r.exit_code, "is the config" in r.output, _snapshot(files) == before) == (2, True, True)

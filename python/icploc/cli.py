@@ -205,7 +205,7 @@ def run_cmd(
             res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record,
                                             on_estimate=show, map_=str(map_path) if map_path else None,
                                             timeout=duration or 120.0, global_start=global_start,
-                                            reconnect_timeout=reconnect_timeout)  # fmt: skip
+                                            reconnect_timeout=reconnect_timeout, config_path=config)  # fmt: skip
         else:
             assert map_path is not None and laser is not None
             res = live.run_hardware(map_path, laser, base, config=cfg, config_path=config, initial_pose=pose,

@@ -590,6 +590,7 @@ def run_simulated(
     global_start: bool = False,
     reconnect_timeout: float = 60.0,
     on_session: Callable[[Any], None] | None = None,
+    config_path: str | Path | None = None,
 ) -> tuple[LiveResult, list[tuple[float, Pose]]]:
     """The live path against the PLS and PowerBot simulators on pseudo-terminals, in real
     time: the base drives ``path`` (default: the lab random walk) by pure pursuit. Returns
@@ -613,8 +614,11 @@ def run_simulated(
     sess_holder: list[Any] = []
     plan = PursuitPlan(path, lambda: sess_holder[0].robot.pose, speed=speed)
     enc = encoder_noise or EncoderNoise(relative_std=0.01, left_scale=1.004, right_scale=0.997)
-    check_outputs({"--out": out, "--record": record},
-                  {"map": map_ if isinstance(map_, (str, Path)) else None})  # fmt: skip
+    inputs: dict[str, str | Path | None] = {"config": config_path}
+    if isinstance(map_, (str, Path)):
+        for i, p in enumerate(map_inputs(map_)):
+            inputs["map" if i == 0 else "map image"] = p
+    check_outputs({"--out": out, "--record": record}, inputs)
     sess = SimSession(
         world,
         start_pose=start,
