@@ -77,13 +77,14 @@ def tum_row(stamp: float, pose: Sequence[float]) -> str:
 
 @dataclass
 class LiveResult:
-    #: every estimate the loop produced: one per scan, plus the coasting / holding ones
-    #: made while the laser was missing (their ``reason`` says so)
+    #: one estimate per scan localized
     estimates: list[Estimate] = field(default_factory=list)
+    #: the estimates made without a scan while the laser was missing (coasting on
+    #: odometry, or holding): ``reason`` ``laser_missing`` / ``laser_and_base_missing``
+    coasted: list[Estimate] = field(default_factory=list)
     odometry: list[tuple[float, Pose]] = field(default_factory=list)
     wall_time: float = 0.0
     scans: int = 0  #: scans localized
-    coasted: int = 0  #: estimates made without a scan (laser missing)
     laser_outages: int = 0  #: times the laser went missing
     base_outages: int = 0  #: times the base went missing
     reconnects: dict[str, int] = field(default_factory=dict)  #: per device, by the drivers
@@ -92,11 +93,18 @@ class LiveResult:
     write_errors: list[str] = field(default_factory=list)  #: outputs that failed mid-run
     files: dict[str, Path] = field(default_factory=dict)  #: outputs written
 
+    def timeline(self) -> list[Estimate]:
+        """Every estimate, from scans and coasted, in time order (what ``on_estimate``
+        saw and the trajectory file holds)."""
+        return sorted(self.estimates + self.coasted, key=lambda e: e.stamp)
+
     def status_counts(self) -> dict[str, int]:
+        """Scan estimates by status, plus the coasted ones by reason."""
         out: dict[str, int] = {}
         for e in self.estimates:
-            key = e.status.value if e.reason not in (LASER_MISSING, BOTH_MISSING) else e.reason
-            out[key] = out.get(key, 0) + 1
+            out[e.status.value] = out.get(e.status.value, 0) + 1
+        for e in self.coasted:
+            out[e.reason] = out.get(e.reason, 0) + 1
         return out
 
     def summary(self) -> str:
@@ -156,7 +164,7 @@ def run_live(
     on_estimate: Callable[[Estimate], None] | None = None,
     tum: TextIO | None = None,
     odometry_wait: float = 0.15,
-    laser_timeout: float = 0.6,
+    laser_timeout: float = 1.0,
     base_timeout: float = 0.5,
     coast_period: float = 0.1,
 ) -> LiveResult:
@@ -169,7 +177,8 @@ def run_live(
     when ``stop`` is set / returns True; Ctrl-C stops it too (``interrupted``), and so
     does a driver error (``error``: a device that did not come back).
 
-    No scan for ``laser_timeout`` s (or a driver reporting ``link_up`` False): every
+    No scan for ``laser_timeout`` s (or a driver reporting ``link_up`` False: it is
+    reconnecting): every
     ``coast_period`` s an estimate dead-reckoned from the last scan's pose by odometry
     (``laser_missing``). No odometry for ``base_timeout`` s: scans are matched without
     waiting for odometry and reported ``degraded`` (``base_missing``)."""
@@ -207,8 +216,8 @@ def run_live(
         last_odo_t[0] = clock.now()
         return True
 
-    def emit(est: Estimate) -> None:
-        res.estimates.append(est)
+    def emit(est: Estimate, coasted: bool = False) -> None:
+        (res.coasted if coasted else res.estimates).append(est)
         out.write(est)
         if on_estimate is not None:
             on_estimate(est)
@@ -227,7 +236,8 @@ def run_live(
             reason = LASER_MISSING
         else:
             reason = BOTH_MISSING
-        prev = res.estimates[-1].stamp if res.estimates else -math.inf
+        prev = max(res.estimates[-1].stamp if res.estimates else -math.inf,
+                   res.coasted[-1].stamp if res.coasted else -math.inf)  # fmt: skip
         if stamp <= max(prev, last.stamp):
             return None  # no odometry since the last estimate: nothing new to say
         status = Status.LOST if localizer.status is Status.LOST else Status.DEGRADED
@@ -263,9 +273,8 @@ def run_live(
                 if laser_missing and now - last_coast >= coast_period:
                     est = coast(now, base_missing)
                     if est is not None:
-                        res.coasted += 1
                         last_coast = now
-                        emit(est)
+                        emit(est, coasted=True)
                 continue
             last_scan_t = now
             laser_missing = False
