@@ -239,7 +239,8 @@ def _drive(
     run = runner(robot=robot, plan=constant_plan(v, w))
     dev = dev_of(run)
     try:
-        with PowerBot(run.port) as bot:
+        # the first SIPs are the reference: a queue that cannot drop them under load
+        with PowerBot(run.port, queue_size=100_000) as bot:
             sips = list(bot.sips(limit=n))
     finally:
         run.stop()
