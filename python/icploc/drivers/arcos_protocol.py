@@ -480,29 +480,15 @@ class OdometryUnwrapper:
 
     params: RobotParams = POWERBOT
     _last: tuple[int, int, int] | None = field(default=None, repr=False)
-    _rebase: bool = field(default=False, repr=False)
     x_units: int = 0
     y_units: int = 0
     th_units: int = 0
 
     def reset(self) -> None:
         self._last = None
-        self._rebase = False
-
-    def rebase(self) -> None:
-        """The next counters continue the current pose instead of adding their delta
-        (a controller that restarted its odometry while the link was down)."""
-        self._rebase = self._last is not None
-
-    @property
-    def last_counters(self) -> tuple[int, int, int] | None:
-        """(XPOS, YPOS, THPOS) of the last SIP (None before the first)."""
-        return self._last
 
     def update(self, xpos: int, ypos: int, thpos: int) -> tuple[float, float, float]:
-        if self._rebase:
-            self._rebase = False
-        elif self._last is None:
+        if self._last is None:
             self.x_units = xpos - POSE_MOD if xpos >= POSE_MOD // 2 else xpos
             self.y_units = ypos - POSE_MOD if ypos >= POSE_MOD // 2 else ypos
             self.th_units = thpos

@@ -22,6 +22,7 @@ exit) the driver sends STOP, ENABLE 0 and CLOSE.
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import math
 import queue
 import threading
@@ -38,6 +39,7 @@ from icploc.drivers import arcos_protocol as ap
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
+from icploc.se2 import between, compose, inverse
 from icploc.types import Odometry
 
 __all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
@@ -124,8 +126,10 @@ class PowerBot:
         self._connected = False
         self._last_sip_time = 0.0
         self._link_up = False
-        #: set by a reconnect: the next SIP's counters are checked against the last pose
+        #: set by a reconnect: the next SIP's pose is checked against the last one
         self._relinked_at: float | None = None
+        #: re-anchors the controller's odometry frame after a reconnect (None: identity)
+        self._odom_offset: tuple[float, float, float] | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -209,34 +213,30 @@ class PowerBot:
             f"(last error: {last})"
         )
 
-    def _check_continuity(self, pkt: ap.Packet) -> None:
-        """First SIP after a reconnect: if its pose counters moved further from the last
-        SIP than the robot could have driven in the gap (a controller that was power
-        cycled starts again at 0, 0, 0), continue the odometry from the last pose instead
-        (the robot is assumed to have stood still; the watchdog stops it within 2 s)."""
+    def _continue_odometry(self, sip: Sip) -> Sip:
+        """SIPs in the output frame: after a reconnect, the first SIP is checked against
+        the last one; if its pose moved further than the robot could have driven in the
+        gap (a controller that was power cycled starts again at 0, 0, 0), the odometry
+        continues from the last pose (a rigid re-anchoring of the controller's frame; the
+        robot is assumed to have stood still, the watchdog stops it within 2 s)."""
         since = self._relinked_at
-        self._relinked_at = None
-        unw = self.decoder.unwrapper
-        last = unw.last_counters
-        if since is None or last is None or pkt.type not in ap.SIP_TYPES:
-            return
-        try:
-            raw = ap.parse_sip(pkt.payload)
-        except ap.ArcosProtocolError:
-            return
-        p = self.params
-        # with the link down the controller drives on at the last set-points until its
-        # watchdog (nominally 2 s, §B.6) stops it
-        drive = min(max(0.0, pkt.stamp - since), self.watchdog_s)
-        v, w = (self.last_sip.v, self.last_sip.w) if self.last_sip is not None else (0.0, 0.0)
-        dx = ap.wrap_delta(raw.xpos, last[0], ap.POSE_MOD) * p.dist_conv / 1000.0
-        dy = ap.wrap_delta(raw.ypos, last[1], ap.POSE_MOD) * p.dist_conv / 1000.0
-        dth = abs(ap.wrap_delta(raw.thpos, last[2], ap.HEADING_MOD) * p.angle_conv)
-        reach = 1.5 * abs(v) * drive + 0.1
-        turn = 1.5 * abs(w) * drive + 0.1
-        if math.hypot(dx, dy) > reach or dth > turn:
-            unw.rebase()
-            self.counters["odometry_rebases"] += 1
+        if since is not None:
+            self._relinked_at = None
+            prev = self.last_sip
+            if prev is not None:
+                out = (
+                    sip.pose if self._odom_offset is None else compose(self._odom_offset, sip.pose)
+                )
+                drive = min(max(0.0, sip.stamp - since), self.watchdog_s)
+                reach = 1.5 * abs(prev.v) * drive + 0.1
+                turn = 1.5 * abs(prev.w) * drive + 0.1
+                d = between(prev.pose, out)
+                if math.hypot(d[0], d[1]) > reach or abs(d[2]) > turn:
+                    self._odom_offset = compose(prev.pose, inverse(sip.pose))
+                    self.counters["odometry_rebases"] += 1
+        if self._odom_offset is None:
+            return sip
+        return dataclasses.replace(sip, pose=compose(self._odom_offset, sip.pose))
 
     def _close_port(self) -> None:
         if self.ser is not None:
@@ -435,6 +435,7 @@ class PowerBot:
         """SETO: the controller's pose becomes (0, 0, 0); our unwrapped pose follows."""
         self._send(ap.SETO)
         self.decoder.unwrapper.reset()
+        self._odom_offset = None
 
     # ------------------------------------------------------------------ threads
 
@@ -482,12 +483,11 @@ class PowerBot:
         if self.recorder is not None:
             self.recorder.rx(self._rec_dev, t, data)
         for pkt in self.parser.feed(data, t):
-            if self._relinked_at is not None:
-                self._check_continuity(pkt)
             sip = self.decoder.decode(pkt)
             if sip is None:
                 self.counters["other_packets"] += 1
                 continue
+            sip = self._continue_odometry(sip)
             self.counters["sips"] += 1
             self.last_sip = sip
             self._last_sip_time = t
