@@ -234,6 +234,9 @@ class PowerBot:
                 if math.hypot(d[0], d[1]) > reach or abs(d[2]) > turn:
                     self._odom_offset = compose(prev.pose, inverse(sip.pose))
                     self.counters["odometry_rebases"] += 1
+                    if self.recorder is not None:  # a replay can re-anchor the same way
+                        self.recorder.meta(self._rec_dev, sip.stamp,
+                                           {"odometry_offset": list(self._odom_offset)})  # fmt: skip
         if self._odom_offset is None:
             return sip
         return dataclasses.replace(sip, pose=compose(self._odom_offset, sip.pose))
