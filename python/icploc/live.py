@@ -354,18 +354,13 @@ def map_inputs(map_path: str | Path) -> list[Path]:
     """The files a map is read from: the map file, and a ROS map's image."""
     paths = [Path(map_path)]
     if Path(map_path).suffix.lower() in (".yaml", ".yml"):
-        try:
-            import yaml
+        from icploc.maps.errors import MapError
+        from icploc.maps.ros import read_yaml
 
-            doc = yaml.safe_load(Path(map_path).read_text())
-            image = doc.get("image") if isinstance(doc, dict) else None
-            if isinstance(image, str) and image.strip():
-                img = Path(image)
-                paths.append(img if img.is_absolute() else Path(map_path).parent / img)
-        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
-            pass  # the map loader reports a broken map file itself
-        except Exception:  # noqa: BLE001 - yaml.YAMLError: likewise
-            pass
+        try:
+            paths.append(Path(read_yaml(map_path)["image"]))
+        except MapError:
+            pass  # a broken map file is reported when the map is loaded
     return paths
 
 

@@ -145,6 +145,9 @@ class PowerBot:
                                          stopbits=1, timeout=0.02, write_timeout=5.0)  # fmt: skip
         self.parser.reset()
         self.parser.byte_time = 10.0 / self.baudrate
+        if self.recorder is not None and self.counters["reconnects"]:
+            # back at the connect rate (the first META of the device says it already)
+            self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": self.baudrate})
 
     def connect(self) -> None:
         """Open the port, handshake, OPEN, ENABLE, start the reader and heartbeat."""
@@ -374,8 +377,6 @@ class PowerBot:
             self._set_line(baud)
             self._send(ap.PULSE)
             if self._read_packets(clock.now() + verify):
-                if self.recorder is not None:
-                    self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
                 return
             self._set_line(old)  # nothing at the new rate: the robot did not switch
             self._send(ap.PULSE)
@@ -388,6 +389,8 @@ class PowerBot:
         self.ser.reset_input_buffer()  # what arrived at the old rate is noise at the new
         self.parser.reset()
         self.parser.byte_time = 10.0 / baud
+        if self.recorder is not None:
+            self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
 
     # ------------------------------------------------------------------ commands
 
