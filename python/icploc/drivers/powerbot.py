@@ -364,16 +364,17 @@ class PowerBot:
             f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
         )
 
-    def _switch_baud(self, baud: int, tries: int = 3, verify: float = 0.9) -> None:
+    def _switch_baud(self, baud: int, tries: int = 4, verify: float = 0.9) -> None:
         """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then a packet must arrive at
-        the new rate within ``verify`` s, else back to the old rate and again (ARIA's
-        fallback, PROTOCOLS.md §B.6)."""
+        the new rate within ``verify`` s, else back to the old rate and again, waiting
+        five times longer before the switch each time (ARIA's fallback, PROTOCOLS.md §B.6;
+        a controller busy when HOSTBAUD came in gets the time it needs)."""
         code = ap.HOSTBAUD_CODES[baud]
         assert self.ser is not None
         old = self.ser.baudrate
-        for _ in range(tries):
+        for attempt in range(tries):
             self._send(ap.HOSTBAUD, code)
-            time.sleep(0.01)
+            time.sleep(0.01 * 5**attempt)
             self._set_line(baud)
             self._send(ap.PULSE)
             if self._read_packets(clock.now() + verify):

@@ -164,6 +164,7 @@ class DeviceRunner:
         self.bytes_out = 0
         self.line_mismatch_bytes = 0
         self._pending = bytearray()
+        self._pending_baud = 0  #: the device's line speed when the pending bytes were due
         self._line_free_at = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -236,7 +237,8 @@ class DeviceRunner:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def _line_ok(self) -> bool:
+    def _line_ok(self, baud: int | None = None) -> bool:
+        """The host's line speed is the device's (or ``baud``)."""
         if not self.check_line:
             return True
         assert isinstance(self.transport, PtyPair)
@@ -245,7 +247,7 @@ class DeviceRunner:
         except OSError:
             return True
         # Linux ptys keep the speed but refuse PARENB, so only the baud rate can be checked.
-        return s.baudrate == self.engine.baudrate
+        return s.baudrate == (self.engine.baudrate if baud is None else baud)
 
     def _run(self) -> None:
         try:
@@ -286,11 +288,13 @@ class DeviceRunner:
         byte_time = eng.bits_per_byte / float(eng.baudrate)
         line_idle = not self._pending and (not self.realtime or now >= self._line_free_at)
         line_ok = self._line_ok()  # before output(): a baud switch takes effect after its reply
+        baud = eng.baudrate
         out = eng.output(now, line_idle)
         if out:
             if not line_ok:
                 out = bytes(self._noise.randrange(256) for _ in range(len(out)))
             self._pending += out
+            self._pending_baud = baud
         # how long may we sleep?
         timeout = 0.05
         nd = eng.next_due(now)
@@ -314,7 +318,11 @@ class DeviceRunner:
                 # write what the line carries up to ~5 ms from now
                 n = max(1, int((now + 0.005 - base) / byte_time))
                 chunk = self._pending[:n]
-            k = tr.write(bytes(chunk))
+            out = bytes(chunk)
+            if not self._line_ok(self._pending_baud):
+                # the host changed its line since these bytes were due: it reads noise
+                out = bytes(self._noise.randrange(256) for _ in range(len(out)))
+            k = tr.write(out)
             if k:
                 del self._pending[:k]
                 self.bytes_out += k
