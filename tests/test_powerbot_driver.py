@@ -72,7 +72,8 @@ def test_handshake_open_enable_and_1000_sips(sim: DeviceRunner) -> None:
     assert bot.stats["dropped_sips"] == 0 and bot.stats["parser_checksum_errors"] == 0
     assert all(b.stamp >= a.stamp for a, b in zip(sips, sips[1:], strict=False))
     assert all(s.battery_volts == pytest.approx(24.5) for s in sips)
-    # CLOSE on exit: STOP, ENABLE 0, CLOSE
+    # CLOSE on exit: STOP, ENABLE 0, CLOSE (the device thread may still be reading them)
+    assert wait_for(lambda: dev.commands[-1].cmd == ap.CLOSE)
     assert [(c.cmd, c.arg) for c in dev.commands[-3:]] == [
         (ap.STOP, None),
         (ap.ENABLE, 0),

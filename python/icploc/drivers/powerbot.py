@@ -118,7 +118,7 @@ class PowerBot:
         self.counters = {"sips": 0, "sync_retries": 0, "dropped_sips": 0, "commands": 0, "read_errors": 0,
                          "other_packets": 0, "reconnects": 0, "odometry_rebases": 0}  # fmt: skip
         self._sips: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
-        self._write_lock = threading.Lock()
+        self._write_lock = threading.RLock()
         self._last_write = 0.0
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -254,7 +254,9 @@ class PowerBot:
 
     def close(self) -> None:
         """STOP, ENABLE 0, CLOSE; stop the threads; close the port. Idempotent."""
-        if self.ser is not None and self._connected:
+        with self._write_lock:  # no heartbeat PULSE after this (it would be a SYNC0)
+            link_was_up, self._link_up = self._link_up, False
+        if self.ser is not None and self._connected and link_was_up:
             for cmd, arg in ((ap.STOP, None), (ap.ENABLE, 0), (ap.CLOSE, None)):
                 try:
                     self._send(cmd, arg)
@@ -448,9 +450,11 @@ class PowerBot:
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self.heartbeat / 4.0):
-            if not self._link_up:
-                continue  # the reader is reconnecting
-            if clock.now() - self._last_write >= self.heartbeat:
+            with self._write_lock:
+                if not self._link_up:
+                    continue  # reconnecting (the reader) or closing
+                if clock.now() - self._last_write < self.heartbeat:
+                    continue
                 try:
                     self._send(ap.PULSE)
                 except (OSError, serial.SerialException, PowerBotError):
