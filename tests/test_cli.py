@@ -257,7 +257,7 @@ def test_unwritable_output_is_refused_before_any_work(
 def test_same_path_for_two_outputs_is_refused(carmen_run: dict[str, Path], tmp_path: Path) -> None:
     p = tmp_path / "x"
     r = _replay(carmen_run, "--out", str(p), "--estimates", str(p))
-    assert (r.exit_code, "is also the --out" in r.output) == (1, True)
+    assert (r.exit_code, "are the same file" in r.output) == (1, True)
 
 
 def test_estimates_csv_has_one_row_per_scan(carmen_run: dict[str, Path], tmp_path: Path) -> None:

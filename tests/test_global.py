@@ -262,12 +262,16 @@ def test_global_relocalization_unavailable_falls_back_to_local_recovery(monkeypa
     assert loc.update(Scan(stamp=0.1, ranges=scan.ranges, angles=scan.angles)).status is Status.LOST
 
 
-def test_background_lost_checks_never_run_inside_update(lab, lab_glob) -> None:
+def test_background_lost_checks_never_run_inside_update(lab, lab_glob, monkeypatch) -> None:  # noqa: ANN001
     """``localizer.lost_check: background`` (what ``icploc run`` uses): the global searches
     of the lost checks run on a worker thread, ``update`` does not wait for them, and the
-    kidnapping is still caught and recovered at a live scan rate."""
+    kidnapping is still caught and recovered at a live scan rate.
+
+    Simulated time: a scan period here lasts until the running check is done (on a
+    quiet machine a check takes ~10 ms, less than the 40 ms of a PLS scan), so a
+    loaded machine slows the test down instead of shifting the verdicts."""
     import threading
-    import time
+    from concurrent.futures import ThreadPoolExecutor
 
     searches: list[str] = []
 
@@ -289,6 +293,15 @@ def test_background_lost_checks_never_run_inside_update(lab, lab_glob) -> None:
     loc = Localizer(lab_glob.index, cfg, initial_pose=a)
     attach(loc, Relocalizer(None, localizer=Spy(lab_glob)))
     assert loc.relocalization.background
+    futures: list = []  # the checks handed to the worker thread
+    submit = ThreadPoolExecutor.submit
+
+    def recording_submit(self, *a, **k):  # noqa: ANN001, ANN002, ANN003, ANN202
+        fut = submit(self, *a, **k)
+        futures.append(fut)
+        return fut
+
+    monkeypatch.setattr(ThreadPoolExecutor, "submit", recording_submit)
     odo, prev, back, lost_at = (0.0, 0.0, 0.0), None, None, None
     for k, (truth, s) in enumerate(frames):
         if prev is not None and k != 20:
@@ -296,12 +309,13 @@ def test_background_lost_checks_never_run_inside_update(lab, lab_glob) -> None:
         prev = truth
         n_before = len(searches)
         est = loc.update(s, Odometry(stamp=s.stamp, pose=odo))
+        for fut in futures:  # the rest of this scan period: until the checks are done
+            fut.result(timeout=60.0)
         if k >= 20 and est.status is Status.LOST and lost_at is None:
             lost_at = k - 20
             tracking_searches = searches[:n_before]  # the first lost scan searches inline
         if k >= 20 and back is None and est.status is Status.TRACKING and close(est.pose, truth):
             back = k - 20 + 1
-        time.sleep(0.03)  # a live scan period, shortened (checks here take ~10 ms)
     # the verdicts land a scan or two later than inline ones (20 on a quiet machine)
     assert lost_at is not None and back is not None and back <= 30, (lost_at, back)
     # every search before the robot was declared lost was a background check

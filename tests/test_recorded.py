@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from icploc.drivers.powerbot import PowerBot
-from icploc.drivers.recording import MAGIC, Recorder, RecordingFormatError, iter_records
+from icploc.drivers.recording import RECORD, Recorder, RecordingFormatError, iter_records
 from icploc.drivers.sick import PLS
 from icploc.logs.recorded import is_recorded, read_recorded
 from icploc.sim.device import Faults
@@ -18,7 +18,11 @@ from icploc.sim.world import World
 from icploc.types import Odometry, Scan
 
 
-def record_session(path: Path, faults: Faults | None = None) -> tuple[list[Scan], list[Odometry]]:
+def record_session(
+    path: Path, faults: Faults | None = None
+) -> tuple[list[Scan], list[Odometry], int]:
+    """Record 40 scans and 60 SIPs; returns them and how many SIPs the driver's queue
+    dropped (the SIP reader runs ahead while the test reads the scans first)."""
     world = World.box(10.0, 8.0)
     with SimSession(world, start_pose=(2.0, 4.0, 0.0), plan=constant_plan(0.5, 0.3), realtime=False,
                     laser_faults=faults) as sim:  # fmt: skip
@@ -29,12 +33,13 @@ def record_session(path: Path, faults: Faults | None = None) -> tuple[list[Scan]
             ):
                 scans = list(laser.scans(limit=40))
                 odos = [s.to_odometry() for s in bot.sips(limit=60)]
-    return scans, odos
+                dropped = bot.stats["dropped_sips"]
+    return scans, odos, dropped
 
 
 def test_replay_reproduces_the_live_session(tmp_path: Path) -> None:
     path = tmp_path / "session.icpraw"
-    live_scans, live_odos = record_session(
+    live_scans, live_odos, dropped = record_session(
         path, Faults(corrupt_rate=0.05, garbage_rate=0.3, seed=4)
     )
     assert is_recorded(path)
@@ -49,7 +54,8 @@ def test_replay_reproduces_the_live_session(tmp_path: Path) -> None:
         assert a.seq == b.seq and a.stamp == pytest.approx(b.stamp, abs=1e-9)
         np.testing.assert_array_equal(a.ranges, b.ranges)
         np.testing.assert_array_equal(a.angles, b.angles)
-    for oa, ob in zip(live_odos, odos, strict=False):
+    # the SIPs the driver's full queue dropped before the test read them are in the replay
+    for oa, ob in zip(live_odos, odos[dropped:], strict=False):
         assert oa.stamp == pytest.approx(ob.stamp, abs=1e-9)
         assert oa.pose == ob.pose and oa.velocity == ob.velocity
 
@@ -67,22 +73,97 @@ def test_recording_contents(tmp_path: Path) -> None:
     )  # TX: start streaming
 
 
-def test_truncated_recording_is_tolerated_and_corrupt_one_rejected(tmp_path: Path) -> None:
-    path = tmp_path / "s.icpraw"
-    record_session(path)
-    data = path.read_bytes()
-    cut = tmp_path / "cut.icpraw"
-    cut.write_bytes(data[: len(data) - 500])
-    assert len(list(read_recorded(cut))) > 0
-    bad = tmp_path / "bad.icpraw"
+def _record_ends(data: bytes) -> list[int]:
+    """Byte offsets where each record of a recording ends (walked from the header)."""
     hdr_len = struct.unpack("<I", data[8:12])[0]
+    pos, ends = 12 + hdr_len, []
+    while pos + RECORD.size <= len(data):
+        n = RECORD.unpack(data[pos : pos + RECORD.size])[3]
+        pos += RECORD.size + n
+        if pos > len(data):
+            break
+        ends.append(pos)
+    return ends
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+    path = tmp_path_factory.mktemp("rec") / "s.icpraw"
+    record_session(path)
+    return path.read_bytes()
+
+
+def test_truncated_recording_yields_every_complete_record(recording: bytes, tmp_path: Path) -> None:
+    """Cut 500 bytes short (inside a record): exactly the records before the cut."""
+    cut_at = len(recording) - 500
+    ends = _record_ends(recording)
+    complete = [e for e in ends if e <= cut_at]
+    assert complete[-1] < cut_at  # the cut is inside a record, not at a boundary
+    cut = tmp_path / "cut.icpraw"
+    cut.write_bytes(recording[:cut_at])
+    assert len(list(iter_records(cut))) == len(complete)
+
+
+def test_truncated_recording_replays_like_the_clean_prefix(
+    recording: bytes, tmp_path: Path
+) -> None:
+    """The decoded scans and odometry of a cut recording are those of the recording
+    ending at the last complete record: the torn record is dropped, nothing else."""
+    cut_at = len(recording) - 500
+    clean_end = max(e for e in _record_ends(recording) if e <= cut_at)
+    cut, clean = tmp_path / "cut.icpraw", tmp_path / "clean.icpraw"
+    cut.write_bytes(recording[:cut_at])
+    clean.write_bytes(recording[:clean_end])
+    got = [(type(i).__name__, i.stamp) for i in read_recorded(cut)]
+    want = [(type(i).__name__, i.stamp) for i in read_recorded(clean)]
+    assert got == want and len(want) > 40
+
+
+def test_corrupt_record_kind_is_rejected(recording: bytes, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.icpraw"
+    hdr_len = struct.unpack("<I", recording[8:12])[0]
     first = 12 + hdr_len
-    bad.write_bytes(data[: first + 9] + b"\x07" + data[first + 10 :])  # record kind 7
-    with pytest.raises(RecordingFormatError):
+    bad.write_bytes(recording[: first + 9] + b"\x07" + recording[first + 10 :])  # record kind 7
+    with pytest.raises(RecordingFormatError, match="corrupt record header"):
         list(read_recorded(bad))
+
+
+def test_other_files_are_not_recordings(tmp_path: Path) -> None:
     other = tmp_path / "x.log"
     other.write_text("FLASER 0 0 0\n")
-    assert not is_recorded(other) and not is_recorded(tmp_path)
-    with pytest.raises(RecordingFormatError):
+    assert (is_recorded(other), is_recorded(tmp_path)) == (False, False)
+    with pytest.raises(RecordingFormatError, match="bad magic"):
         list(read_recorded(other))
-    assert data.startswith(MAGIC)
+
+
+def test_recorder_flushes_every_record(tmp_path: Path) -> None:
+    """A recording is complete on disk while it is still being written (a crash or
+    Ctrl-C loses nothing that was recorded)."""
+    path = tmp_path / "live.icpraw"
+    with Recorder(path) as rec:
+        dev = rec.device("x", {}, 1.0)
+        rec.rx(dev, 2.0, b"abc")
+        rec.tx(dev, 3.0, b"de")
+        on_disk = [(r.kind, r.data) for r in iter_records(path)]
+    assert on_disk == [(0, b'{"name": "x"}'), (1, b"abc"), (2, b"de")]
+
+
+def test_recorder_write_error_stops_the_recording_not_the_caller(tmp_path: Path) -> None:
+    """A write error (disk full) is kept in ``error``; the drivers calling rx/tx go on."""
+    path = tmp_path / "full.icpraw"
+    rec = Recorder(path)
+    dev = rec.device("x", {}, 1.0)
+
+    class Full:
+        def write(self, b: bytes) -> int:
+            raise OSError(28, "No space left on device")
+
+        def close(self) -> None:
+            pass
+
+    assert rec._f is not None
+    rec._f.close()
+    rec._f = Full()  # type: ignore[assignment]
+    rec.rx(dev, 2.0, b"abc")
+    rec.rx(dev, 3.0, b"def")  # ignored, no exception
+    assert (rec.closed, getattr(rec.error, "errno", None)) == (True, 28)

@@ -114,20 +114,25 @@ def test_session_both_drivers_test_mode() -> None:
 
 @pytest.mark.slow
 def test_session_realtime_rates() -> None:
+    """Line-time pacing in real time. A loaded machine can only delay single telegrams,
+    so medians over many are compared, with margins such delays do not reach."""
     world = World.box(10.0, 8.0)
     world.add_random_people(2, seed=1)
     with SimSession(world, start_pose=(3.0, 4.0, 0.0), realtime=True) as sim:
         with PLS(sim.laser_port, baud_settle=0.05) as laser, PowerBot(sim.base_port) as bot:
             t0 = time.monotonic()
-            scans = list(laser.scans(limit=8))
+            scans = list(laser.scans(limit=12))
             dt_scans = np.diff([s.stamp for s in scans])
             sips = list(bot.sips(limit=15))
             dt_sips = np.diff([s.stamp for s in sips])
-            assert time.monotonic() - t0 > 1.5
-    # a 732-byte telegram at 38400 Bd 8E1 occupies the line for 0.21 s; SIPs every 100 ms
-    assert np.median(dt_scans) == pytest.approx(732 * 11 / 38400, rel=0.15)
-    assert np.median(dt_sips) == pytest.approx(0.1, abs=0.02)
+            # 11 telegram times at least: the line cannot run faster than its byte time
+            assert time.monotonic() - t0 > 11 * 732 * 11 / 38400
+    # a 732-byte telegram at 38400 Bd 8E1 occupies the line for 0.21 s; SIPs every 100 ms.
+    # Never faster than that (the pacing), and a loaded machine may stretch it, not halve it
+    line = 732 * 11 / 38400
+    assert 0.95 * line < np.median(dt_scans) < 2.0 * line
+    assert 0.095 < np.median(dt_sips) < 0.2
     # scan stamps = first byte of the telegram, within a few ms of when the sim took the scan
     taken = np.array([t for t, _, _ in sim.truth])
-    for s in scans[2:]:
-        assert np.min(np.abs(taken - s.stamp)) < 0.02
+    lag = [float(np.min(np.abs(taken - s.stamp))) for s in scans[2:]]
+    assert np.median(lag) < 0.02

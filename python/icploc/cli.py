@@ -295,10 +295,32 @@ def run_cmd(
     state: Annotated[
         Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
     ] = None,
+    reconnect_timeout: Annotated[
+        float,
+        typer.Option(help="Give up on a vanished device after this many seconds (exit 1)"),
+    ] = 60.0,
 ) -> None:
-    """Localize live from a PLS and a PowerBot (or their simulators with --simulate)."""
+    """Localize live from a PLS and a PowerBot (or their simulators with --simulate).
+
+    The ports and the outputs are checked before anything is opened or written. A
+    device that vanishes is reconnected automatically; meanwhile the estimate coasts on
+    odometry (laser missing) or is matched without odometry (base missing), its status
+    saying so. Ctrl-C ends the run with complete files and a summary.
+
+    Exit codes: 0 done (also after Ctrl-C); 1 error (a port, a device that does not
+    answer or does not come back, a file); 2 usage (missing options, an output that is an
+    input); 130 Ctrl-C before the devices answered."""
     from icploc import live
 
+    seconds = "must be a positive number of seconds"
+    if duration is not None and not duration > 0:
+        raise typer.BadParameter(seconds, param_hint="--duration")
+    if not reconnect_timeout > 0:
+        raise typer.BadParameter(seconds, param_hint="--reconnect-timeout")
+    if baud not in (9600, 19200, 38400, 500000):
+        raise typer.BadParameter("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
+    if not simulate and (map_path is None or laser is None):
+        raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
@@ -306,37 +328,51 @@ def run_cmd(
 
     def show(e):  # type: ignore[no-untyped-def]
         hooks.observe(e)
-        why = f" ({e.reason})" if e.status.value == "lost" and e.reason != "lost" else ""
+        why = f" ({e.reason})" if e.reason and (e.status.value == "lost" and e.reason != "lost"
+                                                or e.reason in live.MISSING_REASONS) else ""  # fmt: skip
         typer.echo(
             f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status}{why} inliers={e.inlier_ratio:.2f}"
         )
 
-    if simulate:
-        try:
-            res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record, on_estimate=show,
-                                            map_=str(map_path) if map_path else None, timeout=duration or 120.0,
-                                            global_start=global_start, on_localizer=hooks.on_localizer)  # fmt: skip
-        finally:
-            hooks.close()
-        import numpy as np
-
-        if res.estimates:
-            T = live.truth_at(truth, [e.stamp for e in res.estimates])
-            P = np.array([e.pose for e in res.estimates])
-            err = np.hypot(*(P[:, :2] - T[:, :2]).T)
-            typer.echo(
-                f"{len(P)} scans; error vs simulator truth: median {np.median(err) * 1000:.1f} mm, max {err.max() * 1000:.1f} mm"
-            )
-        return
-    if map_path is None or laser is None:
-        raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     try:
-        res = live.run_hardware(map_path, laser, base, config=cfg, initial_pose=pose, out=out, record=record,
-                                laser_baud=baud, duration=duration, on_estimate=show,
-                                on_localizer=hooks.on_localizer)  # fmt: skip
+        if simulate:
+            res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record,
+                                            on_estimate=show, map_=str(map_path) if map_path else None,
+                                            timeout=duration or 120.0, global_start=global_start,
+                                            reconnect_timeout=reconnect_timeout, config_path=config,
+                                            on_localizer=hooks.on_localizer)  # fmt: skip
+        else:
+            assert map_path is not None and laser is not None
+            res = live.run_hardware(map_path, laser, base, config=cfg, config_path=config, initial_pose=pose,
+                                    out=out, record=record, laser_baud=baud, duration=duration,
+                                    reconnect_timeout=reconnect_timeout, on_estimate=show,
+                                    on_localizer=hooks.on_localizer)  # fmt: skip
+    except live.RunError as e:
+        typer.secho(f"error: {e}", fg="red", err=True)
+        raise typer.Exit(e.exit_code) from None
+    except KeyboardInterrupt:
+        typer.secho("interrupted before the devices answered; nothing written", fg="red", err=True)
+        raise typer.Exit(130) from None
     finally:
         hooks.close()
-    typer.echo(f"{len(res.estimates)} scans in {res.wall_time:.1f} s")
+    typer.echo(res.summary())
+    if simulate and res.estimates:
+        import numpy as np
+
+        T = live.truth_at(truth, [e.stamp for e in res.estimates])
+        P = np.array([e.pose for e in res.estimates])
+        err = np.hypot(*(P[:, :2] - T[:, :2]).T)
+        typer.echo(
+            f"{len(P)} estimates; error vs simulator truth: median {np.median(err) * 1000:.1f} mm, max {err.max() * 1000:.1f} mm"
+        )
+    for k, p in res.files.items():
+        typer.echo(f"{k}: {p}")
+    for w in res.write_errors:
+        typer.secho(f"error: {w}", fg="red", err=True)
+    if res.error is not None:
+        typer.secho(f"error: {res.error}", fg="red", err=True)
+    if res.error is not None or res.write_errors:
+        raise typer.Exit(1)
 
 
 def _run_hooks(**kw):  # type: ignore[no-untyped-def]

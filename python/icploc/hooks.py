@@ -41,19 +41,23 @@ class RunHooks:
         self._state = Path(state) if state is not None else None
         self._restore = restore
         self._state_every = state_every
+        self._mcap: Path | None = None
         if mcap is not None:
-            from icploc.mcap_export import McapError, McapRecorder
+            from icploc.mcap_export import McapError
+            from icploc.outputs import OutputError, check_outputs
 
-            p = Path(mcap)
-            for i in inputs:
-                if Path(i).exists() and p.exists() and p.resolve() == Path(i).resolve():
-                    raise McapError(f"--mcap {p}: is an input of this run, not overwriting it")
-            self.recorder = McapRecorder(p)  # opens the file now: a bad path fails early
+            try:  # checked now (an input, an unwritable path), created with the localizer
+                check_outputs({"--mcap": mcap}, inputs)
+            except OutputError as e:
+                raise McapError(str(e)) from None
+            self._mcap = Path(mcap)
 
     def on_localizer(self, loc: Localizer) -> None:
-        if self.recorder is not None:
-            from icploc.mcap_export import attach
+        if self._mcap is not None:
+            from icploc.mcap_export import McapRecorder, attach
 
+            if self.recorder is None:
+                self.recorder = McapRecorder(self._mcap)
             attach(loc, self.recorder)
         if self._state is not None:
             from icploc.state import StateError, StateSaver, restore

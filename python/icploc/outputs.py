@@ -12,11 +12,15 @@ import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-__all__ = ["OutputError", "check_outputs", "map_inputs"]
+__all__ = ["OutputClashError", "OutputError", "check_outputs", "map_inputs"]
 
 
 class OutputError(ValueError):
     """An output path is unusable: it is an input, a duplicate, or cannot be written."""
+
+
+class OutputClashError(OutputError):
+    """An output path is one of the inputs or another output (a usage error)."""
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -63,21 +67,27 @@ def check_writable(what: str, path: Path) -> None:
 
 def check_outputs(
     outputs: Mapping[str, str | os.PathLike[str] | None],
-    inputs: Iterable[str | os.PathLike[str] | None],
+    inputs: Iterable[str | os.PathLike[str] | None] | Mapping[str, str | os.PathLike[str] | None],
 ) -> None:
     """Refuse, before any work starts, an output (name → path; None: not written) that
-    is one of ``inputs`` or another output, or that cannot be written."""
-    ins = [Path(p) for p in inputs if p is not None]
+    is one of ``inputs`` (paths, or label → path) or another output
+    (:class:`OutputClashError`), or that cannot be written (:class:`OutputError`)."""
+    if isinstance(inputs, Mapping):
+        ins = [(f"the {k}", Path(v)) for k, v in inputs.items() if v is not None]
+    else:
+        ins = [("an input", Path(v)) for v in inputs if v is not None]
     seen: list[tuple[str, Path]] = []
     for what, raw in outputs.items():
         if raw is None:
             continue
         p = Path(raw)
-        for q in ins:
+        for label, q in ins:
             if _same(p, q):
-                raise OutputError(f"{what} {p} is an input ({q}); refusing to overwrite it")
+                raise OutputClashError(f"{what} {p} is {label} ({q}); refusing to overwrite it")
         for other, q in seen:
             if _same(p, q):
-                raise OutputError(f"{what} {p} is also the {other}; give each output its own path")
+                raise OutputClashError(
+                    f"{what} and {other} are the same file ({p}); give each output its own path"
+                )
         check_writable(what, p)
         seen.append((what, p))

@@ -22,6 +22,7 @@ exit) the driver sends STOP, ENABLE 0 and CLOSE.
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import math
 import queue
 import threading
@@ -38,6 +39,7 @@ from icploc.drivers import arcos_protocol as ap
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
+from icploc.se2 import between, compose, inverse
 from icploc.types import Odometry
 
 __all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
@@ -52,6 +54,8 @@ class PowerBotTimeout(PowerBotError):
 
 
 _STOP = object()
+#: the controller's watchdog (PROTOCOLS.md §B.6): no command for this long stops the robot
+WATCHDOG_S = 2.0
 _open_bots: weakref.WeakSet[PowerBot] = weakref.WeakSet()
 
 
@@ -79,6 +83,10 @@ class PowerBot:
         heartbeat: float = 0.5,
         enable_motors: bool = True,
         stall_timeout: float = 2.0,
+        auto_reconnect: bool = False,
+        reconnect_timeout: float = 30.0,
+        reconnect_backoff: float = 0.2,
+        reconnect_backoff_max: float = 5.0,
         recorder: Recorder | str | Path | None = None,
         queue_size: int = 256,
     ) -> None:
@@ -92,6 +100,11 @@ class PowerBot:
         self.heartbeat = heartbeat
         self.enable_motors = enable_motors
         self.stall_timeout = stall_timeout
+        self.auto_reconnect = auto_reconnect
+        self.watchdog_s = WATCHDOG_S
+        self.reconnect_timeout = reconnect_timeout
+        self.reconnect_backoff = reconnect_backoff
+        self.reconnect_backoff_max = reconnect_backoff_max
         self._own_recorder = isinstance(recorder, (str, Path))
         self.recorder: Recorder | None = (
             Recorder(recorder) if isinstance(recorder, (str, Path)) else recorder
@@ -103,15 +116,20 @@ class PowerBot:
         self.name = self.robot_type = self.subtype = ""
         self.last_sip: Sip | None = None
         self.counters = {"sips": 0, "sync_retries": 0, "dropped_sips": 0, "commands": 0, "read_errors": 0,
-                         "other_packets": 0}  # fmt: skip
+                         "other_packets": 0, "reconnects": 0, "odometry_rebases": 0}  # fmt: skip
         self._sips: queue.Queue[Any] = queue.Queue(maxsize=max(1, queue_size))
-        self._write_lock = threading.Lock()
+        self._write_lock = threading.RLock()
         self._last_write = 0.0
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._error: BaseException | None = None
         self._connected = False
         self._last_sip_time = 0.0
+        self._link_up = False
+        #: set by a reconnect: the next SIP's pose is checked against the last one
+        self._relinked_at: float | None = None
+        #: re-anchors the controller's odometry frame after a reconnect (None: identity)
+        self._odom_offset: tuple[float, float, float] | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -127,12 +145,29 @@ class PowerBot:
                                          stopbits=1, timeout=0.02, write_timeout=5.0)  # fmt: skip
         self.parser.reset()
         self.parser.byte_time = 10.0 / self.baudrate
+        if self.recorder is not None and self.counters["reconnects"]:
+            # back at the connect rate (the first META of the device says it already)
+            self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": self.baudrate})
 
     def connect(self) -> None:
         """Open the port, handshake, OPEN, ENABLE, start the reader and heartbeat."""
         if self.recorder is not None and not self._rec_dev:
             self._rec_dev = self.recorder.device("powerbot", {"driver": "powerbot", "port": str(self.port),
                                                              "baudrate": self.baudrate}, clock.now())  # fmt: skip
+        self._stop.clear()  # close() sets it; a handshake in progress watches it
+        self._link()
+        self._connected = True
+        self._last_sip_time = clock.now()
+        _open_bots.add(self)
+        self._threads = [
+            threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
+            threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
+        ]
+        for th in self._threads:
+            th.start()
+
+    def _link(self) -> None:
+        """Open the port and run the handshake, OPEN, PULSE, (HOSTBAUD), ENABLE."""
         self._open_port()
         try:
             self._handshake()
@@ -145,16 +180,69 @@ class PowerBot:
         except BaseException:
             self._close_port()
             raise
-        self._connected = True
-        self._last_sip_time = clock.now()
-        _open_bots.add(self)
-        self._stop.clear()
-        self._threads = [
-            threading.Thread(target=self._reader, name="powerbot-reader", daemon=True),
-            threading.Thread(target=self._heartbeat, name="powerbot-heartbeat", daemon=True),
-        ]
-        for th in self._threads:
-            th.start()
+        self._link_up = True
+
+    def _relink(self, why: BaseException) -> None:
+        """In the reader thread, after the line failed or SIPs stopped: close the port
+        and connect again (handshake per PROTOCOLS.md §B.6) with an exponential back-off,
+        for at most ``reconnect_timeout`` s, then :class:`PowerBotTimeout`."""
+        self._link_up = False
+        self.counters["reconnects"] += 1
+        if self.recorder is not None:
+            self.recorder.meta(self._rec_dev, clock.now(), {"event": "reconnect", "why": str(why)})
+        deadline = clock.now() + self.reconnect_timeout
+        delay = self.reconnect_backoff
+        last: BaseException = why
+        while not self._stop.is_set():
+            self._close_port()
+            try:
+                self._link()
+            except (OSError, serial.SerialException, PowerBotError) as e:
+                last = e
+            else:
+                self._relinked_at = self._last_sip_time
+                self._last_sip_time = clock.now()
+                return
+            left = deadline - clock.now()
+            if left <= 0:
+                break
+            self._stop.wait(min(delay, left))
+            delay = min(delay * 2.0, self.reconnect_backoff_max)
+        self._close_port()
+        if self._stop.is_set():
+            return
+        raise PowerBotTimeout(
+            f"robot on {self.port} did not come back within {self.reconnect_timeout:g} s "
+            f"(last error: {last})"
+        )
+
+    def _continue_odometry(self, sip: Sip) -> Sip:
+        """SIPs in the output frame: after a reconnect, the first SIP is checked against
+        the last one; if its pose moved further than the robot could have driven in the
+        gap (a controller that was power cycled starts again at 0, 0, 0), the odometry
+        continues from the last pose (a rigid re-anchoring of the controller's frame; the
+        robot is assumed to have stood still, the watchdog stops it within 2 s)."""
+        since = self._relinked_at
+        if since is not None:
+            self._relinked_at = None
+            prev = self.last_sip
+            if prev is not None:
+                out = (
+                    sip.pose if self._odom_offset is None else compose(self._odom_offset, sip.pose)
+                )
+                drive = min(max(0.0, sip.stamp - since), self.watchdog_s)
+                reach = 1.5 * abs(prev.v) * drive + 0.1
+                turn = 1.5 * abs(prev.w) * drive + 0.1
+                d = between(prev.pose, out)
+                if math.hypot(d[0], d[1]) > reach or abs(d[2]) > turn:
+                    self._odom_offset = compose(prev.pose, inverse(sip.pose))
+                    self.counters["odometry_rebases"] += 1
+                    if self.recorder is not None:  # a replay can re-anchor the same way
+                        self.recorder.meta(self._rec_dev, sip.stamp,
+                                           {"odometry_offset": list(self._odom_offset)})  # fmt: skip
+        if self._odom_offset is None:
+            return sip
+        return dataclasses.replace(sip, pose=compose(self._odom_offset, sip.pose))
 
     def _close_port(self) -> None:
         if self.ser is not None:
@@ -166,7 +254,9 @@ class PowerBot:
 
     def close(self) -> None:
         """STOP, ENABLE 0, CLOSE; stop the threads; close the port. Idempotent."""
-        if self.ser is not None and self._connected:
+        with self._write_lock:  # no heartbeat PULSE after this (it would be a SYNC0)
+            link_was_up, self._link_up = self._link_up, False
+        if self.ser is not None and self._connected and link_was_up:
             for cmd, arg in ((ap.STOP, None), (ap.ENABLE, 0), (ap.CLOSE, None)):
                 try:
                     self._send(cmd, arg)
@@ -174,6 +264,7 @@ class PowerBot:
                     break
             time.sleep(0.01)
         self._connected = False
+        self._link_up = False
         self._stop.set()
         for th in self._threads:
             if th is not threading.current_thread():
@@ -194,6 +285,11 @@ class PowerBot:
     @property
     def connected(self) -> bool:
         return self._connected
+
+    @property
+    def link_up(self) -> bool:
+        """Connected and talking to the robot; False while a reconnect is under way."""
+        return self._connected and self._link_up
 
     @property
     def stats(self) -> dict[str, int]:
@@ -235,6 +331,8 @@ class PowerBot:
     def _handshake(self) -> None:
         assert self.ser is not None
         for attempt in range(self.sync_tries):
+            if self._stop.is_set():
+                raise PowerBotError("closed while connecting")
             if attempt:
                 self.counters["sync_retries"] += 1
                 time.sleep(min(0.05 * attempt, 0.5))
@@ -268,14 +366,32 @@ class PowerBot:
             f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
         )
 
-    def _switch_baud(self, baud: int) -> None:
+    def _switch_baud(self, baud: int, tries: int = 4, verify: float = 0.9) -> None:
+        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then a packet must arrive at
+        the new rate within ``verify`` s, else back to the old rate and again, waiting
+        five times longer before the switch each time (ARIA's fallback, PROTOCOLS.md §B.6;
+        a controller busy when HOSTBAUD came in gets the time it needs)."""
         code = ap.HOSTBAUD_CODES[baud]
-        self._send(ap.HOSTBAUD, code)
-        time.sleep(0.01)
+        assert self.ser is not None
+        old = self.ser.baudrate
+        for attempt in range(tries):
+            self._send(ap.HOSTBAUD, code)
+            time.sleep(0.01 * 5**attempt)
+            self._set_line(baud)
+            self._send(ap.PULSE)
+            if self._read_packets(clock.now() + verify):
+                return
+            self._set_line(old)  # nothing at the new rate: the robot did not switch
+            self._send(ap.PULSE)
+            self._read_packets(clock.now() + verify)  # back in step at the old rate
+        raise PowerBotError(f"the robot on {self.port} did not answer at {baud} Bd after HOSTBAUD")
+
+    def _set_line(self, baud: int) -> None:
         assert self.ser is not None
         self.ser.baudrate = baud
+        self.ser.reset_input_buffer()  # what arrived at the old rate is noise at the new
+        self.parser.reset()
         self.parser.byte_time = 10.0 / baud
-        self._send(ap.PULSE)
         if self.recorder is not None:
             self.recorder.meta(self._rec_dev, clock.now(), {"baudrate": baud})
 
@@ -328,48 +444,65 @@ class PowerBot:
         """SETO: the controller's pose becomes (0, 0, 0); our unwrapped pose follows."""
         self._send(ap.SETO)
         self.decoder.unwrapper.reset()
+        self._odom_offset = None
 
     # ------------------------------------------------------------------ threads
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(self.heartbeat / 4.0):
-            if clock.now() - self._last_write >= self.heartbeat:
+            with self._write_lock:
+                if not self._link_up:
+                    continue  # reconnecting (the reader) or closing
+                if clock.now() - self._last_write < self.heartbeat:
+                    continue
                 try:
                     self._send(ap.PULSE)
                 except (OSError, serial.SerialException, PowerBotError):
-                    return
+                    if not self.auto_reconnect:
+                        return
+                    # the reader notices the failed line and reconnects
 
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
-                ser = self.ser
-                if ser is None:
-                    return
                 try:
-                    data = ser.read(max(1, ser.in_waiting))
-                except (OSError, serial.SerialException) as e:
-                    self.counters["read_errors"] += 1
-                    raise PowerBotError(f"serial line failed: {e}") from e
-                if not data:
-                    if clock.now() - self._last_sip_time > self.stall_timeout:
-                        raise PowerBotTimeout(f"no SIP for {self.stall_timeout} s")
-                    continue
-                t = clock.now()
-                if self.recorder is not None:
-                    self.recorder.rx(self._rec_dev, t, data)
-                for pkt in self.parser.feed(data, t):
-                    sip = self.decoder.decode(pkt)
-                    if sip is None:
-                        self.counters["other_packets"] += 1
-                        continue
-                    self.counters["sips"] += 1
-                    self.last_sip = sip
-                    self._last_sip_time = t
-                    self._put(sip)
+                    self._read_once()
+                except (OSError, serial.SerialException, PowerBotError) as e:
+                    if isinstance(e, (OSError, serial.SerialException)):
+                        self.counters["read_errors"] += 1
+                        e = PowerBotError(f"serial line to the robot on {self.port} failed: {e}")
+                    if not self.auto_reconnect or self._stop.is_set():
+                        raise e from None
+                    self._relink(e)
         except BaseException as e:
             if not self._stop.is_set():
                 self._error = e
             self._put(_STOP)
+
+    def _read_once(self) -> None:
+        ser = self.ser
+        if ser is None:
+            raise PowerBotError("port is closed")
+        data = ser.read(max(1, ser.in_waiting))
+        if not data:
+            if clock.now() - self._last_sip_time > self.stall_timeout:
+                raise PowerBotTimeout(
+                    f"no SIP from the robot on {self.port} for {self.stall_timeout:g} s"
+                )
+            return
+        t = clock.now()
+        if self.recorder is not None:
+            self.recorder.rx(self._rec_dev, t, data)
+        for pkt in self.parser.feed(data, t):
+            sip = self.decoder.decode(pkt)
+            if sip is None:
+                self.counters["other_packets"] += 1
+                continue
+            sip = self._continue_odometry(sip)
+            self.counters["sips"] += 1
+            self.last_sip = sip
+            self._last_sip_time = t
+            self._put(sip)
 
     def _put(self, item: object) -> None:
         self.counters["dropped_sips"] += put_dropping_oldest(self._sips, item)

@@ -48,7 +48,10 @@ class Record:
 
 
 class Recorder:
-    """Thread-safe writer shared by any number of drivers.
+    """Thread-safe writer shared by any number of drivers. Every record is flushed to
+    the file as it is written, so a crash or Ctrl-C leaves a complete recording up to
+    the last record. A write error (disk full, file system gone) stops the recording
+    instead of the drivers: it is kept in :attr:`error` and nothing more is written.
 
     >>> rec = Recorder("session.icpraw")            # doctest: +SKIP
     >>> laser = PLS(port, recorder=rec)              # doctest: +SKIP
@@ -65,8 +68,12 @@ class Recorder:
             hdr.update(header)
         blob = json.dumps(hdr, sort_keys=True).encode("utf-8")
         self._f.write(MAGIC + struct.pack("<I", len(blob)) + blob)
+        self._f.flush()
         self._devices: dict[str, int] = {}
         self._owners = 0
+        #: the write error that stopped the recording (None while it records)
+        self.error: OSError | None = None
+        self.records = 0
 
     def device(self, name: str, meta: dict[str, Any], stamp: float) -> int:
         """Register (or re-describe) a device; returns its id for later records."""
@@ -95,8 +102,26 @@ class Recorder:
         with self._lock:
             if self._f is None:
                 return
-            self._f.write(RECORD.pack(stamp, device, kind, len(data)))
-            self._f.write(data)
+            try:
+                self._f.write(RECORD.pack(stamp, device, kind, len(data)) + data)
+                self._f.flush()
+            except OSError as e:
+                self.error = e
+                try:
+                    self._f.close()
+                except OSError:
+                    pass
+                self._f = None
+                return
+            self.records += 1
+
+    def rename(self, path: str | os.PathLike[str]) -> None:
+        """Move the file being written to ``path`` (replacing it); writing continues
+        there. ``icploc run`` records the handshake into a temporary file and moves it
+        over ``--record`` only once the devices answered."""
+        with self._lock:
+            os.replace(self.path, path)
+            self.path = Path(path)
 
     def flush(self) -> None:
         with self._lock:
@@ -106,7 +131,10 @@ class Recorder:
     def close(self) -> None:
         with self._lock:
             if self._f is not None:
-                self._f.close()
+                try:
+                    self._f.close()
+                except OSError as e:
+                    self.error = self.error or e
                 self._f = None
 
     @property

@@ -80,6 +80,8 @@ class SickLaser:
         stall_timeout: float = 2.0,
         auto_reconnect: bool = False,
         reconnect_timeout: float = 30.0,
+        reconnect_backoff: float = 0.2,
+        reconnect_backoff_max: float = 5.0,
         baud_settle: float = 0.25,
         recorder: Recorder | str | Path | None = None,
         queue_size: int = 64,
@@ -106,6 +108,8 @@ class SickLaser:
         self.stall_timeout = stall_timeout
         self.auto_reconnect = auto_reconnect
         self.reconnect_timeout = reconnect_timeout
+        self.reconnect_backoff = reconnect_backoff
+        self.reconnect_backoff_max = reconnect_backoff_max
         self.baud_settle = baud_settle
         self.read_chunk = read_chunk
         self.max_range = self.default_max_range if max_range is None else max_range
@@ -133,6 +137,7 @@ class SickLaser:
         self._io_lock = threading.RLock()
         self._last_scan = 0.0
         self._error: BaseException | None = None
+        self._reconnecting = False
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -210,6 +215,8 @@ class SickLaser:
         self.streaming = False
         found = None
         for baud in self.connect_baudrates:
+            if self._reconnecting and self._stop.is_set():
+                raise SickError("closed while reconnecting")
             try:
                 self._set_host_baud(baud)
             except (ValueError, OSError, serial.SerialException):
@@ -268,20 +275,55 @@ class SickLaser:
             self.recorder.close()
 
     def reconnect(self) -> None:
-        """Re-open the line and run the whole connection sequence again."""
+        """Re-open the line and run the whole connection sequence again (probe every
+        connect baud rate, installation mode, baud switch, start output: a power-cycled
+        scanner is back at 9600 Bd). Attempts are spaced by an exponential back-off
+        (``reconnect_backoff`` doubling up to ``reconnect_backoff_max``) and end after
+        ``reconnect_timeout`` s with :class:`SickTimeout`. A device node that vanished
+        (USB adapter unplugged) is retried until it reappears."""
         self.counters["reconnects"] += 1
+        self._reconnecting = True
+        self.streaming = False
+        if self.recorder is not None:
+            self.recorder.meta(self._rec_dev, clock.now(), {"event": "reconnect"})
         deadline = clock.now() + self.reconnect_timeout
+        delay = self.reconnect_backoff
         last: BaseException | None = None
-        while clock.now() < deadline and not self._stop.is_set():
+        try:
+            while not self._stop.is_set():
+                self._close_port()
+                try:
+                    self._open_port()
+                    self._configure()
+                    return
+                except (SickError, OSError, serial.SerialException) as e:
+                    last = e
+                left = deadline - clock.now()
+                if left <= 0:
+                    break
+                self._stop.wait(min(delay, left))
+                delay = min(delay * 2.0, self.reconnect_backoff_max)
             self._close_port()
-            try:
-                self._open_port()
-                self._configure()
-                return
-            except (SickError, OSError, serial.SerialException) as e:
-                last = e
-                time.sleep(0.2)
-        raise SickTimeout(f"could not reconnect within {self.reconnect_timeout} s: {last}")
+            if self._stop.is_set():
+                raise SickError("closed while reconnecting")
+            raise SickTimeout(
+                f"{self.variant.upper()} on {self.port} did not come back within "
+                f"{self.reconnect_timeout:g} s (last error: {last})"
+            )
+        finally:
+            self._reconnecting = False
+
+    @property
+    def link_up(self) -> bool:
+        """The port is open and the device configured (and streaming, in stream mode);
+        False while a reconnect is under way or after the line failed."""
+        if self.ser is None or self._reconnecting:
+            return False
+        return self.streaming or self.mode == "poll"
+
+    @property
+    def reconnecting(self) -> bool:
+        return self._reconnecting
 
     @property
     def stats(self) -> dict[str, int]:

@@ -12,7 +12,10 @@ next scheduled output; in test mode it writes as fast as the host reads.
 
 from __future__ import annotations
 
+import os
 import random
+import shutil
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -139,9 +142,21 @@ class DeviceRunner:
     """
 
     def __init__(self, engine: Engine, transport: Transport | None = None, *, realtime: bool = False,
-                 check_line: bool = True, name: str = "device") -> None:  # fmt: skip
+                 check_line: bool = True, name: str = "device", unpluggable: bool = False) -> None:  # fmt: skip
         self.engine = engine
         self.transport: Transport = transport if transport is not None else PtyPair()
+        #: ``unpluggable``: the port is a symlink (like ``/dev/serial/by-id/...``) to the pty,
+        #: so :meth:`unplug` / :meth:`replug` can remove the device node and bring it back
+        self._link_dir: str | None = None
+        self._link: str | None = None
+        self._unplugged = False
+        self._swap = threading.Lock()
+        if unpluggable:
+            if not isinstance(self.transport, PtyPair):
+                raise ValueError("unpluggable needs a pty transport")
+            self._link_dir = tempfile.mkdtemp(prefix="icploc-sim-")
+            self._link = os.path.join(self._link_dir, f"tty-{name}")
+            os.symlink(self.transport.port, self._link)
         self.realtime = realtime
         self.check_line = check_line and isinstance(self.transport, PtyPair)
         self.name = name
@@ -149,6 +164,7 @@ class DeviceRunner:
         self.bytes_out = 0
         self.line_mismatch_bytes = 0
         self._pending = bytearray()
+        self._pending_baud = 0  #: the device's line speed when the pending bytes were due
         self._line_free_at = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -158,9 +174,46 @@ class DeviceRunner:
     @property
     def port(self) -> str:
         """Path the driver should open (pty transports)."""
+        if self._link is not None:
+            return self._link
         if isinstance(self.transport, PtyPair):
             return self.transport.port
         raise AttributeError("transport has no port path")
+
+    @property
+    def unplugged(self) -> bool:
+        return self._unplugged
+
+    def unplug(self) -> None:
+        """The USB adapter is pulled: the pty closes (the host's reads fail) and the
+        device node disappears. Needs ``unpluggable=True``."""
+        if self._link is None:
+            raise RuntimeError("unplug() needs DeviceRunner(..., unpluggable=True)")
+        with self._swap:
+            self._unplugged = True
+            self.transport.close()
+            self._pending.clear()
+            try:
+                os.unlink(self._link)
+            except FileNotFoundError:
+                pass
+
+    def replug(self, power_cycle: bool = True) -> None:
+        """The adapter is back (a new pty behind the same device node); with
+        ``power_cycle`` the device restarts in its power-on state."""
+        if self._link is None:
+            raise RuntimeError("replug() needs DeviceRunner(..., unpluggable=True)")
+        with self._swap:
+            tr = PtyPair()
+            revive = getattr(self.engine, "revive", None)
+            if power_cycle and revive is not None:
+                revive(power_cycle=True)
+            self.transport = tr
+            self._line_free_at = 0.0
+            tmp = self._link + ".new"
+            os.symlink(tr.port, tmp)
+            os.replace(tmp, self._link)
+            self._unplugged = False
 
     def start(self) -> DeviceRunner:
         self._thread = threading.Thread(target=self._run, name=f"sim-{self.name}", daemon=True)
@@ -174,6 +227,9 @@ class DeviceRunner:
             self._thread = None
         if close:
             self.transport.close()
+            if self._link_dir is not None:
+                shutil.rmtree(self._link_dir, ignore_errors=True)
+                self._link_dir = None
 
     def __enter__(self) -> DeviceRunner:
         return self.start()
@@ -181,7 +237,8 @@ class DeviceRunner:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def _line_ok(self) -> bool:
+    def _line_ok(self, baud: int | None = None) -> bool:
+        """The host's line speed is the device's (or ``baud``)."""
         if not self.check_line:
             return True
         assert isinstance(self.transport, PtyPair)
@@ -190,7 +247,7 @@ class DeviceRunner:
         except OSError:
             return True
         # Linux ptys keep the speed but refuse PARENB, so only the baud rate can be checked.
-        return s.baudrate == self.engine.baudrate
+        return s.baudrate == (self.engine.baudrate if baud is None else baud)
 
     def _run(self) -> None:
         try:
@@ -199,56 +256,75 @@ class DeviceRunner:
             self.error = e
 
     def _loop(self) -> None:
+        while not self._stop.is_set():
+            with self._swap:
+                idle = self._unplugged or self._step()
+            if idle:
+                time.sleep(0.005)
+
+    def _receive(self, data: bytes) -> None:
+        if not data:
+            return
+        self.bytes_in += len(data)
+        if self._line_ok():
+            self.engine.receive(data, clock.now())
+        else:
+            self.line_mismatch_bytes += len(data)
+
+    def _step(self) -> bool:
+        """One turn of the loop; True when the device is idle (vanished)."""
         eng = self.engine
         tr = self.transport
-        while not self._stop.is_set():
+        now = clock.now()
+        if eng.faults.vanished:
+            # bytes already in the pty buffer still reach the host, like bytes in a
+            # UART FIFO (flushing them here would race with the host's select/read)
+            tr.read()
+            self._pending.clear()
+            return True
+        # what the host has written already arrived: the engine sees it before it decides
+        # its output (a late wake-up of this thread must not trip the device's watchdog)
+        self._receive(tr.read())
+        byte_time = eng.bits_per_byte / float(eng.baudrate)
+        line_idle = not self._pending and (not self.realtime or now >= self._line_free_at)
+        line_ok = self._line_ok()  # before output(): a baud switch takes effect after its reply
+        baud = eng.baudrate
+        out = eng.output(now, line_idle)
+        if out:
+            if not line_ok:
+                out = bytes(self._noise.randrange(256) for _ in range(len(out)))
+            self._pending += out
+            self._pending_baud = baud
+        # how long may we sleep?
+        timeout = 0.05
+        nd = eng.next_due(now)
+        if nd is not None:
+            timeout = min(timeout, max(0.0, nd - now))
+        if self._pending and self.realtime:
+            timeout = min(timeout, max(0.0, self._line_free_at - now))
+        readable, writable = tr.wait(
+            timeout,
+            bool(self._pending) and (not self.realtime or now >= self._line_free_at - 0.002),
+        )
+        if readable:
+            self._receive(tr.read())
+        if writable and self._pending:
             now = clock.now()
-            if eng.faults.vanished:
-                # bytes already in the pty buffer still reach the host, like bytes in a
-                # UART FIFO (flushing them here would race with the host's select/read)
-                tr.read()
-                self._pending.clear()
-                time.sleep(0.005)
-                continue
-            byte_time = eng.bits_per_byte / float(eng.baudrate)
-            line_idle = not self._pending and (not self.realtime or now >= self._line_free_at)
-            line_ok = self._line_ok()  # before output(): a baud switch takes effect after its reply
-            out = eng.output(now, line_idle)
-            if out:
-                if not line_ok:
-                    out = bytes(self._noise.randrange(256) for _ in range(len(out)))
-                self._pending += out
-            # how long may we sleep?
-            timeout = 0.05
-            nd = eng.next_due(now)
-            if nd is not None:
-                timeout = min(timeout, max(0.0, nd - now))
-            if self._pending and self.realtime:
-                timeout = min(timeout, max(0.0, self._line_free_at - now))
-            readable, writable = tr.wait(
-                timeout,
-                bool(self._pending) and (not self.realtime or now >= self._line_free_at - 0.002),
-            )
-            if readable:
-                data = tr.read()
-                if data:
-                    self.bytes_in += len(data)
-                    if self._line_ok():
-                        eng.receive(data, clock.now())
-                    else:
-                        self.line_mismatch_bytes += len(data)
-            if writable and self._pending:
-                now = clock.now()
-                chunk = self._pending
-                # while the line stays busy, keep the byte clock running from where it is
-                # (late wake-ups must not stretch the line time); after a pause, restart
-                base = self._line_free_at if now - self._line_free_at < 0.02 else now
-                if self.realtime:
-                    # write what the line carries up to ~5 ms from now
-                    n = max(1, int((now + 0.005 - base) / byte_time))
-                    chunk = self._pending[:n]
-                k = tr.write(bytes(chunk))
-                if k:
-                    del self._pending[:k]
-                    self.bytes_out += k
-                    self._line_free_at = base + k * byte_time
+            chunk = self._pending
+            # while the line stays busy, keep the byte clock running from where it is
+            # (late wake-ups must not stretch the line time); after a pause, restart
+            base = self._line_free_at if now - self._line_free_at < 0.02 else now
+            if self.realtime:
+                # write what the line carries up to ~5 ms from now
+                n = max(1, int((now + 0.005 - base) / byte_time))
+                chunk = self._pending[:n]
+            out = bytes(chunk)
+            if not self._line_ok(self._pending_baud):
+                # the host changed its line since these bytes were due: it reads noise
+                out = bytes(self._noise.randrange(256) for _ in range(len(out)))
+            k = tr.write(out)
+            if k:
+                del self._pending[:k]
+                self.bytes_out += k
+                self._line_free_at = base + k * byte_time
+        return False

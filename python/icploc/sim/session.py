@@ -61,6 +61,7 @@ class SimSession:
         base_faults: Faults | None = None,
         base_params: ap.RobotParams = ap.POWERBOT,
         seed: int = 0,
+        unpluggable: bool = False,
     ) -> None:
         self.world = world
         self.geometry = geometry or RobotGeometry()
@@ -93,8 +94,12 @@ class SimSession:
             faults=base_faults or Faults(seed=seed + 3),
         )
         self._angles = self.laser.beam_angles()
-        self.laser_runner = DeviceRunner(self.laser, realtime=realtime, name="pls")
-        self.base_runner = DeviceRunner(self.base, realtime=realtime, name="powerbot")
+        # unpluggable: the ports are symlinks the runners can remove and restore
+        # (DeviceRunner.unplug / replug: a USB adapter pulled and plugged back)
+        self.laser_runner = DeviceRunner(self.laser, realtime=realtime, name="pls",
+                                         unpluggable=unpluggable)  # fmt: skip
+        self.base_runner = DeviceRunner(self.base, realtime=realtime, name="powerbot",
+                                        unpluggable=unpluggable)  # fmt: skip
         self._started = False
 
     @property
