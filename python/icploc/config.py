@@ -203,7 +203,7 @@ class LocalizerSection:
     #: RMS residual of those at most this many expected residuals (the map's resolution and
     #: measured fit quality); optionally few beams through mapped walls
     verify_min_hit_ratio: float = 0.5
-    verify_hit_fraction: float = 0.85
+    verify_hit_fraction: float = 0.8
     verify_max_residual: float = 2.0
     verify_see_through: bool = False
     verify_max_see_through: float = 0.15
@@ -211,13 +211,21 @@ class LocalizerSection:
     #: prediction's covariance inflated) if it verifies and its hit share beats the
     #: prediction's by at least this
     arbitration_margin: float = 0.1
+    #: ... and the disagreement is at most this many times the accept quantile (a jump the
+    #: odometry cannot have made stays rejected: the paper's "referring to the past value")
+    arbitration_max_inflation: float = 16.0
+    #: ... or when this many rejected scan poses in a row agree with each other (moved on by
+    #: odometry, within their covariances): the prediction is what is off
+    consistent_rejections: int = 3
     #: ``tracking`` promises the pose: verified, and its standard deviation at most this
     #: (m along its worst axis, degrees)
     tracking_max_sigma: float = 0.15
     tracking_max_sigma_theta_deg: float = 3.0
-    #: lost when this many scans in a row fail verification (or have no usable fit), when
-    #: this many in a row are rejected, or when the position is this uncertain (m)
+    #: lost when this many scans in a row contradict the pose (no usable fit, or fewer
+    #: than ``lost_hit_fraction`` x the usual share of beams on walls), when this many in
+    #: a row are rejected, or when the position is this uncertain (m)
     lost_after_bad_scans: int = 8
+    lost_hit_fraction: float = 0.6
     lost_after_rejections: int = 15
     lost_sigma_xy: float = 2.0
     #: a recovery candidate needs at least this inlier ratio (then verification)
@@ -263,6 +271,7 @@ class LocalizerSection:
             "tracking_max_sigma",
             "tracking_max_sigma_theta_deg",
             "lost_sigma_xy",
+            "arbitration_max_inflation",
         )
         for name in (
             "process_sigma_xy",
@@ -285,6 +294,7 @@ class LocalizerSection:
             "verify_min_hit_ratio",
             "verify_hit_fraction",
             "arbitration_margin",
+            "lost_hit_fraction",
         ):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"localizer.{name} must be in [0, 1]")
@@ -292,6 +302,7 @@ class LocalizerSection:
             self,
             "lost_after_bad_scans",
             "lost_after_rejections",
+            "consistent_rejections",
             "recover_after",
             "local_recovery_scans",
             "global_search_every",

@@ -82,7 +82,9 @@ class Estimate:
     #: why the scan is not ``tracking`` or what happened ("" when tracking on a plain fit):
     #: too_few_points, icp_failed, low_inlier_ratio, not_converged, jump, inconsistent
     #: (chi-square rejected), inflated (chi-square: measurement inflated), odometry_off
-    #: (chi-square failed but the map prefers the scan pose: prediction inflated), unverified,
+    #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
+    #: the prediction's covariance inflated),
+    #: contradicted (the fused pose explains far less of the scan than usual), unverified,
     #: uncertain (covariance too wide to promise the pose), relocalized, or while lost the
     #: recovery's state (searching, confirming, ambiguous)
     reason: str = ""
@@ -299,6 +301,8 @@ class Localizer:
         self._lost_odom: Pose | None = None
         #: the calibration's anchor: (raw odometry, scan-matched pose) of a verified fit
         self._anchor: tuple[Pose, Pose] | None = None
+        #: the last rejected scan pose: (pose, covariance, odometry then, agreeing in a row)
+        self._rejected: tuple[Pose, NDArray[np.float64], Pose | None, int] | None = None
         self._map_points: NDArray[np.float64] | None = None
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
@@ -341,6 +345,7 @@ class Localizer:
         self._lost_scans = 0
         self._lost_odom = None
         self._anchor = None
+        self._rejected = None
         self.recovery.reset()
 
     def declare_lost(self) -> None:
@@ -618,27 +623,45 @@ class Localizer:
                     at_z = self.checker.check(pts, z)
                     at_pred = self.checker.check(pts, pred)
                     if (
-                        self._verified(at_z)
+                        nis <= lc.arbitration_max_inflation * self._chi2_accept
+                        and self._verified(at_z)
                         and at_z.hit >= at_pred.hit + lc.arbitration_margin
                     ):
                         accepted = True
                         reason = "odometry_off"
                         pred_cov = pred_cov * (nis / self._chi2_accept)
+                    elif self._consistent_rejection(z, R, odom) >= lc.consistent_rejections:
+                        # the scans keep agreeing with each other against the prediction
+                        # (a robot pushed, a pose that drifted while standing still): the
+                        # prediction is off
+                        accepted = True
+                        reason = "odometry_off"
+                        pred_cov = pred_cov * (nis / self._chi2_accept)
                     else:
                         reason = "inconsistent"
+                if accepted:
+                    self._rejected = None
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self.checker.check(pts, pose) if n else FitCheck(0.0, 0.0, math.inf, 0)
+        if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
+            # the fused pose explains far less of the scan than poses here usually do: the
+            # fit found something else (a local minimum, a crowd) — keep the prediction
+            accepted = False
+            reason = "contradicted"
+            pose, cov = pred, pred_cov
+            check = self.checker.check(pts, pose)
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
             reason = "unverified"
         if verified:
             self.quality.observe(check)
-            cnt.bad_in_row = 0
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
-        else:
-            cnt.bad_in_row += 1
+        # the scan contradicts the pose (no usable fit, or far fewer beams on walls than
+        # here usually): people only hide walls, so a merely unverified scan does not count
+        contradicted = not accepted or check.hit < lc.lost_hit_fraction * self.quality.hit_reference
+        cnt.bad_in_row = cnt.bad_in_row + 1 if contradicted else 0
         cnt.rejections_in_row = 0 if accepted else cnt.rejections_in_row + 1
         confident = self._confident(cov)
         if verified and confident and reason in ("", "inflated", "odometry_off"):
@@ -680,6 +703,21 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _consistent_rejection(
+        self, z: Pose, R: NDArray[np.float64], odom: Pose | None
+    ) -> int:
+        """Count the rejected scan poses in a row that agree with each other (the previous
+        one moved on by odometry, within both covariances)."""
+        prev = self._rejected
+        count = 1
+        if prev is not None:
+            zp, Rp, op, k = prev
+            moved = zp if op is None or odom is None else compose(zp, between(op, odom))
+            if mahalanobis2(moved, Rp, z, R) <= self._chi2_accept:
+                count = k + 1
+        self._rejected = (z, R, odom, count)
+        return count
 
     def _calibrate(self, odom: Pose, z: Pose, R: NDArray[np.float64]) -> None:
         """Feed the odometry calibration with the motion between two verified, well
