@@ -182,6 +182,7 @@ def evaluate(
     split: str,
     overrides: dict[str, dict[str, Any]],
     dump: Path | None = None,
+    odom_scale: float = 1.0,
 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     log = open_log(path)
@@ -193,6 +194,8 @@ def evaluate(
     if split == "halves":
         half = n // 2
         loc_idx = half + sparsify(truth[half:], step, turn)
+        if len(loc_idx) > (n - half) // 2:
+            loc_idx = loc_idx[0::2]
         map_idx = np.arange(0, half)
     else:
         loc_idx = sparsify(truth, step, turn)
@@ -211,7 +214,7 @@ def evaluate(
         m = Map.load(yaml_path)
         cfg = LocalizerConfig().replace(scan={"max_range": max_range}, **overrides)
         P_true = truth[loc_idx]
-        odo = real_odometry(P_true, data, seed)
+        odo = real_odometry(P_true, data, seed, odom_scale)
         loc = Localizer(m, cfg, initial_pose=tuple(P_true[0]))
         t_setup = time.perf_counter() - t1
         est = []
@@ -297,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="a config override, e.g. localizer.fuse_odometry=false")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--dump", type=Path, help="per-scan CSV (one log)")
+    ap.add_argument("--odom-error-scale", type=float, default=1.0,
+                    help="multiply the real odometry errors (2: a worse base)")
     args = ap.parse_args(argv)
     import yaml
 
@@ -321,6 +326,7 @@ def main(argv: list[str] | None = None) -> int:
             split=args.split,
             overrides=overrides,
             dump=args.dump,
+            odom_scale=args.odom_error_scale,
         )
         rows.append(r)
         if "error" in r:

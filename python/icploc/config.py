@@ -180,6 +180,10 @@ class LocalizerSection:
     alpha3: float = 1.0e-3
     alpha4: float = 1.0e-4
     alpha5: float = 1.0e-3
+    #: learn the odometry noise online: the alphas are scaled up (up to ``noise_gain_max``
+    #: times) while the accepted fits' chi-square statistic averages above 3
+    learn_noise: bool = True
+    noise_gain_max: float = 10.0
     #: process noise added at every scan even without motion (slip, a push): keeps the
     #: filter responsive while standing still
     process_sigma_xy: float = 0.002
@@ -221,12 +225,11 @@ class LocalizerSection:
     #: (m along its worst axis, degrees)
     tracking_max_sigma: float = 0.15
     tracking_max_sigma_theta_deg: float = 3.0
-    #: lost when this many scans in a row contradict the pose (no usable fit, or fewer
-    #: than ``lost_hit_fraction`` x the usual share of beams on walls), when this many in
-    #: a row are rejected, or when the position is this uncertain (m)
+    #: lost when this many scans in a row contradict the pose (no usable fit, a rejected
+    #: one, or one no better than the prediction while fewer than ``lost_hit_fraction`` x
+    #: the usual share of beams end on walls), or when the position is this uncertain (m)
     lost_after_bad_scans: int = 8
     lost_hit_fraction: float = 0.6
-    lost_after_rejections: int = 15
     lost_sigma_xy: float = 2.0
     #: a recovery candidate needs at least this inlier ratio (then verification)
     recover_inlier_ratio: float = 0.6
@@ -272,6 +275,7 @@ class LocalizerSection:
             "tracking_max_sigma_theta_deg",
             "lost_sigma_xy",
             "arbitration_max_inflation",
+            "noise_gain_max",
         )
         for name in (
             "process_sigma_xy",
@@ -301,7 +305,6 @@ class LocalizerSection:
         _positive(
             self,
             "lost_after_bad_scans",
-            "lost_after_rejections",
             "consistent_rejections",
             "recover_after",
             "local_recovery_scans",

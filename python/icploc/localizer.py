@@ -222,7 +222,6 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
 class _Counters:
     scans: int = 0
     bad_in_row: int = 0
-    rejections_in_row: int = 0
     point_to_point_fallbacks: int = 0
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
 
@@ -303,6 +302,7 @@ class Localizer:
         self._anchor: tuple[Pose, Pose] | None = None
         #: the last rejected scan pose: (pose, covariance, odometry then, agreeing in a row)
         self._rejected: tuple[Pose, NDArray[np.float64], Pose | None, int] | None = None
+        self._nis_mean = 3.0  #: running mean of the accepted fits' chi-square statistic
         self._map_points: NDArray[np.float64] | None = None
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
@@ -341,7 +341,7 @@ class Localizer:
         self.covariance = np.array(covariance, dtype=np.float64).reshape(3, 3)
         self.status = status
         c = self._counters
-        c.bad_in_row = c.rejections_in_row = 0
+        c.bad_in_row = 0
         self._lost_scans = 0
         self._lost_odom = None
         self._anchor = None
@@ -641,16 +641,21 @@ class Localizer:
                         reason = "inconsistent"
                 if accepted:
                     self._rejected = None
+                    self._learn_noise(nis)
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self.checker.check(pts, pose) if n else FitCheck(0.0, 0.0, math.inf, 0)
         if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
-            # the fused pose explains far less of the scan than poses here usually do: the
-            # fit found something else (a local minimum, a crowd) — keep the prediction
-            accepted = False
-            reason = "contradicted"
-            pose, cov = pred, pred_cov
-            check = self.checker.check(pts, pose)
+            # the fused pose explains far less of the scan than poses here usually do: a
+            # place the map barely covers, or a fit that found something else (a local
+            # minimum, a crowd). Keep the correction only if it explains more of the scan
+            # than the prediction did.
+            at_pred = self.checker.check(pts, pred)
+            if check.hit <= at_pred.hit + 0.02:
+                accepted = False
+                reason = "contradicted"
+                pose, cov = pred, pred_cov
+                check = at_pred
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
             reason = "unverified"
@@ -658,11 +663,11 @@ class Localizer:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
-        # the scan contradicts the pose (no usable fit, or far fewer beams on walls than
-        # here usually): people only hide walls, so a merely unverified scan does not count
-        contradicted = not accepted or check.hit < lc.lost_hit_fraction * self.quality.hit_reference
-        cnt.bad_in_row = cnt.bad_in_row + 1 if contradicted else 0
-        cnt.rejections_in_row = 0 if accepted else cnt.rejections_in_row + 1
+        # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
+        # the scan no better than the prediction while far fewer beams than usual end on
+        # walls (people hide walls and unmapped places show none: a consistent, improving
+        # fit there is weak evidence, not a contradiction)
+        cnt.bad_in_row = 0 if accepted else cnt.bad_in_row + 1
         confident = self._confident(cov)
         if verified and confident and reason in ("", "inflated", "odometry_off"):
             status = Status.TRACKING
@@ -673,7 +678,6 @@ class Localizer:
         sig_xy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
         if (
             cnt.bad_in_row >= lc.lost_after_bad_scans
-            or cnt.rejections_in_row >= lc.lost_after_rejections
             or sig_xy > lc.lost_sigma_xy
         ):
             status = Status.LOST
@@ -703,6 +707,18 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _learn_noise(self, nis: float) -> None:
+        """Online odometry noise: the chi-square statistic of accepted fits averages 3 when
+        the covariances are right; a running mean above that scales the motion model's
+        alphas up (never below the configured ones, at most ``noise_gain_max``)."""
+        lc = self.config.localizer
+        if not lc.learn_noise or not math.isfinite(nis):
+            return
+        self._nis_mean += 0.05 * (min(nis, 4.0 * self._chi2_accept) - self._nis_mean)
+        gain = min(max(self._nis_mean / 3.0, 1.0), lc.noise_gain_max)
+        if abs(gain - self.motion_model.gain) > 0.05 * self.motion_model.gain:
+            self.motion_model = dataclasses.replace(self.motion_model, gain=gain)
 
     def _consistent_rejection(
         self, z: Pose, R: NDArray[np.float64], odom: Pose | None
