@@ -228,8 +228,11 @@ class LocalizerSection:
     #: lost when this many scans in a row contradict the pose (no usable fit, a rejected
     #: one, or one no better than the prediction while fewer than ``lost_hit_fraction`` x
     #: the usual share of beams end on walls), or when the position is this uncertain (m)
-    lost_after_bad_scans: int = 8
-    lost_hit_fraction: float = 0.6
+    lost_after_bad_scans: int = 5
+    lost_hit_fraction: float = 0.35
+    #: ... unless the beams that do end on walls fit within this many expected residuals
+    #: (a crowd hides walls; at a wrong place chance hits scatter)
+    crowd_residual: float = 1.2
     lost_sigma_xy: float = 2.0
     #: a recovery candidate needs at least this inlier ratio (then verification)
     recover_inlier_ratio: float = 0.6
@@ -246,7 +249,7 @@ class LocalizerSection:
     lost_check: LostCheck = "inline"
     #: while lost, scans spent searching only around the dead-reckoned pose before the
     #: global search joins in
-    local_recovery_scans: int = 5
+    local_recovery_scans: int = 3
     #: while lost and searching globally: at most one global search per this many scans and
     #: per this many seconds of scan time (between searches the hypotheses are carried by
     #: odometry and re-scored on every scan)
@@ -271,6 +274,7 @@ class LocalizerSection:
             "calibration_max_sigma",
             "scan_independent_beams",
             "verify_max_residual",
+            "crowd_residual",
             "tracking_max_sigma",
             "tracking_max_sigma_theta_deg",
             "lost_sigma_xy",

@@ -630,7 +630,10 @@ class Localizer:
                         accepted = True
                         reason = "odometry_off"
                         pred_cov = pred_cov * (nis / self._chi2_accept)
-                    elif self._consistent_rejection(z, R, odom) >= lc.consistent_rejections:
+                    elif (
+                        self._consistent_rejection(z, R, odom) >= lc.consistent_rejections
+                        and self._verified(at_z)
+                    ):
                         # the scans keep agreeing with each other against the prediction
                         # (a robot pushed, a pose that drifted while standing still): the
                         # prediction is off
@@ -651,7 +654,10 @@ class Localizer:
             # minimum, a crowd). Keep the correction only if it explains more of the scan
             # than the prediction did.
             at_pred = self.checker.check(pts, pred)
-            if check.hit <= at_pred.hit + 0.02:
+            # the few beams that do end on walls fit as tightly as usual: walls hidden by a
+            # crowd, not a wrong place (where chance hits scatter over the hit distance)
+            tight = check.rms <= lc.crowd_residual * self.quality.sigma
+            if check.hit <= at_pred.hit + 0.02 and not tight:
                 accepted = False
                 reason = "contradicted"
                 pose, cov = pred, pred_cov

@@ -474,6 +474,9 @@ class GlobalRelocalization:
         #: the latest relocalizer results (at most 100)
         self.results: list[RelocalizeResult] = []
         self.state = ""
+        #: odometry motion since the tracker's last update (robot frame)
+        self._motion: Pose = (0.0, 0.0, 0.0)
+        self._hyps: tuple[Candidate, ...] = ()
 
     @classmethod
     def deferred(cls, *, background: bool = False) -> GlobalRelocalization:
@@ -488,12 +491,17 @@ class GlobalRelocalization:
         return self._relocalizer
 
     def reset(self) -> None:
+        fut = self._inflight
+        if fut is not None:
+            fut.result()  # let a running update finish before its tracker is reset
         self.local.reset()
         if self._relocalizer is not None:
             self._relocalizer.reset()
         self._last_search = None
         self._inflight = None
         self.state = ""
+        self._motion = (0.0, 0.0, 0.0)
+        self._hyps = ()
 
     def _ready(self, view: RecoveryView) -> bool:
         """Build the deferred relocalizer from the map index (at 5 cm, coarser on a map
@@ -529,13 +537,15 @@ class GlobalRelocalization:
 
     def recover(self, view: RecoveryView, points: NDArray[np.float64]) -> RecoveryStep:
         lc = view.config.localizer
-        # 1. around the dead-reckoned pose first (and always alongside the global search:
-        # a verified local lock is the cheapest way back)
-        local = self.local.recover(view, points)
+        # 1. around the dead-reckoned pose first, while it means something (and alongside
+        # the global search: a verified local lock is the cheapest way back)
+        P = view.covariance
+        near = math.sqrt(max(float(P[0, 0] + P[1, 1]), 0.0)) <= self.local.max_radius
+        local = self.local.recover(view, points) if near else RecoveryStep("searching")
         if local.lock is not None:
             self.reset()
             return local
-        if view.lost_scans <= lc.local_recovery_scans or not self._ready(view):
+        if (near and view.lost_scans <= lc.local_recovery_scans) or not self._ready(view):
             self.state = local.state
             return local
         # 2. the whole map: the multi-hypothesis tracker, its global search throttled
@@ -553,22 +563,64 @@ class GlobalRelocalization:
         )
         if search:
             self._last_search = (n, stamp)
-        motion = view.motion if rel.hypotheses else None
-        res = rel.update(points, motion, search=None if search else False)
+        if view.motion is not None:
+            self._motion = compose(self._motion, view.motion)
+        if self.background:
+            got = self._background_update(rel, points, search)
+            if got is None:
+                return RecoveryStep(self.state or "searching", self._hyps or local.hypotheses)
+            res, carry = got
+        else:
+            motion = self._motion if rel.hypotheses else None
+            self._motion = (0.0, 0.0, 0.0)
+            res, carry = rel.update(points, motion, search=None if search else False), None
         self.results.append(res)
         if len(self.results) > 100:
             del self.results[:-100]
         self.state = res.status
+        def now(p: Pose) -> Pose:  # a background result's pose, carried to this scan
+            return p if carry is None else compose(p, carry)
+
         hyps = tuple(
-            Candidate(h.pose, float(h.score), float(h.inlier_ratio)) for h in res.hypotheses
+            Candidate(now(h.pose), float(h.score), float(h.inlier_ratio)) for h in res.hypotheses
         )
+        self._hyps = hyps
         if not res.locked or res.pose is None:
             return RecoveryStep(res.status, hyps or local.hypotheses)
-        ok, fit, pose = view.verify(points, res.pose)
+        ok, fit, pose = view.verify(points, now(res.pose))
         if not ok or fit is None:
             return RecoveryStep("confirming", hyps)
         self.reset()
         return RecoveryStep("locked", hyps, lock=pose, result=fit)
+
+
+    def _background_update(
+        self, rel: Relocalizer, points: NDArray[np.float64], search: bool
+    ) -> tuple[RelocalizeResult, Pose] | None:
+        """Run the tracker's update on the worker thread: submit one when none is running,
+        collect it once done. Returns (result, motion since its scan) or None."""
+        fut = self._inflight
+        if fut is None:
+            if self._executor is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="icploc-recovery")
+            motion = self._motion if rel.hypotheses else None
+            self._motion = (0.0, 0.0, 0.0)
+            self._inflight = self._executor.submit(
+                rel.update, np.array(points), motion, None if search else False
+            )
+            return None
+        if not fut.done():
+            return None
+        self._inflight = None
+        res = fut.result()
+        return res, self._motion
+
+    def __del__(self) -> None:
+        ex = getattr(self, "_executor", None)
+        if ex is not None:
+            ex.shutdown(wait=False)
 
 
 def attach(
