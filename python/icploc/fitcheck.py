@@ -40,7 +40,7 @@ class FitCheck:
 
     hit: float  #: share of beams ending on a mapped wall
     see_through: float  #: share of beams crossing a mapped wall before their return
-    rms: float  #: RMS residual of the beams that hit (m)
+    rms: float  #: RMS point-to-line residual of the beams that hit (m)
     beams: int  #: beams checked
 
 
@@ -115,6 +115,8 @@ class FitChecker:
         self.see_through = bool(see_through)
         pts = np.asarray(index.points, dtype=np.float64)  # type: ignore[attr-defined]
         self._normals = np.asarray(index.normals, dtype=np.float64)  # type: ignore[attr-defined]
+        self._points = pts
+        self._subsample: dict[int, NDArray[np.int64]] = {}
         cell = quality.resolution
         self._cell = cell
         lo = pts.min(axis=0) - 2 * cell
@@ -132,7 +134,9 @@ class FitChecker:
         if n == 0:
             return FitCheck(0.0, 0.0, math.inf, 0)
         if n > self.max_beams:
-            k = np.linspace(0, n - 1, self.max_beams).round().astype(np.int64)
+            k = self._subsample.get(n)
+            if k is None:
+                k = self._subsample[n] = np.linspace(0, n - 1, self.max_beams).round().astype(np.int64)
             points = points[k]
             n = points.shape[0]
         c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -144,7 +148,14 @@ class FitChecker:
         hd = q.hit_distance()
         hits = d < hd
         nh = int(hits.sum())
-        rms = float(np.sqrt(np.mean(d[hits] ** 2))) if nh else math.inf
+        nrm = self._normals[j]
+        if nh:
+            # point-to-line residual, as the ICP measures it
+            mp = self._points[j[hits]]
+            r = (wx[hits] - mp[:, 0]) * nrm[hits, 0] + (wy[hits] - mp[:, 1]) * nrm[hits, 1]
+            rms = float(np.sqrt(np.mean(r * r)))
+        else:
+            rms = math.inf
         if not self.see_through:
             return FitCheck(nh / n, 0.0, rms, n)
         # see-through: sample each beam from the sensor up to a margin before its return
@@ -152,7 +163,6 @@ class FitChecker:
         vx, vy = wx - ox, wy - oy
         rng = np.hypot(vx, vy)
         ux, uy = vx / np.maximum(rng, 1e-9), vy / np.maximum(rng, 1e-9)
-        nrm = self._normals[j]
         inc = np.abs(ux * nrm[:, 0] + uy * nrm[:, 1])
         inc = np.where(hits, np.maximum(inc, 0.15), 1.0)
         cell = self._cell

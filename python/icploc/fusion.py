@@ -51,12 +51,17 @@ def scan_covariance(
     s2 = max(float(mse) if math.isfinite(mse) else 0.0, sigma_floor * sigma_floor)
     neff = min(float(independent_beams), float(n))
     info = (H + H.T) * (0.5 * neff / (n * s2))
-    w, V = np.linalg.eigh(info)
-    if not np.isfinite(w).all():
+    if not np.isfinite(info).all():
         return np.eye(3) * _HUGE
-    inv = np.where(w > 1.0 / _HUGE, 1.0 / np.maximum(w, 1e-300), _HUGE)
-    cov: NDArray[np.float64] = (V * inv) @ V.T
-    return cov
+    # a direction the scan does not constrain gets a variance of about _HUGE
+    info[0, 0] += 1.0 / _HUGE
+    info[1, 1] += 1.0 / _HUGE
+    info[2, 2] += 1.0 / _HUGE
+    try:
+        cov: NDArray[np.float64] = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return np.eye(3) * _HUGE
+    return (cov + cov.T) * 0.5
 
 
 def _residual(z: Pose, x: Pose) -> NDArray[np.float64]:

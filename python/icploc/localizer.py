@@ -28,6 +28,7 @@ import bisect
 import dataclasses
 import math
 import os
+import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -458,7 +459,7 @@ class Localizer:
             sth = math.sqrt(max(float(pred_cov[2, 2]), 0.0))
             if ic.correspondence_sigmas * (sxy + 30.0 * sth) > hi and pts.shape[0]:
                 r = pts[:: max(1, pts.shape[0] // 16)]
-                rng = float(np.median(np.hypot(r[:, 0], r[:, 1])))
+                rng = statistics.median(np.hypot(r[:, 0], r[:, 1]).tolist())
                 hi = max(hi, min(ic.max_correspondence_cap, ic.correspondence_sigmas * (sxy + rng * sth)))
         key = (round(lo, 2), round(robust, 2), round(math.ceil(hi / 0.1) * 0.1, 1))
         cfg = self._icp_configs.get(key)
@@ -647,7 +648,7 @@ class Localizer:
                     self._learn_noise(nis)
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
-        check = self.checker.check(pts, pose) if n else FitCheck(0.0, 0.0, math.inf, 0)
+        check = self._check(pts, pose, z, res)
         if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
             # the fused pose explains far less of the scan than poses here usually do: a
             # place the map barely covers, or a fit that found something else (a local
@@ -713,6 +714,30 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _check(
+        self, pts: NDArray[np.float64], pose: Pose, z: Pose | None, res: Any
+    ) -> FitCheck:
+        """The verification evidence at ``pose``: the ICP's own (its inliers within the
+        final correspondence distance, its point-to-line residual) when ``pose`` is within
+        half a cell and half a degree of the fit, else checked afresh."""
+        if pts.shape[0] == 0:
+            return FitCheck(0.0, 0.0, math.inf, 0)
+        if (
+            z is not None
+            and res is not None
+            and math.hypot(pose[0] - z[0], pose[1] - z[1]) <= 0.5 * self.quality.resolution
+            and abs(wrap_angle(pose[2] - z[2])) <= 0.0087
+            and not self.checker.see_through
+        ):
+            mse = float(res.mse)
+            return FitCheck(
+                float(res.inlier_ratio),
+                0.0,
+                math.sqrt(mse) if math.isfinite(mse) and res.inliers else math.inf,
+                int(res.num_points),
+            )
+        return self.checker.check(pts, pose)
 
     def _learn_noise(self, nis: float) -> None:
         """Online odometry noise: the chi-square statistic of accepted fits averages 3 when
