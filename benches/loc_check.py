@@ -94,7 +94,7 @@ def rasterise(
             ends.append(transform_points(tuple(p), xy))
             origins.append(np.repeat(np.asarray(p[:2])[None], len(xy), axis=0))
     E = np.vstack(ends)
-    O = np.vstack(origins)
+    orig = np.vstack(origins)
     lo = E.min(axis=0) - 1.0
     hi = E.max(axis=0) + 1.0
     ox = math.floor(lo[0] / res) * res
@@ -109,13 +109,13 @@ def rasterise(
     sel = np.arange(0, len(E), 4)
     for a in range(0, len(sel), 20000):
         k = sel[a : a + 20000]
-        v = E[k] - O[k]
+        v = E[k] - orig[k]
         L = np.hypot(v[:, 0], v[:, 1])
         n = np.maximum(1, (L / (res * 0.5)).astype(np.int64))
         tot = int(n.sum())
         rep = np.repeat(np.arange(len(k)), n)
         frac = (np.arange(tot) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
-        pts = O[k][rep] + v[rep] * frac[:, None]
+        pts = orig[k][rep] + v[rep] * frac[:, None]
         c = np.floor((pts - (ox, oy)) / res).astype(np.int64)
         free[c[:, 1], c[:, 0]] = True
     free &= ~occ
@@ -232,7 +232,9 @@ def evaluate(
     for e, t in zip(est, P_true, strict=True):
         if e.status.value != "tracking":
             continue
-        v = np.array([t[0] - e.pose[0], t[1] - e.pose[1], math.remainder(t[2] - e.pose[2], math.tau)])
+        v = np.array(
+            [t[0] - e.pose[0], t[1] - e.pose[1], math.remainder(t[2] - e.pose[2], math.tau)]
+        )
         try:
             nees.append(float(v @ np.linalg.solve(e.covariance, v)))
         except np.linalg.LinAlgError:
@@ -265,7 +267,9 @@ def evaluate(
     }
     if dump is not None:
         with open(dump, "w") as fh:
-            fh.write("k,err,eth_deg,status,reason,nis,hit,rms,sig_xy,sig_th_deg,meas_err,inl,npts\n")
+            fh.write(
+                "k,err,eth_deg,status,reason,nis,hit,rms,sig_xy,sig_th_deg,meas_err,inl,npts\n"
+            )
             for k, (e, t) in enumerate(zip(est, P_true, strict=True)):
                 me = (
                     math.hypot(e.measurement[0] - t[0], e.measurement[1] - t[1])
@@ -287,7 +291,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("names", nargs="*", help="logs whose file name contains these (intel, fr079, csail)")
+    ap.add_argument(
+        "names", nargs="*", help="logs whose file name contains these (intel, fr079, csail)"
+    )
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--resolution", type=float, default=0.10)
     ap.add_argument("--step", type=float, default=0.5)
@@ -296,12 +302,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-range", type=float, default=30.0)
     ap.add_argument("--min-hits", type=int, default=2)
     ap.add_argument("--split", choices=["interleaved", "halves"], default="interleaved")
-    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="a config override, e.g. localizer.fuse_odometry=false")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="a config override, e.g. localizer.fuse_odometry=false",
+    )
     ap.add_argument("--json", type=Path)
     ap.add_argument("--dump", type=Path, help="per-scan CSV (one log)")
-    ap.add_argument("--odom-error-scale", type=float, default=1.0,
-                    help="multiply the real odometry errors (2: a worse base)")
+    ap.add_argument(
+        "--odom-error-scale",
+        type=float,
+        default=1.0,
+        help="multiply the real odometry errors (2: a worse base)",
+    )
     args = ap.parse_args(argv)
     import yaml
 
@@ -311,7 +326,9 @@ def main(argv: list[str] | None = None) -> int:
         sec, key = k.split(".", 1)
         overrides.setdefault(sec, {})[key] = yaml.safe_load(v)
     rows = []
-    print(f"| log | scans | median | p95 | max | false tracking | lost max | status | NEES | scans/s |")
+    print(
+        "| log | scans | median | p95 | max | false tracking | lost max | status | NEES | scans/s |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---|---:|---:|")
     for p in find_logs(args.data, args.names):
         r = evaluate(

@@ -57,6 +57,10 @@ class MapQuality:
         self._rms: deque[float] = deque(maxlen=window)
         self._hit: deque[float] = deque(maxlen=window)
         self._see: deque[float] = deque(maxlen=window)
+        self._n = 0
+        self._sigma = self.prior
+        self._hit_ref = 1.0
+        self._see_ref = 0.0
 
     def observe(self, check: FitCheck) -> None:
         """Learn from a verified fit."""
@@ -64,6 +68,18 @@ class MapQuality:
             self._rms.append(check.rms)
         self._hit.append(check.hit)
         self._see.append(check.see_through)
+        self._n += 1
+        if self._n % 5 == 0 or len(self._rms) < 10:  # medians refreshed every 5 fits
+            self._refresh()
+
+    def _refresh(self) -> None:
+        if len(self._rms) >= 10:
+            m = statistics.median(self._rms)
+            self._sigma = min(max(m, 0.5 * self.prior), 2.0 * self.prior)
+        else:
+            self._sigma = self.prior
+        self._hit_ref = statistics.median(self._hit) if len(self._hit) >= 5 else 1.0
+        self._see_ref = statistics.median(self._see) if len(self._see) >= 5 else 0.0
 
     @property
     def measured(self) -> bool:
@@ -72,21 +88,18 @@ class MapQuality:
     @property
     def sigma(self) -> float:
         """The per-beam residual to expect (m): measured once there are enough verified
-        fits, never below half the prior nor above twice it (one bad stretch must not
-        loosen every threshold)."""
-        if not self.measured:
-            return self.prior
-        m = statistics.median(self._rms)
-        return min(max(m, 0.5 * self.prior), 2.0 * self.prior)
+        fits (their median), never below half the prior nor above twice it (one bad
+        stretch must not loosen every threshold)."""
+        return self._sigma
 
     @property
     def hit_reference(self) -> float:
         """The typical hit share of verified fits here (1 before any)."""
-        return statistics.median(self._hit) if len(self._hit) >= 5 else 1.0
+        return self._hit_ref
 
     @property
     def see_through_reference(self) -> float:
-        return statistics.median(self._see) if len(self._see) >= 5 else 0.0
+        return self._see_ref
 
     def hit_distance(self) -> float:
         """A beam within this of the map (m) ends on a wall."""
@@ -122,7 +135,10 @@ class FitChecker:
         lo = pts.min(axis=0) - 2 * cell
         hi = pts.max(axis=0) + 2 * cell
         self._lo = lo
-        shape = (int(math.ceil((hi[1] - lo[1]) / cell)) + 1, int(math.ceil((hi[0] - lo[0]) / cell)) + 1)
+        shape = (
+            int(math.ceil((hi[1] - lo[1]) / cell)) + 1,
+            int(math.ceil((hi[0] - lo[0]) / cell)) + 1,
+        )
         occ = np.zeros(shape, dtype=bool)
         ij = np.floor((pts - lo) / cell).astype(np.int64)
         occ[ij[:, 1], ij[:, 0]] = True
@@ -136,7 +152,9 @@ class FitChecker:
         if n > self.max_beams:
             k = self._subsample.get(n)
             if k is None:
-                k = self._subsample[n] = np.linspace(0, n - 1, self.max_beams).round().astype(np.int64)
+                k = self._subsample[n] = (
+                    np.linspace(0, n - 1, self.max_beams).round().astype(np.int64)
+                )
             points = points[k]
             n = points.shape[0]
         c, s = math.cos(pose[2]), math.sin(pose[2])

@@ -81,16 +81,33 @@ class MotionModel:
         self, pose: Pose, covariance: NDArray[np.float64], d: Sequence[float]
     ) -> tuple[Pose, NDArray[np.float64]]:
         """``pose`` moved by ``d`` (robot frame) and its covariance
-        P' = F P F^T + G Q G^T (F = d(pose ⊕ d)/d pose, G rotates the motion's frame)."""
-        dd = (float(d[0]), float(d[1]), float(d[2]))
-        pred = compose(pose, dd)
+        P' = F P F^T + G Q G^T (F = d(pose ⊕ d)/d pose, G rotates the motion's frame into
+        the map). In floats: this runs for every scan."""
+        dx, dy, dth = float(d[0]), float(d[1]), float(d[2])
+        pred = compose(pose, (dx, dy, dth))
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        F = np.array(
-            [[1.0, 0.0, -s * dd[0] - c * dd[1]], [0.0, 1.0, c * dd[0] - s * dd[1]], [0.0, 0.0, 1.0]]
+        a = -s * dx - c * dy
+        b = c * dx - s * dy
+        (p00, p01, p02), (_, p11, p12), (_, _, p22) = covariance.tolist()
+        # F P F^T with F = [[1, 0, a], [0, 1, b], [0, 0, 1]]
+        f00 = p00 + 2 * a * p02 + a * a * p22
+        f01 = p01 + a * p12 + b * p02 + a * b * p22
+        f02 = p02 + a * p22
+        f11 = p11 + 2 * b * p12 + b * b * p22
+        f12 = p12 + b * p22
+        (q00, q01, _), (_, q11, _), (_, _, q22) = self.motion_covariance((dx, dy, dth)).tolist()
+        # G Q G^T: rotate the motion's (x, y) block by the heading
+        g00 = c * c * q00 - 2 * c * s * q01 + s * s * q11
+        g01 = c * s * (q00 - q11) + (c * c - s * s) * q01
+        g11 = s * s * q00 + 2 * c * s * q01 + c * c * q11
+        P = np.array(
+            [
+                [f00 + g00, f01 + g01, f02],
+                [f01 + g01, f11 + g11, f12],
+                [f02, f12, p22 + q22],
+            ]
         )
-        G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        P = F @ covariance @ F.T + G @ self.motion_covariance(dd) @ G.T
-        return pred, (P + P.T) * 0.5
+        return pred, P
 
 
 def fit_alphas(
@@ -109,13 +126,17 @@ def fit_alphas(
     r = np.asarray(reference, dtype=np.float64).reshape(-1, 3)
     if o.shape != r.shape or o.shape[0] < 4:
         raise ValueError(f"fit_alphas: need two equal (N >= 4, 3) arrays, got {o.shape}, {r.shape}")
-    errs = [np.array(compose(inverse(b), a)) for a, b in zip(o, r, strict=True)]
+    refs = [(float(b[0]), float(b[1]), float(b[2])) for b in r]
+    odos = [(float(a[0]), float(a[1]), float(a[2])) for a in o]
+    errs: list[NDArray[np.float64]] = [
+        np.array(compose(inverse(b), a), dtype=np.float64) for a, b in zip(odos, refs, strict=True)
+    ]
 
     def nll(la: NDArray[np.float64]) -> float:
-        al = np.exp(la)
-        mm = MotionModel(*al, floor_xy=floor_xy, floor_theta=floor_theta)
+        a1, a2, a3, a4, a5 = (float(v) for v in np.exp(la))
+        mm = MotionModel(a1, a2, a3, a4, a5, floor_xy=floor_xy, floor_theta=floor_theta)
         tot = 0.0
-        for e, b in zip(errs, r, strict=True):
+        for e, b in zip(errs, refs, strict=True):
             Q = mm.motion_covariance(b)
             tot += float(np.linalg.slogdet(Q)[1] + e @ np.linalg.solve(Q, e))
         return tot

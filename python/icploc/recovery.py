@@ -105,9 +105,14 @@ class LocalRecovery:
         out: list[Pose] = []
         rings = [0.0, 0.5 * r, r] if r > 0.5 else [0.0, r]
         for rad in rings:
-            dirs = [(0.0, 0.0)] if rad == 0.0 else [
-                (rad * math.cos(a), rad * math.sin(a)) for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)
-            ]
+            dirs = (
+                [(0.0, 0.0)]
+                if rad == 0.0
+                else [
+                    (rad * math.cos(a), rad * math.sin(a))
+                    for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)
+                ]
+            )
             for dx, dy in dirs:
                 for dth in self.headings:
                     out.append((p[0] + dx, p[1] + dy, wrap_angle(p[2] + dth)))
