@@ -157,14 +157,11 @@ def test_gate_rejects_a_scan_that_would_yank_the_pose(
     assert e.reason == "inconsistent"  # the chi-square gate: far outside both covariances
     assert e.status is Status.DEGRADED
     assert math.hypot(e.x, e.y) < 0.01  # kept the odometry prediction
-    # a small true correction (10 sigma of a pose refined by five still scans) is taken
-    # once three scans in a row agree on it, and the estimate converges to it
+    # a small true correction is accepted, and the estimate converges to it over a few
+    # scans (odometry is the prior: no jumps while standing still)
     xs = []
     for k in range(8):
         e = loc.update(scan_at(lab, (0.05, 0.0, 0.01), 0.6 + 0.1 * k), (0.0, 0.0, 0.0))
-        if k < 2:
-            assert e.reason == "inconsistent"
-            continue
         assert e.accepted and e.status is Status.TRACKING
         xs.append(e.x)
     assert all(b >= a - 1e-4 for a, b in zip(xs, xs[1:], strict=False))  # monotone
@@ -201,7 +198,8 @@ def test_corridor_follows_odometry_along_and_icp_across(metric: str) -> None:
     assert e.accepted
     assert e.degeneracy < 0.02
     assert e.x == pytest.approx(1.0, abs=1e-3)  # along: the odometry prediction
-    assert e.y == pytest.approx(1.06, abs=3e-3)  # across: ICP
+    assert e.y == pytest.approx(1.06, abs=6e-3)  # across: mostly the scan (one scan's
+    # calibrated information against a 10 cm prior)
     # the covariance says so: large along the corridor, small across
     assert e.covariance[0, 0] > 10 * e.covariance[1, 1]
 
@@ -230,9 +228,9 @@ def test_corridor_rotation_is_corrected() -> None:
     e = loc.update(scan_at(w, (0.5, 1.0, 0.04), 0.1), (0.5, 0.0, 0.0))
     # one scan takes most of the way (its covariance is calibrated for real maps: a few
     # independent beams, not hundreds), the next the rest
-    assert e.theta == pytest.approx(0.04, abs=5e-3)
+    assert e.theta == pytest.approx(0.04, abs=0.01)
     e = loc.update(scan_at(w, (1.0, 1.0, 0.04), 0.2), (1.0, 0.0, 0.0))
-    assert e.theta == pytest.approx(0.04, abs=2e-3)
+    assert e.theta == pytest.approx(0.04, abs=3e-3)
 
 
 def test_odometry_wrap_around_while_spinning(lab: worlds.World, lab_index: MapIndex) -> None:
