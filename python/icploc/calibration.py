@@ -32,8 +32,9 @@ class OdometryCalibration:
     ``memory``: the filter's memory in metres driven (and radians turned for the turn
     scale): evidence older than that fades. ``max_scale`` / ``max_turn_scale``: the factors
     stay within 1 +- these; ``max_drift``: the drift within +- this (rad/m).
-    ``min_distance`` / ``min_turn``: a pair of scans moved at least this far / turned this
-    much before its motion counts."""
+    ``min_distance`` / ``min_turn``: a straight pair (turned less than ``min_turn``) counts
+    for the scale and drift when it moved at least ``min_distance``; a pair that turned at
+    least ``min_turn`` counts for the turn scale."""
 
     memory: float = 30.0
     max_scale: float = 0.05
@@ -41,6 +42,9 @@ class OdometryCalibration:
     max_drift: float = math.radians(2.0)
     min_distance: float = 0.2
     min_turn: float = 0.1
+    #: the shrinkage prior's weight: metres driven (turn: rad^2 turned) of "no correction"
+    prior: float = 20.0
+    prior_turn: float = 10.0
     enabled: bool = True
     scale: float = 1.0
     turn_scale: float = 1.0
@@ -49,9 +53,9 @@ class OdometryCalibration:
     #: as evidence accumulates)
     distance_seen: float = 0.0
     turn_seen: float = 0.0
-    _sd: float = 0.0  # sum of weights x (observed / odometry distance)
+    _sd: float = 0.0  # scale: sum distance x (ratio - 1), sum distance
     _w: float = 0.0
-    _st: float = 0.0  # turn: sum odo_turn * measured_turn, sum odo_turn^2
+    _st: float = 0.0  # turn: sum odo_turn x heading residual, sum odo_turn^2
     _tt: float = 0.0
     _sdr: float = 0.0  # drift: sum heading residual, sum distance
     _dd: float = 0.0
@@ -77,43 +81,41 @@ class OdometryCalibration:
         """One pair: ``odometry`` the raw odometry increment between two accepted scans,
         ``measured`` the motion between their scan-matched poses (both in the first scan's
         frame). The caller passes only motions the scans constrain (see the module
-        docstring)."""
+        docstring). Each factor is a ridge estimate with exponential forgetting: the sums
+        of evidence over ``memory`` metres (radians), shrunk towards no correction by a
+        prior worth ``prior`` metres (radians), so a few pairs cannot swing it."""
         if not self.enabled:
             return
         ox, oy, oth = float(odometry[0]), float(odometry[1]), float(odometry[2])
         mx, my, mth = float(measured[0]), float(measured[1]), float(measured[2])
         dist = math.hypot(ox, oy)
         turn = abs(oth)
-        if dist >= self.min_distance:
-            # the measured motion projected on the odometry's direction, per odometry metre
-            ratio = (mx * ox + my * oy) / (dist * dist)
-            if 0.5 < ratio < 1.5:
-                f = math.exp(-dist / self.memory)
-                self._sd = self._sd * f + dist * ratio
-                self._w = self._w * f + dist
-                self.distance_seen += dist
-                w = min(1.0, self.distance_seen / self.memory)
-                est = self._sd / self._w
-                self.scale = 1.0 + w * _clamp(est - 1.0, self.max_scale)
-        # heading: residual = measured - (odometry turn x turn scale), split between the
-        # drift per metre (straight stretches) and the turn scale (turns)
-        resid = wrap_angle(mth - oth * self.turn_scale - self.drift * dist)
-        if abs(resid) > math.radians(10.0):
+        resid = wrap_angle(mth - oth)
+        if abs(resid) > math.radians(5.0):
             return  # a bad pair, not a bias
-        if turn >= self.min_turn:
+        if turn < self.min_turn and dist >= self.min_distance:
+            # a straight stretch: distance scale and heading drift per metre
+            ratio = (mx * ox + my * oy) / (dist * dist)
+            if abs(ratio - 1.0) > 0.2:
+                return
+            f = math.exp(-dist / self.memory)
+            self._sd = self._sd * f + dist * (ratio - 1.0)
+            self._w = self._w * f + dist
+            self._sdr = self._sdr * f + resid
+            self._dd = self._dd * f + dist
+            self.distance_seen += dist
+            self.scale = 1.0 + _clamp(self._sd / (self._w + self.prior), self.max_scale)
+            self.drift = _clamp(self._sdr / (self._dd + self.prior), self.max_drift)
+        elif turn >= self.min_turn:
+            # a turn: the turn scale, after the drift of the distance driven meanwhile
+            r = resid - self.drift * dist
             f = math.exp(-turn / self.memory)
-            self._st = self._st * f + oth * (mth - self.drift * dist)
+            self._st = self._st * f + oth * r
             self._tt = self._tt * f + oth * oth
             self.turn_seen += turn
-            w = min(1.0, self.turn_seen / self.memory)
-            est = self._st / self._tt
-            self.turn_scale = 1.0 + w * _clamp(est - 1.0, self.max_turn_scale)
-        elif dist >= self.min_distance:
-            f = math.exp(-dist / self.memory)
-            self._sdr = self._sdr * f + wrap_angle(mth - oth * self.turn_scale)
-            self._dd = self._dd * f + dist
-            w = min(1.0, self.distance_seen / self.memory)
-            self.drift = w * _clamp(self._sdr / self._dd, self.max_drift)
+            self.turn_scale = 1.0 + _clamp(
+                self._st / (self._tt + self.prior_turn), self.max_turn_scale
+            )
 
 
 def _clamp(v: float, lim: float) -> float:

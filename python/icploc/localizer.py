@@ -781,7 +781,8 @@ class Localizer:
             return
         o0, z0 = self._anchor
         d_odo = between(o0, odom)
-        if math.hypot(d_odo[0], d_odo[1]) < lc.calibration_baseline and abs(d_odo[2]) < 0.5:
+        turned = abs(d_odo[2]) >= self.calibration.min_turn
+        if math.hypot(d_odo[0], d_odo[1]) < lc.calibration_baseline and not turned:
             return
         self.calibration.observe(d_odo, between(z0, z))
         self._anchor = (odom, z)
