@@ -83,7 +83,8 @@ class OdometryCalibration:
         frame). The caller passes only motions the scans constrain (see the module
         docstring). Each factor is a ridge estimate with exponential forgetting: the sums
         of evidence over ``memory`` metres (radians), shrunk towards no correction by a
-        prior worth ``prior`` metres (radians), so a few pairs cannot swing it."""
+        prior worth ``prior`` metres (``prior_turn`` rad^2) that fades as evidence builds
+        up (over ``memory``), so a few early pairs cannot swing it."""
         if not self.enabled:
             return
         ox, oy, oth = float(odometry[0]), float(odometry[1]), float(odometry[2])
@@ -104,8 +105,9 @@ class OdometryCalibration:
             self._sdr = self._sdr * f + resid
             self._dd = self._dd * f + dist
             self.distance_seen += dist
-            self.scale = 1.0 + _clamp(self._sd / (self._w + self.prior), self.max_scale)
-            self.drift = _clamp(self._sdr / (self._dd + self.prior), self.max_drift)
+            w0 = self.prior * math.exp(-self.distance_seen / self.memory)
+            self.scale = 1.0 + _clamp(self._sd / (self._w + w0), self.max_scale)
+            self.drift = _clamp(self._sdr / (self._dd + w0), self.max_drift)
         elif turn >= self.min_turn:
             # a turn: the turn scale, after the drift of the distance driven meanwhile
             r = resid - self.drift * dist
@@ -113,9 +115,8 @@ class OdometryCalibration:
             self._st = self._st * f + oth * r
             self._tt = self._tt * f + oth * oth
             self.turn_seen += turn
-            self.turn_scale = 1.0 + _clamp(
-                self._st / (self._tt + self.prior_turn), self.max_turn_scale
-            )
+            w0 = self.prior_turn * math.exp(-self.turn_seen / self.memory)
+            self.turn_scale = 1.0 + _clamp(self._st / (self._tt + w0), self.max_turn_scale)
 
 
 def _clamp(v: float, lim: float) -> float:
