@@ -200,8 +200,9 @@ class LocalizerSection:
     calibration_max_turn_scale: float = 0.1
     calibration_max_drift_deg: float = 2.0
     #: the scan match's covariance (:func:`icploc.fusion.scan_covariance`): the information
-    #: of this many independent beams (a scan's beams share their walls' errors); 6 makes
-    #: the NEES against the reference ~3 on real logs at 10 cm (benches/loc_check.py)
+    #: of this many independent beams on a 10 cm map, inversely proportional to the map's
+    #: resolution (a scan's beams share their walls' quantisation); 6 makes the NEES
+    #: against the reference ~3 on real logs at 10 cm (benches/loc_check.py)
     scan_independent_beams: float = 6.0
     #: verification of a pose (:mod:`icploc.fitcheck`): at least this share of beams end on
     #: walls, and at least this fraction of the share this map's verified fits show; the

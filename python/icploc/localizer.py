@@ -278,6 +278,10 @@ class Localizer:
         self.recovery: Recovery = recovery
         self.quality = MapQuality(_map_resolution(map, self.index, self.config.map.resolution))
         self.checker = FitChecker(self.index, self.quality, see_through=lc.verify_see_through)
+        #: independent beams of a scan on this map: beams within a cell's worth of a wall
+        #: share its quantisation, so the count goes as 1 / resolution (the configured
+        #: count is at 10 cm)
+        self._independent_beams = lc.scan_independent_beams * 0.10 / self.quality.resolution
         self.motion_model = MotionModel(
             lc.alpha1,
             lc.alpha2,
@@ -519,7 +523,7 @@ class Localizer:
             int(res.inliers),
             float(res.mse),
             self.quality.sigma,
-            self.config.localizer.scan_independent_beams,
+            self._independent_beams,
         )
         return (ix, iy, wrap_angle(ith)), R
 
