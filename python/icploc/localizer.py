@@ -556,9 +556,10 @@ class Localizer:
     def verify_pose(
         self, points: NDArray[np.float64], pose: Pose
     ) -> tuple[bool, Any, Pose]:
-        """ICP from ``pose``, then the verification tracking uses, and a covariance tight
-        enough to promise it: ``(ok, IcpResult | None, refined pose)``. What a recovery
-        strategy calls before it may lock (see :class:`icploc.recovery.RecoveryView`)."""
+        """ICP from ``pose``, then the verification tracking uses: ``(ok, IcpResult | None,
+        refined pose)``. What a recovery strategy calls before it may lock (see
+        :class:`icploc.recovery.RecoveryView`); the localizer then decides how far to trust
+        the lock (:meth:`_update_lost`)."""
         if points.shape[0] < self.config.scan.min_points:
             return False, None, pose
         res = self._run_icp(points, pose, None)
@@ -568,8 +569,7 @@ class Localizer:
         if m is None:
             return False, res, pose
         z, R = m
-        ok = self._verified(self.checker.check(points, z)) and self._confident(R)
-        return ok, res, z
+        return self._verified(self._check(points, z, z, res)), res, z
 
     def _update_tracking(
         self,
@@ -822,13 +822,22 @@ class Localizer:
             )
             step = self.recovery.recover(view, pts)
         res = step.result
-        if step.lock is not None and res is not None:
-            m = self._measurement(res)
-            R = m[1] if m is not None else pred_cov
-            lock = step.lock
-            self.reset(lock, R, Status.TRACKING)
+        m = self._measurement(res) if step.lock is not None and res is not None else None
+        lock_pose: Pose | None = None
+        if m is not None and step.lock is not None:
+            R = m[1]
+            nis = mahalanobis2(pred, pred_cov, step.lock, R)
+            if nis <= self._chi2_reject:
+                # a lock where the dead reckoning says we are: one information update (in a
+                # corridor the lock says nothing along it, the dead reckoning keeps that)
+                lock_pose, R = fuse(pred, pred_cov, step.lock, R)
+            elif self._confident(R):
+                lock_pose = step.lock  # elsewhere, and the scan pins it down: jump there
+        if lock_pose is not None and res is not None:
+            self.reset(lock_pose, R, Status.TRACKING)
             status = Status.TRACKING if self._confident(R) else Status.DEGRADED
             self.status = status
+            lock = lock_pose
             return Estimate(
                 stamp=scan.stamp,
                 pose=self.pose,
@@ -843,7 +852,7 @@ class Localizer:
                 prediction=pred,
                 odometry=odom,
                 num_points=pts.shape[0],
-                measurement=lock,
+                measurement=step.lock,
                 measurement_covariance=R,
                 calibration=self.calibration.factors,
                 hypotheses=step.hypotheses,
