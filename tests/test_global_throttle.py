@@ -34,7 +34,7 @@ class CountingGlob:
 
     def search(self, *a: Any, **k: Any) -> Any:
         loc = self.loc[0]
-        if loc.relocalization.relocalizer.awaiting_verification:
+        if loc.recovery.relocalizer.awaiting_verification:
             self.verifications += 1
         else:
             self.searches.append((loc.scans_processed, self.stamp))
@@ -64,15 +64,16 @@ def _run(foreign: dict, **localizer: Any) -> tuple[list[Any], CountingGlob, int]
     loc = Localizer(Map.from_lines(foreign["map"]), cfg)
     holder.append(loc)
     attach(loc, Relocalizer(None, localizer=glob))
-    hook = loc.relocalize
+    rec = loc.recovery
+    hook = rec.recover
     calls = [0]
 
-    def counted(scan: Any, points: Any = None) -> Any:
+    def counted(view: Any, points: Any) -> Any:
         calls[0] += 1
-        glob.stamp = float(scan.stamp)
-        return hook(scan, points)
+        glob.stamp = float(view.stamp)
+        return hook(view, points)
 
-    loc.relocalize = counted  # type: ignore[method-assign]
+    rec.recover = counted  # type: ignore[method-assign]
     ests = []
     for f in foreign["frames"]:
         loc.add_odometry(f.odometry)

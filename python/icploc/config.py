@@ -4,8 +4,8 @@ One dataclass per section::
 
     icp:       the ICP core's settings (metric, thresholds, iterations, robust weights)
     scan:      scan preparation (range limits, decimation, laser mounting offset)
-    gating:    how a correction is checked against the odometry prediction
-    localizer: the outer loop (odometry noise model, lost detection, initial pose)
+    gating:    how a correction is checked against the odometry prediction (chi-square)
+    localizer: the outer loop (motion model, calibration, verification, lost, recovery)
     map:       how the map is sampled for the ICP index (spacing, visibility culling)
 
 ``LocalizerConfig.from_yaml(path)`` reads a (possibly partial) YAML file over the
@@ -181,100 +181,130 @@ class ScanSection(_Section):
 
 @dataclass
 class GatingSection(_Section):
-    """The paper's "referring to the past value": a correction the odometry cannot
-    explain is rejected, and the odometry prediction is kept instead."""
+    """How a scan match is checked against the odometry prediction before it is fused.
 
-    #: largest accepted position correction (m) right after an accepted scan ...
-    max_translation_jump: float = 0.25
-    #: ... growing by this much per metre driven since the last accepted correction
-    translation_jump_per_metre: float = 0.10
-    #: largest accepted heading correction (degrees) ...
-    max_rotation_jump_deg: float = 8.0
-    #: ... growing by this much per radian turned and per metre driven since then
-    rotation_jump_per_radian_deg: float = 6.0
-    rotation_jump_per_metre_deg: float = 3.0
-    #: the gate never opens wider than this (m, degrees)
-    max_translation_jump_cap: float = 1.5
-    max_rotation_jump_cap_deg: float = 45.0
+    The chi-square test of prediction against scan pose (``v' (P + R)^-1 v``, 3 degrees of
+    freedom) decides: below the ``chi2_accept`` quantile the match is fused as it is, up to
+    the ``chi2_reject`` quantile its covariance is inflated until consistent, beyond it is
+    rejected and the prediction kept (the paper's "referring to the past value")."""
+
+    #: chi-square probabilities (3 dof) of the accept and reject quantiles
+    chi2_accept: float = 0.99
+    chi2_reject: float = 0.9999
+    #: hard caps on one correction, whatever the covariances say (m, degrees)
+    max_translation_jump: float = 1.5
+    max_rotation_jump_deg: float = 45.0
     #: a fit with a smaller inlier ratio is rejected
     min_inlier_ratio: float = 0.12
-    #: translational degeneracy (lambda_min / lambda_max) below which the fit is treated as
-    #: a corridor: along the degenerate direction the odometry prediction is kept
-    degeneracy_threshold: float = 0.02
     #: reject a fit that did not converge (hit the iteration limit / too few inliers)
     require_convergence: bool = False
 
     def validate(self) -> None:
-        _positive(
-            self,
-            "max_translation_jump",
-            "max_rotation_jump_deg",
-            "max_translation_jump_cap",
-            "max_rotation_jump_cap_deg",
-        )
-        for name in (
-            "translation_jump_per_metre",
-            "rotation_jump_per_radian_deg",
-            "rotation_jump_per_metre_deg",
-        ):
-            if getattr(self, name) < 0.0:
-                raise ConfigError(f"gating.{name} must be >= 0")
+        _positive(self, "max_translation_jump", "max_rotation_jump_deg")
+        if not 0.5 <= self.chi2_accept <= self.chi2_reject < 1.0:
+            raise ConfigError(
+                "gating: need 0.5 <= chi2_accept <= chi2_reject < 1, got "
+                f"{self.chi2_accept}, {self.chi2_reject}"
+            )
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError("gating.min_inlier_ratio must be in [0, 1]")
-        if not 0.0 <= self.degeneracy_threshold < 1.0:
-            raise ConfigError("gating.degeneracy_threshold must be in [0, 1)")
 
 
 @dataclass
 class LocalizerSection(_Section):
-    """The outer loop: odometry noise model, lost detection, start pose."""
+    """The outer loop: odometry noise model and calibration, the scan covariance,
+    verification and status, lost detection and recovery, start pose."""
 
     #: start pose (x, y, theta) of the robot in the map frame; null = must be given in code
     initial_pose: tuple[float, float, float] | None = None
     #: initial standard deviations (m, m, rad)
     initial_sigma_xy: float = 0.1
     initial_sigma_theta: float = 0.05
-    #: odometry noise: position sigma per metre driven, heading sigma per radian turned
-    #: and per metre driven (added in quadrature to the predicted covariance)
-    odom_sigma_per_metre: float = 0.05
-    odom_sigma_theta_per_radian: float = 0.05
-    odom_sigma_theta_per_metre: float = 0.02
+    #: odometry motion model (:mod:`icploc.motion`), AMCL-style variances:
+    #: heading alpha1 turn^2 + alpha2 dist^2; along alpha3 dist^2 + alpha4 turn^2;
+    #: sideways alpha5 dist^2 + alpha4 turn^2. Defaults fitted (maximum likelihood) to the
+    #: 2,000 real motions of the Freiburg course data in 0.5 m steps (benches/loc_check.py
+    #: --fit-motion): 1.3 % of a turn, 0.36 deg/m, 3.2 % of the distance along and across
+    alpha1: float = 1.6e-4
+    alpha2: float = 3.9e-5
+    alpha3: float = 1.0e-3
+    alpha4: float = 1.0e-4
+    alpha5: float = 1.0e-3
+    #: learn the odometry noise online: the alphas are scaled up (up to ``noise_gain_max``
+    #: times) while the accepted fits' chi-square statistic averages above 3
+    learn_noise: bool = True
+    noise_gain_max: float = 10.0
     #: process noise added at every scan even without motion (slip, a push): keeps the
     #: filter responsive while standing still
     process_sigma_xy: float = 0.002
     process_sigma_theta: float = 0.002
-    #: fuse the ICP pose with the odometry prediction (Kalman update, ICP covariance
-    #: floored by min_sigma_*) instead of taking the ICP pose as it is
-    fuse_odometry: bool = True
-    #: floor on the ICP pose's standard deviation (its measurement noise) after a correction
-    min_sigma_xy: float = 0.002
-    min_sigma_theta: float = 0.001
-    #: lost when the inlier ratio stays below ``lost_inlier_ratio`` for this many scans ...
-    lost_inlier_ratio: float = 0.1
-    lost_after_low_inlier_scans: int = 5
-    #: ... or when this many scans in a row are rejected by the gate
-    lost_after_rejections: int = 15
-    #: while lost, a fit with at least this inlier ratio (and not degenerate) recovers tracking
-    recover_inlier_ratio: float = 0.7
-    #: consecutive good fits needed to recover
+    #: online odometry calibration (:mod:`icploc.calibration`): distance scale, turn scale
+    #: and heading drift learned from verified scan matches ``calibration_baseline`` m apart
+    #: whose position is known to ``calibration_max_sigma`` m; memory in metres driven;
+    #: the factors stay within the bounds
+    calibrate_odometry: bool = True
+    calibration_memory: float = 50.0
+    calibration_baseline: float = 2.0
+    calibration_max_sigma: float = 0.05
+    calibration_max_scale: float = 0.05
+    calibration_max_turn_scale: float = 0.1
+    calibration_max_drift_deg: float = 2.0
+    #: the scan match's covariance (:func:`icploc.fusion.scan_covariance`): the information
+    #: of this many independent beams on a 10 cm map, inversely proportional to the map's
+    #: resolution (a scan's beams share their walls' quantisation); 6 makes the NEES
+    #: against the reference ~3 on real logs at 10 cm (benches/loc_check.py)
+    scan_independent_beams: float = 6.0
+    #: verification of a pose (:mod:`icploc.fitcheck`): at least this share of beams end on
+    #: walls, and at least this fraction of the share this map's verified fits show; the
+    #: RMS residual of those at most this many expected residuals (the map's resolution and
+    #: measured fit quality); optionally few beams through mapped walls
+    verify_min_hit_ratio: float = 0.5
+    verify_hit_fraction: float = 0.8
+    verify_max_residual: float = 2.0
+    verify_see_through: bool = False
+    verify_max_see_through: float = 0.15
+    #: when prediction and scan pose fail the chi-square test, the scan pose is taken (the
+    #: prediction's covariance inflated) if it verifies and its hit share beats the
+    #: prediction's by at least this
+    arbitration_margin: float = 0.1
+    #: ... and the disagreement is at most this many times the accept quantile (a jump the
+    #: odometry cannot have made stays rejected: the paper's "referring to the past value")
+    arbitration_max_inflation: float = 16.0
+    #: ... or when this many rejected scan poses in a row agree with each other (moved on by
+    #: odometry, within their covariances): the prediction is what is off
+    consistent_rejections: int = 3
+    #: ``tracking`` promises the pose: verified, and its standard deviation at most this
+    #: (m along its worst axis, degrees)
+    tracking_max_sigma: float = 0.15
+    tracking_max_sigma_theta_deg: float = 3.0
+    #: lost when this many scans in a row contradict the pose (no usable fit, a rejected
+    #: one, or one no better than the prediction while fewer than ``lost_hit_fraction`` x
+    #: the usual share of beams end on walls), or when the position is this uncertain (m)
+    lost_after_bad_scans: int = 5
+    lost_hit_fraction: float = 0.35
+    #: ... unless the beams that do end on walls fit within this many expected residuals
+    #: (a crowd hides walls; at a wrong place chance hits scatter)
+    crowd_residual: float = 1.2
+    lost_sigma_xy: float = 2.0
+    #: a recovery candidate needs at least this inlier ratio (then verification)
+    recover_inlier_ratio: float = 0.6
+    #: consecutive verified, consistent scans before a recovery locks
     recover_after: int = 3
-    #: "global": kidnap detection and multi-hypothesis global relocalization anywhere on the
-    #: map (:mod:`icploc.relocalize`; its grids are built the first time they are needed);
-    #: "local": only the built-in recovery around the dead-reckoned pose (plus a
-    #: ``global_search=`` hook). A ``global_search=`` or ``relocalization=`` given to the
-    #: Localizer takes precedence.
+    #: the recovery strategy while lost: "global" (:class:`icploc.relocalize.GlobalRelocalization`:
+    #: around the dead-reckoned pose first, then anywhere on the map, its grids built the
+    #: first time they are needed) or "local" (:class:`icploc.recovery.LocalRecovery`: only
+    #: around the dead-reckoned pose). A ``recovery=`` given to the Localizer takes precedence.
     relocalization: Relocalization = "global"
-    #: the global relocalization's lost checks (a global search each, 5 ms - 1 s with the
-    #: map's size): "inline" inside ``update`` (deterministic: replays, benchmarks) or
-    #: "background" on a worker thread, acted on a few scans later (``icploc run``: a live
-    #: loop must not stall)
+    #: the global recovery's searches (5 ms - 1 s with the map's size): "inline" inside
+    #: ``update`` (deterministic: replays, benchmarks) or "background" on a worker thread,
+    #: used a scan or more later (``icploc run``: a live loop must not stall)
     lost_check: LostCheck = "inline"
-    #: while lost, try to relocalize on every n-th scan (each try is a multi-start ICP)
-    relocalize_every: int = 4
-    #: while lost with a global search attached (no initial pose, a kidnapping): at most one
-    #: global search per this many scans and per this many seconds of scan time (the first
-    #: lost scan always searches; between searches the hypotheses are carried by odometry
-    #: and re-scored on every scan)
+    #: while lost, scans spent searching only around the dead-reckoned pose before the
+    #: global search joins in
+    local_recovery_scans: int = 3
+    #: while lost and searching globally: at most one global search per this many scans and
+    #: per this many seconds of scan time (between searches the hypotheses are carried by
+    #: odometry and re-scored on every scan)
     global_search_every: int = 10
     global_search_interval: float = 1.0
     #: a scan newer than the newest odometry sample is predicted by extrapolating at the last
@@ -288,25 +318,52 @@ class LocalizerSection(_Section):
                     "localizer.initial_pose must be three finite numbers [x, y, theta]"
                 )
         _positive(
-            self, "initial_sigma_xy", "initial_sigma_theta", "min_sigma_xy", "min_sigma_theta"
+            self,
+            "initial_sigma_xy",
+            "initial_sigma_theta",
+            "calibration_memory",
+            "calibration_baseline",
+            "calibration_max_sigma",
+            "scan_independent_beams",
+            "verify_max_residual",
+            "crowd_residual",
+            "tracking_max_sigma",
+            "tracking_max_sigma_theta_deg",
+            "lost_sigma_xy",
+            "arbitration_max_inflation",
+            "noise_gain_max",
         )
         for name in (
             "process_sigma_xy",
             "process_sigma_theta",
-            "odom_sigma_per_metre",
-            "odom_sigma_theta_per_radian",
-            "odom_sigma_theta_per_metre",
+            "alpha1",
+            "alpha2",
+            "alpha3",
+            "alpha4",
+            "alpha5",
+            "calibration_max_scale",
+            "calibration_max_turn_scale",
+            "calibration_max_drift_deg",
+            "verify_max_see_through",
         ):
-            if getattr(self, name) < 0.0:
-                raise ConfigError(f"localizer.{name} must be >= 0")
-        if not 0.0 <= self.lost_inlier_ratio <= 1.0 or not 0.0 <= self.recover_inlier_ratio <= 1.0:
-            raise ConfigError("localizer inlier ratios must be in [0, 1]")
+            v = getattr(self, name)
+            if not (v >= 0.0 and math.isfinite(v)):
+                raise ConfigError(f"localizer.{name} must be a finite number >= 0, got {v!r}")
+        for name in (
+            "recover_inlier_ratio",
+            "verify_min_hit_ratio",
+            "verify_hit_fraction",
+            "arbitration_margin",
+            "lost_hit_fraction",
+        ):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"localizer.{name} must be in [0, 1]")
         _positive(
             self,
-            "lost_after_low_inlier_scans",
-            "lost_after_rejections",
+            "lost_after_bad_scans",
+            "consistent_rejections",
             "recover_after",
-            "relocalize_every",
+            "local_recovery_scans",
             "global_search_every",
             "max_odometry_gap",
         )
@@ -324,6 +381,9 @@ class MapSection(_Section):
 
     #: uniform sampling interval along the fitted wall lines (m), the paper's §2.2
     spacing: float = 0.05
+    #: the map's resolution (m) the thresholds scale with; 0: a grid's cell size, else the
+    #: median spacing of the map's sample points
+    resolution: float = 0.0
     #: match each scan only against map points the laser could see from the predicted pose
     visibility_culling: bool = False
     #: field of view (degrees) and range (m) used for the culling
@@ -336,6 +396,8 @@ class MapSection(_Section):
             raise ConfigError(
                 f"map.spacing must be at least {MIN_MAP_SPACING} m (1 mm), got {self.spacing!r}"
             )
+        if not (self.resolution >= 0.0 and math.isfinite(self.resolution)):
+            raise ConfigError(f"map.resolution must be a finite number >= 0, got {self.resolution!r}")
 
 
 #: the finest map sampling accepted (m): finer multiplies the index size for no accuracy

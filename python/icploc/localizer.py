@@ -1,26 +1,25 @@
-"""The outer localization loop: odometry predicts, ICP corrects, a gate checks.
+"""The outer localization loop: odometry predicts, ICP corrects, the information decides.
 
-Per scan (the paper's Fig. 3, plus its §3.5 "referring to the past value")::
+Per scan::
 
-    odometry at the scan stamp ──► predict: pose ⊕ (odom_prev⁻¹ ⊕ odom_now)
-    scan ──► prepare: drop no-return / max-range / too-near beams, decimate,
-             move into the robot base frame through the laser mounting offset
-    ICP (Rust core) from the prediction ──► gate:
-        * inlier ratio too low            → reject, keep the prediction
-        * degenerate fit (a corridor)     → keep the prediction along the degenerate
-                                            direction, ICP across it
-        * a jump odometry cannot explain  → reject, keep the prediction
-    ──► Estimate(stamp, pose, covariance, status, inlier_ratio, iterations, time)
+    odometry at the scan stamp ─► calibrate the increment (learned scale, turn scale,
+        heading drift) ─► predict: pose ⊕ increment, covariance grown by the AMCL-style
+        motion model (noise with distance and turn)
+    scan ─► prepare (drop bad beams, mount) ─► ICP from the prediction, its thresholds
+        following the map's resolution and measured fit quality
+    ─► the scan pose's covariance, calibrated (correlated beams, the map's resolution)
+    ─► chi-square test of prediction against scan pose: accept / inflate / reject
+    ─► one information update (a corridor's open axis keeps the prediction by itself)
+    ─► verify the fused pose (beams ending on walls, residual against the expected noise)
+    ─► status: ``tracking`` only when the correction was consistent, the pose verified and
+        its covariance tight; ``degraded`` otherwise; ``lost`` when the scans contradict
+        the pose for several scans in a row or the pose is too uncertain to match from
+    ─► Estimate(stamp, pose, covariance, status, ...)
 
-Status machine: ``tracking`` (the last scan corrected the pose), ``degraded`` (the
-pose leans on odometry: a rejected or partially degenerate correction), ``lost``
-(inlier ratio collapsed for several scans, or the gate rejected many scans in a row).
-While lost the localizer keeps dead-reckoning and calls :meth:`Localizer.relocalize`
-every scan; a global search plugs in there (``global_search=`` callable) and returns
-candidate poses that are refined with ``icploc.icp_batch``. A whole relocalization
-strategy (multi-hypothesis global localization, kidnap detection) plugs in as a
-:class:`Relocalization` (``relocalization=``, or :func:`icploc.relocalize.attach`):
-:meth:`Localizer.relocalize` then delegates to it, and it observes every estimate.
+While lost the reported pose is the dead-reckoned continuation of the last pose with a
+growing covariance; the recovery strategy (:mod:`icploc.recovery`: local, then global with
+:mod:`icploc.relocalize`) ranks hypotheses (``Estimate.hypotheses``) and the pose jumps
+only to a lock the localizer itself verified. Nothing but the Localizer writes its pose.
 """
 
 from __future__ import annotations
@@ -29,27 +28,32 @@ import bisect
 import dataclasses
 import math
 import os
+import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.calibration import OdometryCalibration
 from icploc.config import LocalizerConfig
+from icploc.fitcheck import FitCheck, FitChecker, MapQuality
+from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
+from icploc.motion import MotionModel
+from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
+from icploc.scanprep import _TrigCache, prepare_scan
 from icploc.se2 import Pose, between, compose, wrap_angle
-from icploc.types import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
+from icploc.types import Odometry, Scan
 
 __all__ = [
     "Estimate",
-    "GlobalSearch",
     "Localizer",
     "OdometryBuffer",
-    "Relocalization",
+    "Recovery",
     "Status",
-    "global_search_from",
     "prepare_scan",
     "run",
 ]
@@ -75,12 +79,32 @@ class Estimate:
     inlier_ratio: float
     iterations: int
     time: float  #: seconds spent in :meth:`Localizer.update`
-    accepted: bool = False  #: the ICP correction (or part of it) was applied
-    reason: str = ""  #: why a correction was rejected / degraded ("" when fully accepted)
+    accepted: bool = False  #: the ICP correction was fused in (possibly inflated)
+    #: why the scan is not ``tracking`` or what happened ("" when tracking on a plain fit):
+    #: too_few_points, icp_failed, low_inlier_ratio, not_converged, jump, inconsistent
+    #: (chi-square rejected), inflated (chi-square: measurement inflated), odometry_off
+    #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
+    #: the prediction's covariance inflated),
+    #: contradicted (the fused pose explains far less of the scan than usual), unverified,
+    #: uncertain (covariance too wide to promise the pose), relocalized, or while lost the
+    #: recovery's state (searching, confirming, ambiguous)
+    reason: str = ""
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
     odometry: Pose | None = None  #: the (interpolated) odometry pose used
     num_points: int = 0  #: beams used for matching
+    #: the scan match's pose and calibrated covariance (None: no usable fit)
+    measurement: Pose | None = None
+    measurement_covariance: NDArray[np.float64] | None = None
+    #: chi-square statistic of prediction vs measurement (nan: no fit)
+    nis: float = float("nan")
+    #: verification of the reported pose: share of beams ending on walls, their RMS residual
+    hit_ratio: float = float("nan")
+    residual: float = float("nan")
+    #: the learned odometry factors (distance scale, turn scale, heading drift rad/m)
+    calibration: tuple[float, float, float] = (1.0, 1.0, 0.0)
+    #: while lost: the recovery's ranked hypotheses (the pose itself stays dead-reckoned)
+    hypotheses: tuple[Candidate, ...] = ()
 
     @property
     def x(self) -> float:
@@ -93,42 +117,6 @@ class Estimate:
     @property
     def theta(self) -> float:
         return self.pose[2]
-
-
-class GlobalSearch(Protocol):
-    """Produce candidate robot poses for a scan without trusting the current estimate.
-
-    ``points`` are the prepared scan points in the robot base frame, ``prior`` and
-    ``covariance`` the dead-reckoned belief (may be ignored by a truly global search).
-    """
-
-    def __call__(
-        self,
-        points: NDArray[np.float64],
-        index: Any,
-        prior: Pose,
-        covariance: NDArray[np.float64],
-    ) -> Sequence[Sequence[float]]: ...
-
-
-class Relocalization(Protocol):
-    """A relocalization strategy plugged into a :class:`Localizer` (``relocalization=``).
-
-    While the localizer is ``lost``, :meth:`relocalize` is called on **every** scan (it
-    throttles any expensive search itself) with the scan's prepared points; it returns
-    ``(pose, IcpResult)`` once the pose is verified — tracking resumes there — or
-    ``None``. It may move ``localizer.pose`` to follow its leading hypothesis meanwhile.
-    :meth:`observe` sees every estimate (tracking or not) and may call
-    :meth:`Localizer.declare_lost` (a kidnapping) or :meth:`Localizer.reset` (a slid pose).
-    An optional ``state`` attribute (e.g. ``"ambiguous"``) becomes the ``reason`` of the
-    estimates while lost.
-    """
-
-    def relocalize(
-        self, localizer: Localizer, scan: Scan, points: NDArray[np.float64]
-    ) -> tuple[Pose, Any] | None: ...
-
-    def observe(self, localizer: Localizer, scan: Scan, estimate: Estimate) -> None: ...
 
 
 class OdometryBuffer:
@@ -210,128 +198,6 @@ class OdometryBuffer:
         )
 
 
-_BAD_FLAGS = np.uint8(BEAM_NO_RETURN | BEAM_DAZZLE | BEAM_INVALID)
-
-
-class _TrigCache:
-    """cos / sin of the beam angles (plus mounting), recomputed only when the angles change."""
-
-    def __init__(self) -> None:
-        self._angles: NDArray[np.float64] | None = None
-        self._theta = 0.0
-        self.cos: NDArray[np.float64] = np.zeros(0)
-        self.sin: NDArray[np.float64] = np.zeros(0)
-
-    def get(
-        self, angles: NDArray[np.float64], theta: float
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        prev = self._angles
-        if prev is not angles or self._theta != theta:
-            if (
-                prev is None
-                or self._theta != theta
-                or prev.shape != angles.shape
-                or not np.array_equal(prev, angles)
-            ):
-                self.cos = np.cos(angles + theta)
-                self.sin = np.sin(angles + theta)
-            self._angles = angles
-            self._theta = theta
-        return self.cos, self.sin
-
-
-def prepare_scan(
-    scan: Scan,
-    config: LocalizerConfig,
-    trig: _TrigCache | None = None,
-) -> NDArray[np.float64]:
-    """The scan's usable beams as (M, 2) points in the robot base frame.
-
-    Drops beams without a return (``inf``/NaN, flagged), at or beyond the max range (the
-    scanner's own, or ``scan.max_range`` in the config), nearer than ``scan.min_range``;
-    keeps every ``decimation``-th of the rest; applies the laser mounting offset.
-    """
-    sc = config.scan
-    r = scan.ranges
-    hi = sc.max_range if sc.max_range > 0.0 else scan.max_range
-    if hi != math.inf:
-        hi = hi * sc.max_range_margin
-    lo = sc.min_range if sc.min_range > scan.min_range else scan.min_range
-    ok = r < hi  # NaN and inf compare False (inf < inf is False)
-    ok &= r > lo
-    if scan.flags is not None:
-        ok &= (scan.flags & _BAD_FLAGS) == 0
-    idx = ok.nonzero()[0]
-    if sc.decimation > 1:
-        idx = idx[:: sc.decimation]
-    if trig is None:
-        trig = _TrigCache()
-    c, s = trig.get(scan.angles, sc.laser_theta)
-    rr = r[idx]
-    pts = np.empty((idx.shape[0], 2))
-    np.multiply(rr, c[idx], out=pts[:, 0])
-    np.multiply(rr, s[idx], out=pts[:, 1])
-    if sc.laser_x != 0.0 or sc.laser_y != 0.0:
-        pts += (sc.laser_x, sc.laser_y)
-    return pts
-
-
-def _fuse(
-    pred: Pose,
-    pred_cov: NDArray[np.float64],
-    meas: Pose,
-    meas_cov: NDArray[np.float64],
-) -> tuple[Pose, NDArray[np.float64]]:
-    """Kalman update of the odometry prediction with the ICP pose as the measurement:
-    K = P (P + R)^-1, x = x_pred + K (z - x_pred), P' = (I - K) P. In floats (3x3, per scan)."""
-    P = pred_cov.tolist()
-    R = meas_cov.tolist()
-    s00, s01, s02 = P[0][0] + R[0][0], P[0][1] + R[0][1], P[0][2] + R[0][2]
-    s11, s12, s22 = P[1][1] + R[1][1], P[1][2] + R[1][2], P[2][2] + R[2][2]
-    # inverse of the symmetric S by cofactors
-    c00 = s11 * s22 - s12 * s12
-    c01 = s02 * s12 - s01 * s22
-    c02 = s01 * s12 - s02 * s11
-    det = s00 * c00 + s01 * c01 + s02 * c02
-    if not det > 0.0 or not math.isfinite(det):
-        return meas, meas_cov
-    c11 = s00 * s22 - s02 * s02
-    c12 = s01 * s02 - s00 * s12
-    c22 = s00 * s11 - s01 * s01
-    inv = 1.0 / det
-    Si = (
-        (c00 * inv, c01 * inv, c02 * inv),
-        (c01 * inv, c11 * inv, c12 * inv),
-        (c02 * inv, c12 * inv, c22 * inv),
-    )
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P
-    (i00, i01, i02), (_, i11, i12), (_, _, i22) = Si
-    k00 = p00 * i00 + p01 * i01 + p02 * i02
-    k01 = p00 * i01 + p01 * i11 + p02 * i12
-    k02 = p00 * i02 + p01 * i12 + p02 * i22
-    k10 = p01 * i00 + p11 * i01 + p12 * i02
-    k11 = p01 * i01 + p11 * i11 + p12 * i12
-    k12 = p01 * i02 + p11 * i12 + p12 * i22
-    k20 = p02 * i00 + p12 * i01 + p22 * i02
-    k21 = p02 * i01 + p12 * i11 + p22 * i12
-    k22 = p02 * i02 + p12 * i12 + p22 * i22
-    v0, v1, v2 = meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])
-    dx = (
-        k00 * v0 + k01 * v1 + k02 * v2,
-        k10 * v0 + k11 * v1 + k12 * v2,
-        k20 * v0 + k21 * v1 + k22 * v2,
-    )
-    # (I - K) P, symmetric
-    q00 = p00 - (k00 * p00 + k01 * p01 + k02 * p02)
-    q01 = p01 - (k00 * p01 + k01 * p11 + k02 * p12)
-    q02 = p02 - (k00 * p02 + k01 * p12 + k02 * p22)
-    q11 = p11 - (k10 * p01 + k11 * p11 + k12 * p12)
-    q12 = p12 - (k10 * p02 + k11 * p12 + k12 * p22)
-    q22 = p22 - (k20 * p02 + k21 * p12 + k22 * p22)
-    cov = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
-    return (pred[0] + dx[0], pred[1] + dx[1], wrap_angle(pred[2] + dx[2])), cov
-
-
 def _as_index(map_: Any, config: LocalizerConfig) -> Any:
     """A ``MapIndex`` from a Map (``.index(spacing)``), a MapIndex, or (N, 2) points."""
     from icploc._core import MapIndex
@@ -356,11 +222,23 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
 @dataclass
 class _Counters:
     scans: int = 0
-    rejections_in_row: int = 0
-    low_inliers_in_row: int = 0
-    good_in_row: int = 0
+    bad_in_row: int = 0
     point_to_point_fallbacks: int = 0
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
+
+
+def _map_resolution(map_: Any, index: Any, configured: float) -> float:
+    """The map's resolution: configured, a grid's cell size, else its sample spacing."""
+    if configured > 0.0:
+        return configured
+    res = getattr(map_, "resolution", None)
+    if isinstance(res, (int, float)) and res > 0 and math.isfinite(res):
+        return float(res)
+    try:
+        sp = float(index.spacing)
+    except (AttributeError, ValueError):
+        sp = 0.05
+    return sp if sp > 0 and math.isfinite(sp) else 0.05
 
 
 class Localizer:
@@ -369,7 +247,11 @@ class Localizer:
     ``map`` is an ``icploc.Map`` (its ``index(config.map.spacing)`` is used), an
     ``icploc.MapIndex`` or an (N, 2) array of map points. ``initial_pose`` (or
     ``config.localizer.initial_pose``) is the robot's start pose in the map frame; without
-    one the localizer starts ``lost`` and waits for :meth:`relocalize` / :meth:`reset`.
+    one the localizer starts ``lost`` and its recovery localizes globally. ``recovery``: the
+    strategy used while lost (:class:`icploc.recovery.Recovery`); by default the one
+    ``localizer.relocalization`` names (global: :class:`icploc.relocalize.GlobalRelocalization`;
+    local: :class:`icploc.recovery.LocalRecovery`). It can be replaced later through the
+    :attr:`recovery` attribute — the one way to plug recovery in.
     """
 
     def __init__(
@@ -378,56 +260,70 @@ class Localizer:
         config: LocalizerConfig | None = None,
         initial_pose: Sequence[float] | None = None,
         *,
-        global_search: GlobalSearch | None = None,
-        relocalization: Relocalization | None = None,
+        recovery: Recovery | None = None,
     ) -> None:
         self.config = (config or LocalizerConfig()).validate()
         self.index = _as_index(map, self.config)
         self.map = map
         self.icp_config = self.config.icp.to_icp_config()
-        self.global_search = global_search
-        #: the plugged-in relocalization strategy (see :class:`Relocalization`), if any;
-        #: by default (``localizer.relocalization: global``, no ``global_search``) the global
-        #: one of :mod:`icploc.relocalize`, its grids built when first needed
-        if (
-            relocalization is None
-            and global_search is None
-            and self.config.localizer.relocalization == "global"
-        ):
-            from icploc.relocalize import GlobalRelocalization
+        lc = self.config.localizer
+        if recovery is None:
+            if lc.relocalization == "global":
+                from icploc.relocalize import GlobalRelocalization
 
-            relocalization = GlobalRelocalization.deferred(
-                background=self.config.localizer.lost_check == "background"
-            )
-        self.relocalization: Relocalization | None = relocalization
-        self.odometry = OdometryBuffer(
-            max_extrapolation=min(0.25, self.config.localizer.max_odometry_gap)
+                recovery = GlobalRelocalization.deferred()
+            else:
+                recovery = LocalRecovery(confirm=lc.recover_after)
+        #: the strategy used while lost (see :mod:`icploc.recovery`)
+        self.recovery: Recovery = recovery
+        self.quality = MapQuality(_map_resolution(map, self.index, self.config.map.resolution))
+        self.checker = FitChecker(self.index, self.quality, see_through=lc.verify_see_through)
+        #: independent beams of a scan on this map: beams within a cell's worth of a wall
+        #: share its quantisation, so the count goes as 1 / resolution (the configured
+        #: count is at 10 cm)
+        self._independent_beams = lc.scan_independent_beams * 0.10 / self.quality.resolution
+        self.motion_model = MotionModel(
+            lc.alpha1,
+            lc.alpha2,
+            lc.alpha3,
+            lc.alpha4,
+            lc.alpha5,
+            floor_xy=lc.process_sigma_xy,
+            floor_theta=lc.process_sigma_theta,
         )
+        self.calibration = OdometryCalibration(
+            memory=lc.calibration_memory,
+            max_scale=lc.calibration_max_scale,
+            max_turn_scale=lc.calibration_max_turn_scale,
+            max_drift=math.radians(lc.calibration_max_drift_deg),
+            enabled=lc.calibrate_odometry,
+        )
+        self.odometry = OdometryBuffer(max_extrapolation=min(0.25, lc.max_odometry_gap))
         self._trig = _TrigCache()
         self._counters = _Counters()
         self._last_odom: Pose | None = None
-        self._since_fix_dist = 0.0
-        self._since_fix_rot = 0.0
-        self._recover_pose: Pose | None = None
+        self._lost_odom: Pose | None = None
+        #: the calibration's anchor: (raw odometry, scan-matched pose) of a verified fit
+        self._anchor: tuple[Pose, Pose] | None = None
+        #: the last rejected scan pose: (pose, covariance, odometry then, agreeing in a row)
+        self._rejected: tuple[Pose, NDArray[np.float64], Pose | None, int] | None = None
+        self._nis_mean = 3.0  #: running mean of the accepted fits' chi-square statistic
         self._map_points: NDArray[np.float64] | None = None
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
-        self._last_reloc_result: Any = None
         self._icp_configs: dict[Any, Any] = {}
-        lc0 = self.config.localizer
-        self._q_floor = np.diag(
-            [lc0.process_sigma_xy**2, lc0.process_sigma_xy**2, lc0.process_sigma_theta**2]
-        )
-        self._cov_floor = np.diag(
-            [lc0.min_sigma_xy**2, lc0.min_sigma_xy**2, lc0.min_sigma_theta**2]
-        )
+        g = self.config.gating
+        self._chi2_accept = _chi2_3(g.chi2_accept)
+        self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
-        lc = self.config.localizer
         pose = initial_pose if initial_pose is not None else lc.initial_pose
+        self.pose: Pose
+        self.covariance: NDArray[np.float64]
+        self.status: Status
         if pose is not None:
             self.reset(pose)
         else:
-            self.pose: Pose = (0.0, 0.0, 0.0)
+            self.pose = (0.0, 0.0, 0.0)
             self.covariance = np.diag([1e6, 1e6, math.pi**2])
             self.status = Status.LOST
 
@@ -438,7 +334,7 @@ class Localizer:
         covariance: NDArray[np.float64] | None = None,
         status: Status = Status.TRACKING,
     ) -> None:
-        """Set the pose (e.g. the initial pose, or after a relocalization)."""
+        """Set the pose (the initial pose, or a pose the user knows)."""
         if len(pose) != 3 or not all(math.isfinite(float(v)) for v in pose):
             raise ValueError(f"Localizer.reset: pose must be three finite numbers, got {pose!r}")
         lc = self.config.localizer
@@ -450,19 +346,21 @@ class Localizer:
         self.covariance = np.array(covariance, dtype=np.float64).reshape(3, 3)
         self.status = status
         c = self._counters
-        c.rejections_in_row = c.low_inliers_in_row = c.good_in_row = 0
+        c.bad_in_row = 0
         self._lost_scans = 0
-        # a fresh pose is uncertain: open the gate as if we had driven a while
-        self._since_fix_dist = lc.initial_sigma_xy / max(
-            self.config.gating.translation_jump_per_metre, 1e-9
-        )
-        self._since_fix_rot = 0.0
-        self._recover_pose = None
+        self._lost_odom = None
+        self._anchor = None
+        self._rejected = None
+        self.recovery.reset()
 
     def declare_lost(self) -> None:
-        """Switch to ``lost`` now (e.g. a kidnapping detected from outside): the pose is
-        dead-reckoned and relocalization runs from the next scan on."""
-        self.reset(self.pose, self.covariance, Status.LOST)
+        """Switch to ``lost`` now (e.g. a kidnapping known from outside): the pose is
+        dead-reckoned and the recovery runs from the next scan on."""
+        self.status = Status.LOST
+        self._lost_scans = 0
+        self._lost_odom = None
+        self._anchor = None
+        self.recovery.reset()
 
     @property
     def last_odometry(self) -> Pose | None:
@@ -492,9 +390,7 @@ class Localizer:
         samples given to :meth:`add_odometry`; with neither the robot is assumed still."""
         t0 = time.perf_counter()
         odom = self._odometry_at(scan.stamp, odometry)
-        pred, pred_cov, moved, turned = self._predict(odom)
-        self._since_fix_dist += moved
-        self._since_fix_rot += turned
+        pred, pred_cov = self._predict(odom)
         pts = prepare_scan(scan, self.config, self._trig)
         if self.status is Status.LOST:
             est = self._update_lost(scan, pts, pred, pred_cov, odom, t0)
@@ -503,8 +399,6 @@ class Localizer:
         self._counters.scans += 1
         self._counters.status_counts[est.status.value] += 1
         self.last_estimate = est
-        if self.relocalization is not None:
-            self.relocalization.observe(self, scan, est)
         return est
 
     def _odometry_at(
@@ -521,35 +415,14 @@ class Localizer:
             return None
         return (x, y, th)
 
-    def _predict(self, odom: Pose | None) -> tuple[Pose, NDArray[np.float64], float, float]:
-        lc = self.config.localizer
+    def _predict(self, odom: Pose | None) -> tuple[Pose, NDArray[np.float64]]:
         if odom is None or self._last_odom is None:
             if odom is not None:
                 self._last_odom = odom
-            return self.pose, self.covariance + self._q_floor, 0.0, 0.0
-        d = between(self._last_odom, odom)
+            return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
+        d = self.calibration.apply(between(self._last_odom, odom))
         self._last_odom = odom
-        pose = self.pose
-        pred = compose(pose, d)
-        dist = math.hypot(d[0], d[1])
-        rot = abs(d[2])
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        # P' = F P F^T + G Q G^T with F = d(pose ⊕ d)/d(pose); Q is isotropic in x, y so
-        # G Q G^T = Q. Written out in floats: this runs for every scan.
-        a = -s * d[0] - c * d[1]
-        b = c * d[0] - s * d[1]
-        (p00, p01, p02), (_, p11, p12), (p20, p21, p22) = self.covariance.tolist()
-        r00, r01, r02 = p00 + a * p20, p01 + a * p21, p02 + a * p22
-        r11, r12 = p11 + b * p21, p12 + b * p22
-        sxy = lc.odom_sigma_per_metre * dist
-        sth = lc.odom_sigma_theta_per_radian * rot + lc.odom_sigma_theta_per_metre * dist
-        qxy = sxy * sxy + lc.process_sigma_xy**2
-        qth = sth * sth + lc.process_sigma_theta**2
-        c00 = r00 + a * r02 + qxy
-        c01 = r01 + b * r02
-        c11 = r11 + b * r12 + qxy
-        cov = np.array([[c00, c01, r02], [c01, c11, r12], [r02, r12, p22 + qth]])
-        return pred, cov, dist, rot
+        return self.motion_model.predict(self.pose, self.covariance, d)
 
     def _match_index(self, pred: Pose) -> Any:
         mc = self.config.map
@@ -569,32 +442,39 @@ class Localizer:
         normals = None if self._map_normals is None else self._map_normals[idx]
         return MapIndex(self._map_points[idx], normals)
 
-    def _icp_config_for(self, pts: NDArray[np.float64], pred_cov: NDArray[np.float64]) -> Any:
-        """The ICP settings for this scan: the first correspondence threshold opens up to
-        cover the prediction's uncertainty (``icp.correspondence_sigmas`` standard
-        deviations of position plus heading times the median range), capped at
-        ``icp.max_correspondence_cap``; quantised so configs are reused."""
+    def _icp_config_for(
+        self, pts: NDArray[np.float64], pred_cov: NDArray[np.float64] | None
+    ) -> Any:
+        """The ICP settings for this scan, from the map's quality and the prediction's
+        uncertainty: the final correspondence distance is at least 3 expected residuals plus
+        half a cell, the robust scale at least one expected residual (the configured values
+        are floors: they suit exact maps); the first correspondence threshold opens to cover
+        ``icp.correspondence_sigmas`` standard deviations of the prediction (position plus
+        heading times the median range), up to ``icp.max_correspondence_cap``. Quantised so
+        configs are reused."""
         ic = self.config.icp
-        if not ic.adaptive_correspondence:
-            return self.icp_config
-        (p00, _, _), (_, p11, _), (_, _, p22) = pred_cov.tolist()
-        sxy = math.sqrt(max(p00 + p11, 0.0))
-        sth = math.sqrt(max(p22, 0.0))
-        if ic.correspondence_sigmas * (sxy + 30.0 * sth) <= ic.max_correspondence_distance:
-            return self.icp_config  # the common case: small steps, checked without the ranges
-        if pts.shape[0]:
-            r = pts[:: max(1, pts.shape[0] // 16)]
-            rng = float(np.median(np.hypot(r[:, 0], r[:, 1])))
-        else:
-            rng = 0.0
-        want = ic.correspondence_sigmas * (sxy + rng * sth)
-        if want <= ic.max_correspondence_distance:
-            return self.icp_config
-        d = min(ic.max_correspondence_cap, math.ceil(want / 0.1) * 0.1)
-        cfg = self._icp_configs.get(d)
+        q = self.quality
+        sig = q.sigma
+        lo = max(ic.min_correspondence_distance, 3.0 * sig + 0.5 * q.resolution)
+        robust = max(ic.robust_scale, sig)
+        hi = max(ic.max_correspondence_distance, 2.0 * lo)
+        if ic.adaptive_correspondence and pred_cov is not None:
+            sxy = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
+            sth = math.sqrt(max(float(pred_cov[2, 2]), 0.0))
+            if ic.correspondence_sigmas * (sxy + 30.0 * sth) > hi and pts.shape[0]:
+                r = pts[:: max(1, pts.shape[0] // 16)]
+                rng = statistics.median(np.hypot(r[:, 0], r[:, 1]).tolist())
+                hi = max(hi, min(ic.max_correspondence_cap, ic.correspondence_sigmas * (sxy + rng * sth)))
+        key = (round(lo, 2), round(robust, 2), round(math.ceil(hi / 0.1) * 0.1, 1))
+        cfg = self._icp_configs.get(key)
         if cfg is None:
-            cfg = dataclasses.replace(ic, max_correspondence_distance=d).to_icp_config()
-            self._icp_configs[d] = cfg
+            cfg = dataclasses.replace(
+                ic,
+                min_correspondence_distance=key[0],
+                robust_scale=key[1],
+                max_correspondence_distance=max(key[2], key[0]),
+            ).to_icp_config()
+            self._icp_configs[key] = cfg
         return cfg
 
     def _run_icp(
@@ -602,7 +482,7 @@ class Localizer:
     ) -> Any:
         from icploc._core import IcpError, icp
 
-        cfg = self.icp_config if pred_cov is None else self._icp_config_for(pts, pred_cov)
+        cfg = self._icp_config_for(pts, pred_cov)
         index = self._match_index(pred)
         try:
             res = icp(pts, index, pred, cfg)
@@ -610,9 +490,8 @@ class Localizer:
             return None
         if cfg.metric == "point_to_line" and not res.converged:
             # Point-to-line that does not settle is sliding or oscillating on ambiguous
-            # geometry (measured: it drifted off on the Acapulco log); the paper's
-            # point-to-point from the same prediction has the wider basin. Keep whichever
-            # explains more of the scan.
+            # geometry; the paper's point-to-point from the same prediction has the wider
+            # basin. Keep whichever explains more of the scan.
             self._counters.point_to_point_fallbacks += 1
             try:
                 alt = icp(pts, index, pred, self._fallback_config(cfg))
@@ -623,7 +502,7 @@ class Localizer:
         return res
 
     def _fallback_config(self, cfg: Any) -> Any:
-        key = ("p2p", cfg.max_correspondence_distance)
+        key = ("p2p", cfg.max_correspondence_distance, cfg.min_correspondence_distance)
         alt = self._icp_configs.get(key)
         if alt is None:
             from icploc._core import IcpConfig
@@ -634,19 +513,63 @@ class Localizer:
             self._icp_configs[key] = alt
         return alt
 
-    def _gate_allowance(self) -> tuple[float, float]:
-        g = self.config.gating
-        tr = min(
-            g.max_translation_jump + g.translation_jump_per_metre * self._since_fix_dist,
-            g.max_translation_jump_cap,
+    def _measurement(self, res: Any) -> tuple[Pose, NDArray[np.float64]] | None:
+        """The scan match as a measurement: its pose and calibrated covariance."""
+        ix, iy, ith = res.pose
+        if not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(ith)):
+            return None
+        R = scan_covariance(
+            res.information,
+            int(res.inliers),
+            float(res.mse),
+            self.quality.sigma,
+            self._independent_beams,
         )
-        rot_deg = min(
-            g.max_rotation_jump_deg
-            + g.rotation_jump_per_radian_deg * self._since_fix_rot
-            + g.rotation_jump_per_metre_deg * self._since_fix_dist,
-            g.max_rotation_jump_cap_deg,
+        return (ix, iy, wrap_angle(ith)), R
+
+    def _verified(self, check: FitCheck) -> bool:
+        """The pose's evidence is as good as this map's verified fits usually are."""
+        lc = self.config.localizer
+        q = self.quality
+        return (
+            check.beams >= self.config.scan.min_points // 2
+            and check.hit >= lc.verify_min_hit_ratio
+            and check.hit >= lc.verify_hit_fraction * q.hit_reference
+            and check.rms <= lc.verify_max_residual * q.sigma
+            and (
+                not self.checker.see_through
+                or check.see_through
+                <= q.see_through_reference + lc.verify_max_see_through
+            )
         )
-        return tr, math.radians(rot_deg)
+
+    def _confident(self, cov: NDArray[np.float64]) -> bool:
+        """The covariance is tight enough to promise the pose (``tracking``)."""
+        lc = self.config.localizer
+        a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+        lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+        return (
+            math.sqrt(max(lmax, 0.0)) <= lc.tracking_max_sigma
+            and math.sqrt(max(float(cov[2, 2]), 0.0)) <= math.radians(lc.tracking_max_sigma_theta_deg)
+        )
+
+    def verify_pose(
+        self, points: NDArray[np.float64], pose: Pose
+    ) -> tuple[bool, Any, Pose]:
+        """ICP from ``pose``, then the verification tracking uses: ``(ok, IcpResult | None,
+        refined pose)``. What a recovery strategy calls before it may lock (see
+        :class:`icploc.recovery.RecoveryView`); the localizer then decides how far to trust
+        the lock (:meth:`_update_lost`)."""
+        if points.shape[0] < self.config.scan.min_points:
+            return False, None, pose
+        res = self._run_icp(points, pose, None)
+        if res is None or res.inlier_ratio < self.config.localizer.recover_inlier_ratio:
+            return False, res, pose
+        m = self._measurement(res)
+        if m is None:
+            return False, res, pose
+        z, R = m
+        return self._verified(self._check(points, z, z, res)), res, z
 
     def _update_tracking(
         self,
@@ -663,71 +586,114 @@ class Localizer:
         n = pts.shape[0]
         res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
         reason = ""
-        pose = pred
-        cov = pred_cov
+        pose, cov = pred, pred_cov
         accepted = False
         inlier_ratio = 0.0
         iterations = 0
         degeneracy = float("nan")
+        z: Pose | None = None
+        R: NDArray[np.float64] | None = None
+        nis = float("nan")
         if res is None:
             reason = "too_few_points" if n < self.config.scan.min_points else "icp_failed"
         else:
             inlier_ratio = float(res.inlier_ratio)
             iterations = int(res.iterations)
             degeneracy = float(res.degeneracy)
-            ix, iy, ith = res.pose
-            if not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(ith)):
+            m = self._measurement(res)
+            if m is None:
                 reason = "icp_failed"
             elif inlier_ratio < g.min_inlier_ratio:
                 reason = "low_inlier_ratio"
             elif g.require_convergence and not res.converged:
                 reason = "not_converged"
             else:
-                cand = (ix, iy, wrap_angle(ith))
-                degenerate = degeneracy < g.degeneracy_threshold
-                if degenerate:
-                    dx, dy = res.degenerate_direction
-                    nrm = math.hypot(dx, dy) or 1.0
-                    dx, dy = dx / nrm, dy / nrm
-                    along = (ix - pred[0]) * dx + (iy - pred[1]) * dy
-                    cand = (ix - along * dx, iy - along * dy, cand[2])
-                jx, jy = cand[0] - pred[0], cand[1] - pred[1]
-                jth = wrap_angle(cand[2] - pred[2])
-                max_tr, max_rot = self._gate_allowance()
-                if math.hypot(jx, jy) > max_tr or abs(jth) > max_rot:
+                z, R = m
+                jump = math.hypot(z[0] - pred[0], z[1] - pred[1])
+                turn = abs(wrap_angle(z[2] - pred[2]))
+                nis = mahalanobis2(pred, pred_cov, z, R)
+                if jump > g.max_translation_jump or turn > math.radians(g.max_rotation_jump_deg):
                     reason = "jump"
-                else:
+                elif nis <= self._chi2_accept:
                     accepted = True
-                    pose = cand
-                    cov = self._corrected_covariance(res, pred_cov, degenerate)
-                    if lc.fuse_odometry:
-                        pose, cov = _fuse(pred, pred_cov, cand, cov)
-                    # the gate re-tightens after any accepted fix: after a degenerate one the
-                    # along-axis part was taken from odometry, so no jump remains there
-                    self._since_fix_dist = 0.0
-                    self._since_fix_rot = 0.0
-                    if degenerate:
-                        reason = "degenerate"
-        # counters and status
-        if inlier_ratio < lc.lost_inlier_ratio:
-            cnt.low_inliers_in_row += 1
+                elif nis <= self._chi2_reject:
+                    accepted = True
+                    reason = "inflated"
+                    R = R * (nis / self._chi2_accept)
+                else:
+                    # prediction and scan disagree: the map arbitrates. A scan pose that
+                    # explains the scan clearly better than the prediction (and verifies)
+                    # means the odometry was off, not the fit: the prediction's covariance
+                    # is inflated instead. Otherwise the prediction stands.
+                    at_z = self.checker.check(pts, z)
+                    at_pred = self.checker.check(pts, pred)
+                    if (
+                        nis <= lc.arbitration_max_inflation * self._chi2_accept
+                        and self._verified(at_z)
+                        and at_z.hit >= at_pred.hit + lc.arbitration_margin
+                    ):
+                        accepted = True
+                        reason = "odometry_off"
+                        pred_cov = pred_cov * (nis / self._chi2_accept)
+                    elif (
+                        self._consistent_rejection(z, R, odom) >= lc.consistent_rejections
+                        and self._verified(at_z)
+                    ):
+                        # the scans keep agreeing with each other against the prediction
+                        # (a robot pushed, a pose that drifted while standing still): the
+                        # prediction is off
+                        accepted = True
+                        reason = "odometry_off"
+                        pred_cov = pred_cov * (nis / self._chi2_accept)
+                    else:
+                        reason = "inconsistent"
+                if accepted:
+                    self._rejected = None
+                    self._learn_noise(nis)
+                if accepted and R is not None:
+                    pose, cov = fuse(pred, pred_cov, z, R)
+        check = self._check(pts, pose, z, res)
+        if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
+            # the fused pose explains far less of the scan than poses here usually do: a
+            # place the map barely covers, or a fit that found something else (a local
+            # minimum, a crowd). Keep the correction only if it explains more of the scan
+            # than the prediction did.
+            at_pred = self.checker.check(pts, pred)
+            # the few beams that do end on walls fit as tightly as usual: walls hidden by a
+            # crowd, not a wrong place (where chance hits scatter over the hit distance)
+            tight = check.rms <= lc.crowd_residual * self.quality.sigma
+            if check.hit <= at_pred.hit + 0.02 and not tight:
+                accepted = False
+                reason = "contradicted"
+                pose, cov = pred, pred_cov
+                check = at_pred
+        verified = accepted and self._verified(check)
+        if accepted and not verified and not reason:
+            reason = "unverified"
+        if verified:
+            self.quality.observe(check)
+            if z is not None and R is not None and odom is not None:
+                self._calibrate(odom, z, R)
+        # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
+        # the scan no better than the prediction while far fewer beams than usual end on
+        # walls (people hide walls and unmapped places show none: a consistent, improving
+        # fit there is weak evidence, not a contradiction)
+        cnt.bad_in_row = 0 if accepted else cnt.bad_in_row + 1
+        confident = self._confident(cov)
+        if verified and confident and reason in ("", "inflated", "odometry_off"):
+            status = Status.TRACKING
         else:
-            cnt.low_inliers_in_row = 0
-        if accepted:
-            cnt.rejections_in_row = 0
-            status = Status.TRACKING if reason == "" else Status.DEGRADED
-        else:
-            cnt.rejections_in_row += 1
             status = Status.DEGRADED
+            if verified and not confident and not reason:
+                reason = "uncertain"
+        sig_xy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
         if (
-            cnt.low_inliers_in_row >= lc.lost_after_low_inlier_scans
-            or cnt.rejections_in_row >= lc.lost_after_rejections
+            cnt.bad_in_row >= lc.lost_after_bad_scans
+            or sig_xy > lc.lost_sigma_xy
         ):
             status = Status.LOST
             reason = reason or "lost"
-            self._lost_scans = 0
-            cnt.good_in_row = 0
-            self._recover_pose = None
+            self.declare_lost()
         self.pose = pose
         self.covariance = cov
         self.status = status
@@ -745,30 +711,87 @@ class Localizer:
             prediction=pred,
             odometry=odom,
             num_points=n,
+            measurement=z,
+            measurement_covariance=R,
+            nis=nis,
+            hit_ratio=check.hit,
+            residual=check.rms,
+            calibration=self.calibration.factors,
         )
 
-    def _corrected_covariance(
-        self, res: Any, pred_cov: NDArray[np.float64], degenerate: bool
-    ) -> NDArray[np.float64]:
-        cov = np.asarray(res.covariance, dtype=np.float64).reshape(3, 3)
-        if not np.isfinite(cov).all():
-            cov = pred_cov
-        # symmetric, and floored: a covariance that is never zero
-        cov = (cov + cov.T) * 0.5 + self._cov_floor
-        if degenerate:
-            dx, dy = res.degenerate_direction
-            nrm = math.hypot(dx, dy) or 1.0
-            d = np.array([dx / nrm, dy / nrm])
-            var_pred = float(d @ pred_cov[:2, :2] @ d)
-            # replace the variance along the degenerate direction with the prediction's
-            P = np.outer(d, d)
-            cross = np.eye(2) - P
-            cov[:2, :2] = cross @ cov[:2, :2] @ cross + var_pred * P
-            cov[:2, 2] = cross @ cov[:2, 2]
-            cov[2, :2] = cov[:2, 2]
-        return cov
+    def _check(
+        self, pts: NDArray[np.float64], pose: Pose, z: Pose | None, res: Any
+    ) -> FitCheck:
+        """The verification evidence at ``pose``: the ICP's own (its inliers within the
+        final correspondence distance, its point-to-line residual) when ``pose`` is within
+        half a cell and half a degree of the fit, else checked afresh."""
+        if pts.shape[0] == 0:
+            return FitCheck(0.0, 0.0, math.inf, 0)
+        if (
+            z is not None
+            and res is not None
+            and math.hypot(pose[0] - z[0], pose[1] - z[1]) <= 0.5 * self.quality.resolution
+            and abs(wrap_angle(pose[2] - z[2])) <= 0.0087
+            and not self.checker.see_through
+        ):
+            mse = float(res.mse)
+            return FitCheck(
+                float(res.inlier_ratio),
+                0.0,
+                math.sqrt(mse) if math.isfinite(mse) and res.inliers else math.inf,
+                int(res.num_points),
+            )
+        return self.checker.check(pts, pose)
 
-    # -- lost / relocalization -------------------------------------------------------------
+    def _learn_noise(self, nis: float) -> None:
+        """Online odometry noise: the chi-square statistic of accepted fits averages 3 when
+        the covariances are right; a running mean above that scales the motion model's
+        alphas up (never below the configured ones, at most ``noise_gain_max``)."""
+        lc = self.config.localizer
+        if not lc.learn_noise or not math.isfinite(nis):
+            return
+        self._nis_mean += 0.05 * (min(nis, 4.0 * self._chi2_accept) - self._nis_mean)
+        gain = min(max(self._nis_mean / 3.0, 1.0), lc.noise_gain_max)
+        if abs(gain - self.motion_model.gain) > 0.05 * self.motion_model.gain:
+            self.motion_model = dataclasses.replace(self.motion_model, gain=gain)
+
+    def _consistent_rejection(
+        self, z: Pose, R: NDArray[np.float64], odom: Pose | None
+    ) -> int:
+        """Count the rejected scan poses in a row that agree with each other (the previous
+        one moved on by odometry, within both covariances)."""
+        prev = self._rejected
+        count = 1
+        if prev is not None:
+            zp, Rp, op, k = prev
+            moved = zp if op is None or odom is None else compose(zp, between(op, odom))
+            if mahalanobis2(moved, Rp, z, R) <= self._chi2_accept:
+                count = k + 1
+        self._rejected = (z, R, odom, count)
+        return count
+
+    def _calibrate(self, odom: Pose, z: Pose, R: NDArray[np.float64]) -> None:
+        """Feed the odometry calibration with the motion between two verified, well
+        constrained scan matches at least ``calibration_baseline`` apart."""
+        lc = self.config.localizer
+        if not self.calibration.enabled:
+            return
+        a, b, c = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
+        lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+        if lmax > lc.calibration_max_sigma**2:
+            return  # a corridor: its along-track position is no evidence
+        if self._anchor is None:
+            self._anchor = (odom, z)
+            return
+        o0, z0 = self._anchor
+        d_odo = between(o0, odom)
+        turned = abs(d_odo[2]) >= self.calibration.min_turn
+        if math.hypot(d_odo[0], d_odo[1]) < lc.calibration_baseline and not turned:
+            return
+        self.calibration.observe(d_odo, between(z0, z))
+        self._anchor = (odom, z)
+
+    # -- lost / recovery -------------------------------------------------------------------
     def _update_lost(
         self,
         scan: Scan,
@@ -778,30 +801,47 @@ class Localizer:
         odom: Pose | None,
         t0: float,
     ) -> Estimate:
-        self.pose = pred
-        self.covariance = pred_cov
         self._lost_scans += 1
-        every = self.config.localizer.relocalize_every
-        try_now = (
-            self.relocalization is not None  # a plugged-in strategy throttles itself
-            or self._counters.good_in_row > 0
-            or (self._lost_scans - 1) % every == 0
-        )
-        found = (
-            self.relocalize(scan, points=pts)
-            if try_now and pts.shape[0] >= self.config.scan.min_points
-            else None
-        )
-        if found is not None:
-            res_pose, res = found
-            self._last_reloc_result = res
-            self.reset(res_pose, self._corrected_covariance(res, pred_cov, False), Status.TRACKING)
-            self._since_fix_dist = 0.0
+        motion = None
+        if odom is not None and self._lost_odom is not None:
+            motion = self.calibration.apply(between(self._lost_odom, odom))
+        self._lost_odom = odom
+        step = RecoveryStep("searching")
+        if pts.shape[0] >= self.config.scan.min_points:
+            view = RecoveryView(
+                pose=pred,
+                covariance=pred_cov,
+                motion=motion,
+                stamp=float(scan.stamp),
+                scans_processed=self._counters.scans,
+                lost_scans=self._lost_scans,
+                index=self.index,
+                icp_config=self._icp_config_for(pts, None),
+                config=self.config,
+                verify=self.verify_pose,
+            )
+            step = self.recovery.recover(view, pts)
+        res = step.result
+        m = self._measurement(res) if step.lock is not None and res is not None else None
+        lock_pose: Pose | None = None
+        if m is not None and step.lock is not None:
+            R = m[1]
+            nis = mahalanobis2(pred, pred_cov, step.lock, R)
+            if nis <= self._chi2_reject:
+                # a lock where the dead reckoning says we are: one information update (in a
+                # corridor the lock says nothing along it, the dead reckoning keeps that)
+                lock_pose, R = fuse(pred, pred_cov, step.lock, R)
+            elif self._confident(R):
+                lock_pose = step.lock  # elsewhere, and the scan pins it down: jump there
+        if lock_pose is not None and res is not None:
+            self.reset(lock_pose, R, Status.TRACKING)
+            status = Status.TRACKING if self._confident(R) else Status.DEGRADED
+            self.status = status
             return Estimate(
                 stamp=scan.stamp,
                 pose=self.pose,
                 covariance=self.covariance,
-                status=Status.TRACKING,
+                status=status,
                 inlier_ratio=float(res.inlier_ratio),
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
@@ -811,113 +851,31 @@ class Localizer:
                 prediction=pred,
                 odometry=odom,
                 num_points=pts.shape[0],
+                measurement=step.lock,
+                measurement_covariance=R,
+                calibration=self.calibration.factors,
+                hypotheses=step.hypotheses,
             )
-        last = self._last_reloc_result
+        # no lock: the dead-reckoned continuation of the last pose, its covariance growing
+        self.pose = pred
+        self.covariance = pred_cov
+        best = step.hypotheses[0] if step.hypotheses else None
         return Estimate(
             stamp=scan.stamp,
             pose=pred,
             covariance=pred_cov,
             status=Status.LOST,
-            inlier_ratio=float(last.inlier_ratio) if last is not None else 0.0,
-            iterations=int(last.iterations) if last is not None else 0,
+            inlier_ratio=best.inlier_ratio if best is not None else 0.0,
+            iterations=0,
             time=time.perf_counter() - t0,
             accepted=False,
-            # a plugged-in strategy says what it is doing: "ambiguous" (several places fit
-            # the scans equally well), "confirming", "searching"
-            reason=str(getattr(self.relocalization, "state", "") or "lost"),
-            degeneracy=float(last.degeneracy) if last is not None else float("nan"),
+            reason=step.state or "lost",
             prediction=pred,
             odometry=odom,
             num_points=pts.shape[0],
+            calibration=self.calibration.factors,
+            hypotheses=step.hypotheses,
         )
-
-    def candidate_poses(self, points: NDArray[np.float64]) -> list[Pose]:
-        """Start poses for relocalization: the dead-reckoned pose, a small local spread
-        around it, and whatever the plugged-in ``global_search`` proposes."""
-        p = self.pose
-        out: list[Pose] = [p]
-        sig = math.sqrt(max(float(self.covariance[0, 0] + self.covariance[1, 1]), 0.0))
-        r = min(max(sig, 0.25), 1.0)
-        for dth in (-0.3, 0.0, 0.3):
-            for dx, dy in ((0.0, 0.0), (r, 0.0), (-r, 0.0), (0.0, r), (0.0, -r)):
-                if dx == 0.0 and dy == 0.0 and dth == 0.0:
-                    continue
-                out.append((p[0] + dx, p[1] + dy, wrap_angle(p[2] + dth)))
-        if self.global_search is not None:
-            for c in self.global_search(points, self.index, self.pose, self.covariance):
-                out.append((float(c[0]), float(c[1]), wrap_angle(float(c[2]))))
-        return out
-
-    def relocalize(
-        self, scan: Scan, points: NDArray[np.float64] | None = None
-    ) -> tuple[Pose, Any] | None:
-        """Try to recover the pose from ``scan`` alone (plus the dead-reckoned prior).
-
-        Refines :meth:`candidate_poses` with ``icploc.icp_batch`` and keeps the best fit by
-        inlier ratio; a fit that is good (``recover_inlier_ratio``), not degenerate and
-        agrees with itself for ``recover_after`` consecutive scans is returned as
-        ``(pose, IcpResult)`` and tracking resumes. Returns ``None`` otherwise.
-        This is the hook a global search plugs into (``global_search=``); with a
-        :class:`Relocalization` plugged in (``relocalization=``) it delegates to that
-        (:meth:`relocalize_locally` is the built-in recovery either way).
-        """
-        if self.relocalization is not None:
-            pts0 = self.prepare(scan) if points is None else points
-            return self.relocalization.relocalize(self, scan, pts0)
-        return self.relocalize_locally(scan, points)
-
-    def relocalize_locally(
-        self, scan: Scan, points: NDArray[np.float64] | None = None
-    ) -> tuple[Pose, Any] | None:
-        """The built-in recovery of :meth:`relocalize`: multi-start ICP from
-        :meth:`candidate_poses` (around the dead-reckoned pose, plus ``global_search``)."""
-        from icploc._core import IcpError, icp_batch
-
-        lc = self.config.localizer
-        g = self.config.gating
-        pts = prepare_scan(scan, self.config, self._trig) if points is None else points
-        if pts.shape[0] < self.config.scan.min_points:
-            return None
-        cands = self.candidate_poses(pts)
-        try:
-            results = icp_batch(
-                [pts], self.index, np.asarray(cands, dtype=np.float64), self.icp_config
-            )
-        except IcpError:
-            return None
-        best = None
-        for r in results:
-            if not all(math.isfinite(v) for v in r.pose):
-                continue
-            key = (r.inlier_ratio, -r.mse)
-            if best is None or key > (best.inlier_ratio, -best.mse):
-                best = r
-        self._last_reloc_result = best
-        cnt = self._counters
-        if (
-            best is None
-            or best.inlier_ratio < lc.recover_inlier_ratio
-            or best.degeneracy < g.degeneracy_threshold
-        ):
-            cnt.good_in_row = 0
-            self._recover_pose = None
-            return None
-        bp: Pose = (best.pose[0], best.pose[1], wrap_angle(best.pose[2]))
-        prior = self.pose  # the previous good fit moved on by odometry
-        if self._recover_pose is not None and (
-            math.hypot(bp[0] - prior[0], bp[1] - prior[1]) > 0.15
-            or abs(wrap_angle(bp[2] - prior[2])) > math.radians(5.0)
-        ):
-            cnt.good_in_row = 0  # a different hypothesis: start confirming afresh
-        cnt.good_in_row += 1
-        self._recover_pose = bp
-        # follow the best hypothesis while confirming it
-        self.pose = bp
-        if cnt.good_in_row >= lc.recover_after:
-            cnt.good_in_row = 0
-            self._recover_pose = None
-            return bp, best
-        return None
 
     # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
     def save_state(self, path: str | os.PathLike[str]) -> Any:
@@ -933,22 +891,17 @@ class Localizer:
         return restore(self, os.fspath(path))
 
 
-def global_search_from(global_localizer: Any, max_candidates: int = 4) -> GlobalSearch:
-    """Adapt an ``icploc.GlobalLocalizer`` (branch-and-bound over the whole map) to the
-    :class:`Localizer` ``global_search`` hook: its best distinct candidates become start
-    poses for the relocalization ICP. The scan points are in the robot base frame, so the
-    candidates are base poses."""
 
-    def search(
-        points: NDArray[np.float64],
-        index: Any,
-        prior: Pose,
-        covariance: NDArray[np.float64],
-    ) -> list[Pose]:
-        res = global_localizer.search(points)
-        return [tuple(c.pose) for c in list(res.candidates)[:max_candidates]]
+def _chi2_3(p: float) -> float:
+    """The chi-square quantile with 3 degrees of freedom at probability ``p``."""
+    if p in CHI2_3:
+        return CHI2_3[p]
+    # Wilson-Hilferty: chi2_k(p) ~ k (1 - 2/(9k) + z sqrt(2/(9k)))^3
+    from statistics import NormalDist
 
-    return search
+    z = NormalDist().inv_cdf(p)
+    k = 3.0
+    return k * (1.0 - 2.0 / (9.0 * k) + z * math.sqrt(2.0 / (9.0 * k))) ** 3
 
 
 def run(

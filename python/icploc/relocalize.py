@@ -11,13 +11,10 @@ distinct one (by a relative score margin), with a good fit, for ``confirm_scans`
 consecutive scans. While two hypotheses explain the scans equally well it keeps saying
 ``ambiguous``: never a confident wrong lock.
 
-:class:`LostDetector` watches a tracking :class:`~icploc.localizer.Localizer`'s estimates
-(inlier-ratio collapse against its own recent history, rejected corrections) to declare
-``lost`` sooner than the localizer's own counters after a kidnapping.
-
-:func:`attach` plugs both into a Localizer as its :class:`~icploc.localizer.Relocalization`
-strategy (:class:`GlobalRelocalization`): the localizer's ``relocalize`` delegates to the
-hypothesis tracker while lost, and every estimate is shown to the detector.
+:class:`GlobalRelocalization` is the Localizer's default recovery strategy
+(:class:`icploc.recovery.Recovery`): while the localizer is lost it searches around the
+dead-reckoned pose, then with the hypothesis tracker over the whole map; :func:`attach`
+plugs one into an existing Localizer. This module does not import the localizer.
 :func:`relocalize` is the one-shot form: search (and optionally confirm over the
 following scans with odometry).
 """
@@ -26,21 +23,22 @@ from __future__ import annotations
 
 import itertools
 import math
-import statistics
-from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.se2 import Pose, between, compose, wrap_angle
+from icploc.config import LocalizerConfig
+from icploc.recovery import Candidate, LocalRecovery, RecoveryStep, RecoveryView
+from icploc.scanprep import prepare_scan
+from icploc.se2 import Pose, compose, wrap_angle
+from icploc.types import Scan
 
 __all__ = [
     "GlobalRelocalization",
     "Hypothesis",
-    "LostDetector",
     "RelocalizeConfig",
     "RelocalizeResult",
     "Relocalizer",
@@ -429,202 +427,97 @@ def relocalize(
 
 
 def _points(scan: Any) -> NDArray[np.float64]:
-    from icploc.types import Scan
-
     if isinstance(scan, Scan):
-        from icploc.config import LocalizerConfig
-        from icploc.localizer import prepare_scan
-
         return prepare_scan(scan, LocalizerConfig())
     return np.asarray(scan, dtype=np.float64).reshape(-1, 2)
-
-
-# -- lost detection ----------------------------------------------------------------------------
-
-
-@dataclass
-class LostDetector:
-    """Declare a tracking localizer lost from its estimates.
-
-    A scan is *suspect* when its correction was rejected, or its inlier ratio collapsed
-    below ``collapse`` x the reference (the median of the recent good scans) or below
-    ``min_inlier_ratio``; ``suspects`` suspect scans among the last ``window`` fire.
-    A scan is *doubtful* when its inlier ratio is below ``doubt`` x the reference: a
-    robot carried to a place that looks a little like where it was (the next office, the
-    same corridor) fits its wrong pose half well and slowly worse; ``doubt_scans``
-    doubtful scans in a row fire too. Doubtful scans do not enter the reference, so it
-    cannot sink with the fit. ``observe`` returns True when it fires; the caller then
-    checks (a global search) and calls :meth:`accept` when the check confirmed the pose
-    (a poorly mapped place: the reference restarts from the current scans), or
-    :meth:`backoff` when it found no evidence either way (a crowd hides the walls): the
-    reference stays, and the detector keeps quiet for ``doubt_scans`` x 2^k scans (k
-    unsure checks in a row, at most ``backoff_max``) until ``history`` calm scans."""
-
-    window: int = 5
-    suspects: int = 4
-    collapse: float = 0.6
-    min_inlier_ratio: float = 0.3
-    doubt: float = 0.8
-    doubt_scans: int = 8
-    history: int = 25
-    backoff_max: int = 64
-    _recent: deque[bool] = field(default_factory=deque)
-    _good: deque[float] = field(default_factory=deque)
-    _doubtful: int = 0
-    _quiet: int = 0  #: scans left to keep quiet after an unsure check
-    _backoffs: int = 0  #: unsure checks since the last calm stretch or accept
-    _calm: int = 0  #: consecutive scans that were not doubtful
-
-    def reset(self) -> None:
-        self._recent.clear()
-        self._good.clear()
-        self._doubtful = 0
-
-    def accept(self) -> None:
-        """The pose was checked and is right: forget the suspicion and the reference."""
-        self.reset()
-        self._quiet = self._backoffs = 0
-
-    def backoff(self) -> None:
-        """The check could not tell (no convincing pose anywhere): keep quiet a while."""
-        self._recent.clear()
-        self._doubtful = 0
-        self._quiet = min(self.backoff_max, self.doubt_scans * 2**self._backoffs)
-        self._backoffs += 1
-
-    def _reference(self) -> float:
-        # statistics.median of <= 25 floats: ~50x cheaper than np.median per scan
-        return statistics.median(self._good) if len(self._good) >= 3 else 1.0
-
-    def suspect(self, inlier_ratio: float, accepted: bool, ref: float | None = None) -> bool:
-        ref = self._reference() if ref is None else ref
-        return (
-            (not accepted)
-            or inlier_ratio < self.min_inlier_ratio
-            or inlier_ratio < self.collapse * ref
-        )
-
-    def observe(self, estimate: Any) -> bool:
-        if estimate.status == "lost":  # Status is a str enum
-            self.reset()
-            return False
-        ir = float(estimate.inlier_ratio)
-        ref = self._reference()
-        bad = self.suspect(ir, bool(estimate.accepted), ref)
-        # without a reference yet (a fresh start, after accept) the scans form one
-        doubtful = bad or (len(self._good) >= 3 and ir < self.doubt * ref)
-        self._doubtful = self._doubtful + 1 if doubtful else 0
-        self._calm = 0 if doubtful else self._calm + 1
-        if self._calm >= self.history:
-            self._backoffs = 0
-        self._recent.append(bad)
-        while len(self._recent) > self.window:
-            self._recent.popleft()
-        if not doubtful:
-            self._good.append(ir)
-            while len(self._good) > self.history:
-                self._good.popleft()
-        if self._quiet > 0:
-            self._quiet -= 1
-            return False
-        if sum(self._recent) >= self.suspects or self._doubtful >= self.doubt_scans:
-            self._recent.clear()
-            self._doubtful = 0
-            return True
-        return False
 
 
 # -- Localizer integration ---------------------------------------------------------------------
 
 
 class GlobalRelocalization:
-    """The :class:`icploc.localizer.Relocalization` strategy a Localizer uses by default
+    """The :class:`icploc.recovery.Recovery` a Localizer uses by default
     (``localizer.relocalization: global``) and :func:`attach` plugs in.
 
-    While the localizer is lost, :meth:`relocalize` runs the multi-hypothesis
-    :class:`Relocalizer` with the odometry increments between calls (the global search
-    throttled by ``localizer.global_search_every`` / ``global_search_interval``, except to
-    verify a dominating leader at once) and returns the pose (with an ICP result for the
-    covariance) only once locked. While tracking, :meth:`observe` feeds a
-    :class:`LostDetector`; when it fires, a check decides: a global search must find a
-    distinct pose that explains the scan clearly better than the tracked one (tracked
-    score < (1 - ``lost_margin``) x the best; the better pose a convincing fit, or the
-    tracked pose contradicted by beams through its walls, or outclassed five times over),
-    and a re-check ``recheck_scans`` later must find it again where odometry carried it —
-    then the localizer is declared lost (a kidnapping); a better fit at about the tracked
-    pose re-anchors it (a slide along a wall); anything else was a crowd or a glitch."""
-
-    def __init__(
-        self,
-        relocalizer: Relocalizer | None,
-        detector: LostDetector | None = None,
-        *,
-        lost_margin: float = 0.3,
-        recheck_scans: int = 3,
-        background: bool = False,
-    ) -> None:
-        #: None: built from the localizer's map index when first needed (:meth:`deferred`)
-        self._relocalizer = relocalizer
-        #: run the lost checks (a global search each) on a worker thread: ``update`` never
-        #: waits for one (a live robot on a large map); the verdict applies a few scans
-        #: later, its poses carried there by odometry. Off: checks run inline (replays
-        #: stay deterministic).
-        self.background = bool(background)
-        self._executor: Any = None
-        #: a check running in the background: (future, odometry then, scan count then)
-        self._inflight: tuple[Any, Pose | None, int] | None = None
-        self._unavailable = False  #: the map could not be gridded: local recovery only
-        self.detector = detector
-        self.lost_margin = float(lost_margin)
-        self.recheck_scans = int(recheck_scans)
-        self._last_odom: Pose | None = None
-        #: (localizer scan count, stamp) of the last global search while lost
-        self._last_search: tuple[int, float] | None = None
-        #: a check's better pose awaiting its re-check: (pose, odometry then, scan count)
-        self.pending: tuple[Pose, Pose | None, int] | None = None
-        #: the latest relocalizer results (at most 100)
-        self.results: list[RelocalizeResult] = []
-        #: lost-detector checks: "" (the tracked pose confirmed), "unsure" (no convincing
-        #: pose anywhere), "suspect" (a better pose elsewhere, to be re-checked), "lost",
-        #: "reanchor"
-        self.verdicts: list[str] = []
+    While the localizer is lost it first searches around the dead-reckoned pose
+    (:class:`icploc.recovery.LocalRecovery`, for ``localizer.local_recovery_scans`` scans:
+    a short outage, a crowd), then runs the multi-hypothesis :class:`Relocalizer` over the
+    whole map with the odometry motion between scans (the global search throttled by
+    ``localizer.global_search_every`` / ``global_search_interval``, except to verify a
+    dominating leader at once). Its hypotheses are reported every scan; a lock is returned
+    only when the Relocalizer has locked **and** the localizer's own verification accepts
+    the pose. It never moves the localizer's pose, and detects nothing: the localizer's
+    one lost detector decides when it runs."""
 
     #: a deferred build picks the finest resolution (>= 5 cm) with at most this many cells
     max_cells: float = 4e6
 
+    def __init__(
+        self,
+        relocalizer: Relocalizer | None,
+        *,
+        local: LocalRecovery | None = None,
+        background: bool = False,
+    ) -> None:
+        #: None: built from the localizer's map index when first needed (:meth:`deferred`)
+        self._relocalizer = relocalizer
+        self.local = local or LocalRecovery()
+        #: run the global searches on a worker thread (``localizer.lost_check: background``):
+        #: ``recover`` never waits for one; a search's candidates join the hypotheses when
+        #: ready, carried there by odometry
+        self.background = bool(background)
+        self._executor: Any = None
+        self._inflight: Any = None
+        self._unavailable = False  #: the map could not be gridded: local recovery only
+        #: (localizer scan count, stamp) of the last global search
+        self._last_search: tuple[int, float] | None = None
+        #: the latest relocalizer results (at most 100)
+        self.results: list[RelocalizeResult] = []
+        self.state = ""
+        #: odometry motion since the tracker's last update (robot frame)
+        self._motion: Pose = (0.0, 0.0, 0.0)
+        self._hyps: tuple[Candidate, ...] = ()
+
     @classmethod
-    def deferred(
-        cls, detector: LostDetector | None = None, *, background: bool = False
-    ) -> GlobalRelocalization:
+    def deferred(cls, *, background: bool = False) -> GlobalRelocalization:
         """The Localizer's default: a :class:`Relocalizer` over the localizer's own map
-        index, built the first time a global search is needed (a lost scan, a lost check),
-        and a default :class:`LostDetector`."""
-        return cls(None, detector or LostDetector(), background=background)
+        index, built the first time a global search is needed."""
+        return cls(None, background=background)
 
     @property
     def relocalizer(self) -> Relocalizer:
         if self._relocalizer is None:
-            raise RuntimeError("GlobalRelocalization: not built yet (no lost scan so far)")
+            raise RuntimeError("GlobalRelocalization: not built yet (no global search so far)")
         return self._relocalizer
 
-    def _ready(self, loc: Any) -> bool:
-        """Build the deferred relocalizer from ``loc``'s index (at 5 cm, coarser on a map
-        larger than :attr:`max_cells` cells at 5 cm, e.g. 10 cm for 200 m x 200 m). A map
-        the global search cannot grid even so leaves the localizer with its built-in local
-        recovery, with a warning."""
+    def reset(self) -> None:
+        fut = self._inflight
+        if fut is not None:
+            fut.result()  # let a running update finish before its tracker is reset
+        self.local.reset()
+        if self._relocalizer is not None:
+            self._relocalizer.reset()
+        self._last_search = None
+        self._inflight = None
+        self.state = ""
+        self._motion = (0.0, 0.0, 0.0)
+        self._hyps = ()
+
+    def _ready(self, view: RecoveryView) -> bool:
+        """Build the deferred relocalizer from the map index (at 5 cm, coarser on a map
+        larger than :attr:`max_cells` cells at 5 cm). A map the global search cannot grid
+        leaves local recovery only, with a warning."""
         if self._relocalizer is not None:
             return True
         if self._unavailable:
             return False
         try:
-            # 5 cm, or coarser on a large map: a search's time grows with the cells, and
-            # it runs inside a scan's update (the ICP refinement keeps the map's detail)
-            x0, y0, x1, y1 = loc.index.bounds
+            x0, y0, x1, y1 = view.index.bounds
             area = max(float(x1 - x0), 1.0) * max(float(y1 - y0), 1.0)
             res0 = max(0.05, math.ceil(math.sqrt(area / self.max_cells) / 0.05) * 0.05)
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
-                    self._relocalizer = Relocalizer(loc.index, RelocalizeConfig(resolution=res))
+                    self._relocalizer = Relocalizer(view.index, RelocalizeConfig(resolution=res))
                     break
                 except ValueError as e:
                     if res == 8 * res0 or "cells" not in str(e):
@@ -639,41 +532,30 @@ class GlobalRelocalization:
                 stacklevel=3,
             )
             self._unavailable = True
-            if getattr(loc, "relocalization", None) is self:
-                loc.relocalization = None
             return False
         return True
 
-    @property
-    def state(self) -> str:
-        """What the hypothesis tracker made of the last lost scan: ``"ambiguous"``,
-        ``"confirming"``, ``"searching"``, ``"locked"`` ("" before any)."""
-        rel = self._relocalizer
-        return rel.last.status if rel is not None and rel.last is not None else ""
-
-    # -- while lost ------------------------------------------------------------------------
-    def relocalize(
-        self, loc: Any, scan: Any, points: NDArray[np.float64]
-    ) -> tuple[Pose, Any] | None:
-        from icploc._core import IcpError, icp
-
-        if not self._ready(loc):
-            return loc.relocalize_locally(scan, points)  # type: ignore[no-any-return]
+    def recover(self, view: RecoveryView, points: NDArray[np.float64]) -> RecoveryStep:
+        lc = view.config.localizer
+        # 1. around the dead-reckoned pose first, while it means something (and alongside
+        # the global search: a verified local lock is the cheapest way back)
+        P = view.covariance
+        near = math.sqrt(max(float(P[0, 0] + P[1, 1]), 0.0)) <= self.local.max_radius
+        local = self.local.recover(view, points) if near else RecoveryStep("searching")
+        if local.lock is not None:
+            self.reset()
+            return local
+        if (near and view.lost_scans <= lc.local_recovery_scans) or not self._ready(view):
+            self.state = local.state
+            return local
+        # 2. the whole map: the multi-hypothesis tracker, its global search throttled
         rel = self.relocalizer
-        odom = loc.last_odometry
-        motion = None
-        if odom is not None and self._last_odom is not None and rel.hypotheses:
-            motion = between(self._last_odom, odom)
-        self._last_odom = odom
-        # throttle the global search: the hypotheses are tracked on every call, a fresh
-        # search only now and then — or at once to verify a leader
-        lc = loc.config.localizer
-        n, stamp = loc.scans_processed, float(scan.stamp)
+        n, stamp = view.scans_processed, view.stamp
         last = self._last_search
         search = (
-            rel.scans == 0  # a fresh start: the first lost scan, after a lock or a kidnapping
+            rel.scans == 0
             or last is None
-            or rel.awaiting_verification  # a leader has dominated long enough: check it now
+            or rel.awaiting_verification
             or (
                 n - last[0] >= lc.global_search_every
                 and not 0.0 <= stamp - last[1] < lc.global_search_interval
@@ -681,179 +563,81 @@ class GlobalRelocalization:
         )
         if search:
             self._last_search = (n, stamp)
-        res = rel.update(points, motion, search=None if search else False)
+        if view.motion is not None:
+            self._motion = compose(self._motion, view.motion)
+        if self.background:
+            got = self._background_update(rel, points, search)
+            if got is None:
+                return RecoveryStep(self.state or "searching", self._hyps or local.hypotheses)
+            res, carry = got
+        else:
+            motion = self._motion if rel.hypotheses else None
+            self._motion = (0.0, 0.0, 0.0)
+            res, carry = rel.update(points, motion, search=None if search else False), None
         self.results.append(res)
         if len(self.results) > 100:
             del self.results[:-100]
-        if res.pose is not None:
-            loc.pose = res.pose  # follow the leading hypothesis while confirming
-        if not res.locked or res.pose is None:
-            return None
-        try:
-            fit = icp(points, loc.index, res.pose, loc.icp_config)
-        except IcpError:
-            rel.reset()  # search afresh rather than report a lock that did not take
-            return None
-        rel.reset()
-        self._last_odom = None
-        return (fit.pose[0], fit.pose[1], wrap_angle(fit.pose[2])), fit
+        self.state = res.status
+        def now(p: Pose) -> Pose:  # a background result's pose, carried to this scan
+            return p if carry is None else compose(p, carry)
 
-    # -- while tracking --------------------------------------------------------------------
-    def observe(self, loc: Any, scan: Any, estimate: Any) -> None:
-        det = self.detector
-        if det is None:
-            return
-        fired = det.observe(estimate)
-        if estimate.status == "lost":  # Status is a str enum
-            self.pending = None
-            self._inflight = None  # a running check's verdict no longer applies
-            return
-        rel = self._relocalizer
-        if rel is not None and rel.scans > 0:
-            # tracking again without our lock (reset by the user, the built-in recovery):
-            # the hypotheses, the odometry and the search clock of that episode are stale
-            rel.reset()
-            self._last_odom = None
-            self._last_search = None
-        if self._inflight is not None:  # a background check: apply it once it is done
-            fut, odom_then, _ = self._inflight
-            if not fut.done():
-                return
-            self._inflight = None
-            try:
-                verdict, pose = fut.result()
-            except Exception:  # noqa: BLE001 - a failed check is no evidence
-                verdict, pose = "unsure", None
-            now = loc.last_odometry
-            if pose is not None and odom_then is not None and now is not None:
-                pose = compose(pose, between(odom_then, now))  # where it is by now
-            self._apply(loc, verdict, pose)
-            return
-        pending = self.pending
-        due = pending is not None and loc.scans_processed - pending[2] >= self.recheck_scans
-        if not (fired or due):
-            return
-        if not self._ready(loc):
-            return
-        pts, tracked = loc.prepare(scan), loc.pose
-        if self.background:
+        hyps = tuple(
+            Candidate(now(h.pose), float(h.score), float(h.inlier_ratio)) for h in res.hypotheses
+        )
+        self._hyps = hyps
+        if not res.locked or res.pose is None:
+            return RecoveryStep(res.status, hyps or local.hypotheses)
+        ok, fit, pose = view.verify(points, now(res.pose))
+        if not ok or fit is None:
+            return RecoveryStep("confirming", hyps)
+        self.reset()
+        return RecoveryStep("locked", hyps, lock=pose, result=fit)
+
+
+    def _background_update(
+        self, rel: Relocalizer, points: NDArray[np.float64], search: bool
+    ) -> tuple[RelocalizeResult, Pose] | None:
+        """Run the tracker's update on the worker thread: submit one when none is running,
+        collect it once done. Returns (result, motion since its scan) or None."""
+        fut = self._inflight
+        if fut is None:
             if self._executor is None:
                 from concurrent.futures import ThreadPoolExecutor
 
-                self._executor = ThreadPoolExecutor(1, thread_name_prefix="icploc-lost-check")
-            fut = self._executor.submit(self.check_points, pts, tracked)
-            self._inflight = (fut, loc.last_odometry, loc.scans_processed)
-            return
-        verdict, pose = self.check_points(pts, tracked)
-        self._apply(loc, verdict, pose)
+                self._executor = ThreadPoolExecutor(1, thread_name_prefix="icploc-recovery")
+            motion = self._motion if rel.hypotheses else None
+            self._motion = (0.0, 0.0, 0.0)
+            self._inflight = self._executor.submit(
+                rel.update, np.array(points), motion, None if search else False
+            )
+            return None
+        if not fut.done():
+            return None
+        self._inflight = None
+        res = fut.result()
+        return res, self._motion
 
-    def _apply(self, loc: Any, verdict: str, pose: Pose | None) -> None:
-        """Act on a check's verdict (``pose``: where it puts the robot now)."""
-        det = self.detector
-        assert det is not None
-        pending = self.pending
-        if verdict == "lost" and pose is not None:
-            # a kidnapping is declared only when a second check, ``recheck_scans`` later,
-            # finds the better pose again where odometry has carried it: the poses that
-            # a crowd's outlines fit elsewhere do not stay put while people walk
-            if pending is None or not self._consistent(loc, pending, pose):
-                self.pending = (pose, loc.last_odometry, loc.scans_processed)
-                self.verdicts.append("suspect")
-                return
-        if pending is not None and verdict == "":
-            verdict = "unsure"  # a suspicion the re-check neither confirmed nor cleared
-        self.pending = None
-        self.verdicts.append(verdict)
-        if verdict == "":
-            det.accept()  # the tracked pose confirmed: the current fit is the new normal
-        elif verdict == "unsure":
-            det.backoff()  # no evidence either way (a crowd): ask again later
-        elif verdict == "lost":
-            loc.declare_lost()
-            self.relocalizer.reset()
-            self._last_odom = None
-        elif verdict == "reanchor" and pose is not None:
-            loc.reset(pose)  # the tracker slid (a degenerate view): put it back
-
-    def check_points(self, pts: NDArray[np.float64], tracked: Pose) -> tuple[str, Pose | None]:
-        """Given scan points (robot frame) and the tracked pose: is the robot elsewhere
-        (``"lost"``, with the better pose), a little off its tracked pose (``"reanchor"``:
-        the global best is a convincing fit that ICP from the tracked pose converges to),
-        fine (``""``: the tracked pose fits as well as any), or can the scan not tell
-        (``"unsure"``: no convincing pose anywhere — a crowd)? Touches no localizer state
-        (it may run on a worker thread)."""
-        rel = self.relocalizer
-        if pts.shape[0] < 10:
-            return "unsure", None
-        here = rel.glob.refine(_subsample(pts, rel.config.max_points), np.array([tracked]))[0]
-        best = rel.glob.search(pts, rel.region, rel.heading).best
-        if best is None:
-            return "unsure", None
-        # the better pose must be a convincing fit itself — a crowd around the robot makes
-        # the tracked pose look poor and lets people's outlines fit walls elsewhere
-        # somewhat, never well — or the tracked pose must be contradicted by the scan
-        # (beams through its walls: people only shorten beams) where the better pose is not
-        convincing = best.inlier_ratio >= 0.85 and best.see_through <= 0.25
-        contradicted = (
-            here.see_through >= 0.15
-            and best.see_through <= min(0.3, 0.5 * here.see_through)
-            and rel._good(rel._score(best), best.inlier_ratio, best.see_through)
-        )
-        # or it explains the scan several times better than the tracked pose with a good
-        # fit (glass lets beams through mapped walls in both)
-        outclassed = (
-            best.inlier_ratio >= 0.8
-            and rel._good(rel._score(best), best.inlier_ratio, best.see_through)
-            and rel._score(here) < 0.2 * rel._score(best)
-        )
-        if not (convincing or contradicted or outclassed):
-            return "unsure", None
-        if not rel.glob.distinct(here.pose, best.pose):
-            off = math.hypot(best.pose[0] - tracked[0], best.pose[1] - tracked[1])
-            turn = abs(wrap_angle(best.pose[2] - tracked[2]))
-            if off > 0.1 or turn > math.radians(2.0):
-                return "reanchor", (here.pose[0], here.pose[1], wrap_angle(here.pose[2]))
-            return "", None
-        if rel._score(here) < (1.0 - self.lost_margin) * rel._score(best):
-            return "lost", (best.pose[0], best.pose[1], wrap_angle(best.pose[2]))
-        return "", None
-
-    def _consistent(self, loc: Any, pending: tuple[Pose, Pose | None, int], pose: Pose) -> bool:
-        """Is ``pose`` where the earlier check's better pose has moved to by odometry?"""
-        then, odom_then, _ = pending
-        now = loc.last_odometry
-        expected = (
-            then if odom_then is None or now is None else compose(then, between(odom_then, now))
-        )
-        return not self.relocalizer.glob.distinct(expected, pose)
+    def __del__(self) -> None:
+        ex = getattr(self, "_executor", None)
+        if ex is not None:
+            ex.shutdown(wait=False)
 
 
 def attach(
     localizer: Any,
     relocalizer: Relocalizer | None = None,
     *,
-    detector: LostDetector | None = None,
-    detect: bool = True,
-    lost_margin: float = 0.3,
-    recheck_scans: int = 3,
     background: bool | None = None,
 ) -> Relocalizer:
     """Plug global relocalization (a :class:`GlobalRelocalization`) into ``localizer`` (an
-    :class:`icploc.localizer.Localizer`, as its ``relocalization``): while lost it
-    localizes globally with the multi-hypothesis :class:`Relocalizer`; with ``detect`` a
-    :class:`LostDetector` (checked by a global search) switches it to ``lost`` after a
-    kidnapping (checked on a worker thread with ``background``; None: as the localizer's
-    ``localizer.lost_check`` says). A localizer without an initial pose then localizes
-    globally. Returns the relocalizer (its ``last`` result is the latest hypothesis state)."""
+    :class:`icploc.localizer.Localizer`) as its ``recovery``: while lost it searches around
+    the dead-reckoned pose, then the whole map with the multi-hypothesis
+    :class:`Relocalizer` (``relocalizer``, default: one over the localizer's map index).
+    ``background`` (None: as ``localizer.lost_check`` says) runs its global searches on a
+    worker thread. Returns the relocalizer (its ``last`` result is the latest state)."""
     rel = relocalizer or Relocalizer(localizer.index)
-    if background is None:  # the localizer's config says (localizer.lost_check)
+    if background is None:
         lc = getattr(getattr(localizer, "config", None), "localizer", None)
         background = getattr(lc, "lost_check", "inline") == "background"
-    localizer.relocalization = GlobalRelocalization(
-        rel,
-        (detector or LostDetector()) if detect else None,
-        lost_margin=lost_margin,
-        recheck_scans=recheck_scans,
-        background=background,
-    )
+    localizer.recovery = GlobalRelocalization(rel, background=background)
     return rel

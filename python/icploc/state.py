@@ -8,7 +8,7 @@ power cut leaves the previous state or the new one, never half a file.
 :func:`restore` puts a saved state into a :class:`~icploc.localizer.Localizer` without
 trusting it: the localizer starts ``lost`` at the saved pose, and its first usable scan is
 matched by one ICP from there (a :class:`SavedStateCheck` plugged in as its
-``relocalization``). A good, well-constrained fit close to the saved pose is taken at once
+``recovery``). A pose the localizer verifies close to the saved one is taken at once
 (tracking from the first scan, reason ``"relocalized"``); anything else hands over to the
 strategy the localizer had (global localization by default) on that same scan.
 
@@ -21,6 +21,7 @@ State file (version 1)::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -34,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.localizer import Estimate, Localizer, Status
+from icploc.recovery import Candidate, RecoveryStep, RecoveryView
 from icploc.se2 import Pose, wrap_angle
 
 __all__ = [
@@ -227,12 +229,14 @@ class StateSaver:
 
 
 class SavedStateCheck:
-    """A :class:`icploc.localizer.Relocalization` that checks a restored pose once: ICP of
-    the first usable scan from the saved pose (moved on by odometry), trusted only when the
-    fit is good (``localizer.recover_inlier_ratio``), not degenerate and close to the saved
-    pose; then (or at once, on a bad fit) the localizer's previous strategy takes over."""
+    """A :class:`icploc.recovery.Recovery` that checks a restored pose once: the
+    localizer's own verification (ICP, then the checks tracking uses) of the first usable
+    scan from the saved pose (moved on by odometry), trusted only when it verifies and lands
+    close to the saved pose; then (or at once, on a bad fit) the localizer's previous
+    strategy takes over, searching as if no pose had been given."""
 
-    def __init__(self, inner: Any) -> None:
+    def __init__(self, localizer: Localizer, inner: Any) -> None:
+        self._loc = localizer
         self.inner = inner
         self.verdict = ""  #: "" (not checked yet), "accepted" or "rejected"
         self.fit: Any = None
@@ -243,53 +247,45 @@ class SavedStateCheck:
             return "checking saved pose"
         return str(getattr(self.inner, "state", "") or "")
 
-    def _hand_over(self, loc: Localizer) -> None:
-        if loc.relocalization is self:
-            loc.relocalization = self.inner
+    def reset(self) -> None:
+        if self.inner is not None:
+            self.inner.reset()
 
-    def relocalize(
-        self, loc: Localizer, scan: Any, points: NDArray[np.float64]
-    ) -> tuple[Pose, Any] | None:
-        from icploc._core import IcpError, icp
+    def _hand_over(self) -> None:
+        if self._loc.recovery is self:
+            self._loc.recovery = self.inner
 
-        start = loc.pose  # the saved pose, moved on by odometry since the start
-        try:
-            fit = icp(points, loc.index, start, loc.icp_config)
-        except IcpError:
-            fit = None
+    def recover(self, view: RecoveryView, points: NDArray[np.float64]) -> RecoveryStep:
+        start = view.pose  # the saved pose, moved on by odometry since the start
+        ok, fit, pose = view.verify(points, start)
         self.fit = fit
         ok = (
-            fit is not None
-            and all(math.isfinite(v) for v in fit.pose)
-            and fit.inlier_ratio >= loc.config.localizer.recover_inlier_ratio
-            and fit.degeneracy >= loc.config.gating.degeneracy_threshold
-            and math.hypot(fit.pose[0] - start[0], fit.pose[1] - start[1]) <= MAX_CORRECTION_XY
-            and abs(wrap_angle(fit.pose[2] - start[2])) <= MAX_CORRECTION_THETA
+            ok
+            and fit is not None
+            and math.hypot(pose[0] - start[0], pose[1] - start[1]) <= MAX_CORRECTION_XY
+            and abs(wrap_angle(pose[2] - start[2])) <= MAX_CORRECTION_THETA
         )
         self.verdict = "accepted" if ok else "rejected"
-        self._hand_over(loc)
+        self._hand_over()
         if ok:
-            assert fit is not None
-            return (fit.pose[0], fit.pose[1], wrap_angle(fit.pose[2])), fit
+            ratio = float(fit.inlier_ratio)
+            hyp = Candidate(pose, score=ratio, inlier_ratio=ratio, verified=True)
+            return RecoveryStep("locked", (hyp,), lock=pose, result=fit)
         # not where we saved it: search as if no pose had been given, from this scan on
-        loc.reset(loc.pose, np.diag([1e6, 1e6, math.pi**2]), Status.LOST)
+        wide = dataclasses.replace(view, covariance=np.diag([1e6, 1e6, math.pi**2]))
         if self.inner is not None:
-            return self.inner.relocalize(loc, scan, points)  # type: ignore[no-any-return]
-        return loc.relocalize_locally(scan, points)
-
-    def observe(self, loc: Localizer, scan: Any, estimate: Estimate) -> None:
-        if self.inner is not None:
-            self.inner.observe(loc, scan, estimate)
+            return self.inner.recover(wide, points)  # type: ignore[no-any-return]
+        return RecoveryStep("searching")
 
 
 def restore(localizer: Localizer, state: SavedState | str | Path) -> SavedStateCheck:
     """Start ``localizer`` from a saved state, to be checked on the first scan (see the
     module doc). Returns the check (its ``verdict`` says what the first scan found)."""
     st = state if isinstance(state, SavedState) else load_state(state)
-    inner = localizer.relocalization
+    inner = localizer.recovery
     if isinstance(inner, SavedStateCheck):
         inner = inner.inner
     localizer.reset(st.pose, st.covariance, Status.LOST)
-    check = SavedStateCheck(inner)
-    localizer.relocalization = check
+    check = SavedStateCheck(localizer, inner)
+    localizer.recovery = check
     return check

@@ -1,0 +1,123 @@
+"""Online odometry calibration: the base's distance scale, turn scale and heading drift.
+
+Real wheel odometry is off systematically: a worn tyre makes every metre 1 % short, an
+unequal wheel pair adds a heading drift per metre, a wheel base off by a little scales every
+turn. :class:`OdometryCalibration` learns the three factors from pairs of consecutive
+accepted scan matches — the motion the scans say against the motion the odometry says —
+with a slow exponential forgetting filter, bounded, and only from motions the scans
+constrain well (the along-track error of a fit in a corridor is not evidence). The
+localizer applies the factors to every odometry increment before predicting::
+
+    dx, dy  *= scale                   (distance scale)
+    dtheta  = dtheta * turn_scale + drift * distance      (wheel base; heading drift, rad/m)
+
+so where the walls say nothing, dead reckoning drifts less than the raw odometry.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from icploc.se2 import Pose, wrap_angle
+
+__all__ = ["OdometryCalibration"]
+
+
+@dataclass
+class OdometryCalibration:
+    """Scale, turn scale and heading drift of the odometry (see the module docstring).
+
+    ``memory``: the filter's memory in metres driven (and radians turned for the turn
+    scale): evidence older than that fades. ``max_scale`` / ``max_turn_scale``: the factors
+    stay within 1 +- these; ``max_drift``: the drift within +- this (rad/m).
+    ``min_distance`` / ``min_turn``: a straight pair (turned less than ``min_turn``) counts
+    for the scale and drift when it moved at least ``min_distance``; a pair that turned at
+    least ``min_turn`` counts for the turn scale."""
+
+    memory: float = 30.0
+    max_scale: float = 0.05
+    max_turn_scale: float = 0.1
+    max_drift: float = math.radians(2.0)
+    min_distance: float = 0.2
+    min_turn: float = 0.1
+    #: the shrinkage prior's weight: metres driven (turn: rad^2 turned) of "no correction"
+    prior: float = 20.0
+    prior_turn: float = 10.0
+    enabled: bool = True
+    scale: float = 1.0
+    turn_scale: float = 1.0
+    drift: float = 0.0
+    #: metres and radians of evidence so far (the filter starts unsure: factors move only
+    #: as evidence accumulates)
+    distance_seen: float = 0.0
+    turn_seen: float = 0.0
+    _sd: float = 0.0  # scale: sum distance x (ratio - 1), sum distance
+    _w: float = 0.0
+    _st: float = 0.0  # turn: sum odo_turn x heading residual, sum odo_turn^2
+    _tt: float = 0.0
+    _sdr: float = 0.0  # drift: sum heading residual, sum distance
+    _dd: float = 0.0
+
+    @property
+    def factors(self) -> tuple[float, float, float]:
+        """(scale, turn_scale, drift rad/m)."""
+        return (self.scale, self.turn_scale, self.drift)
+
+    def apply(self, d: Sequence[float]) -> Pose:
+        """The odometry increment ``d`` (robot frame) corrected by the learned factors."""
+        dx, dy, dth = float(d[0]), float(d[1]), float(d[2])
+        if not self.enabled:
+            return (dx, dy, dth)
+        dist = math.hypot(dx, dy)
+        return (
+            dx * self.scale,
+            dy * self.scale,
+            dth * self.turn_scale + self.drift * dist,
+        )
+
+    def observe(self, odometry: Sequence[float], measured: Sequence[float]) -> None:
+        """One pair: ``odometry`` the raw odometry increment between two accepted scans,
+        ``measured`` the motion between their scan-matched poses (both in the first scan's
+        frame). The caller passes only motions the scans constrain (see the module
+        docstring). Each factor is a ridge estimate with exponential forgetting: the sums
+        of evidence over ``memory`` metres (radians), shrunk towards no correction by a
+        prior worth ``prior`` metres (``prior_turn`` rad^2) that fades as evidence builds
+        up (over ``memory``), so a few early pairs cannot swing it."""
+        if not self.enabled:
+            return
+        ox, oy, oth = float(odometry[0]), float(odometry[1]), float(odometry[2])
+        mx, my, mth = float(measured[0]), float(measured[1]), float(measured[2])
+        dist = math.hypot(ox, oy)
+        turn = abs(oth)
+        resid = wrap_angle(mth - oth)
+        if abs(resid) > math.radians(5.0):
+            return  # a bad pair, not a bias
+        if turn < self.min_turn and dist >= self.min_distance:
+            # a straight stretch: distance scale and heading drift per metre
+            ratio = (mx * ox + my * oy) / (dist * dist)
+            if abs(ratio - 1.0) > 0.2:
+                return
+            f = math.exp(-dist / self.memory)
+            self._sd = self._sd * f + dist * (ratio - 1.0)
+            self._w = self._w * f + dist
+            self._sdr = self._sdr * f + resid
+            self._dd = self._dd * f + dist
+            self.distance_seen += dist
+            w0 = self.prior * math.exp(-self.distance_seen / self.memory)
+            self.scale = 1.0 + _clamp(self._sd / (self._w + w0), self.max_scale)
+            self.drift = _clamp(self._sdr / (self._dd + w0), self.max_drift)
+        elif turn >= self.min_turn:
+            # a turn: the turn scale, after the drift of the distance driven meanwhile
+            r = resid - self.drift * dist
+            f = math.exp(-turn / self.memory)
+            self._st = self._st * f + oth * r
+            self._tt = self._tt * f + oth * oth
+            self.turn_seen += turn
+            w0 = self.prior_turn * math.exp(-self.turn_seen / self.memory)
+            self.turn_scale = 1.0 + _clamp(self._st / (self._tt + w0), self.max_turn_scale)
+
+
+def _clamp(v: float, lim: float) -> float:
+    return max(-lim, min(lim, v))

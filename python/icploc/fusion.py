@@ -1,0 +1,138 @@
+"""Fusing a scan match with the odometry prediction: one information update, a chi-square gate.
+
+* :func:`scan_covariance` turns an ICP result into a covariance that is true on real maps
+  rather than ``sigma^2 H^-1`` taken at face value. That textbook form treats every beam as
+  an independent measurement; on a real map the beams that hit one wall share that wall's
+  error (a grid's quantisation, a line fitted to a wall two or three cells thick, the wall
+  itself not being straight), so hundreds of beams carry the information of a few walls.
+  The covariance used is ``s^2 (H / n)^-1 / n_eff``: the mean per-beam geometry ``H / n``
+  of the fit, ``n_eff`` independent measurements (``localizer.scan_independent_beams``),
+  and a per-beam noise ``s^2`` that is the fit's own residual variance but never below the
+  map's expected residual (from its resolution and its measured fit quality).
+* :func:`fuse` combines the prediction ``(x_p, P)`` with the scan's pose ``(z, R)`` in one
+  information update, ``P+ = (P^-1 + R^-1)^-1``, ``x+ = x_p + P+ R^-1 (z - x_p)``: a
+  corridor's open axis, where ``R`` is huge, keeps the prediction, and across it the scan
+  wins — no rule, just the information each carries.
+* :func:`mahalanobis2` is the consistency of the two: ``v' (P + R)^-1 v`` with ``v = z - x_p``
+  is chi-square with 3 degrees of freedom when both covariances are right; the localizer
+  accepts below one quantile, inflates ``R`` up to a second, rejects beyond.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icploc.se2 import Pose, wrap_angle
+
+__all__ = ["CHI2_3", "fuse", "mahalanobis2", "scan_covariance"]
+
+#: chi-square quantiles with 3 degrees of freedom (probability -> value)
+CHI2_3 = {0.9: 6.251, 0.95: 7.815, 0.99: 11.345, 0.999: 16.266, 0.9999: 21.108}
+
+#: largest variance given to a direction the scan does not constrain (m^2 / rad^2)
+_HUGE = 1e6
+
+
+Mat3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+
+
+def _inv3(m: list[list[float]]) -> Mat3 | None:
+    """Inverse of a symmetric 3x3 (by cofactors, in floats: this runs several times a scan);
+    None when it is not positive definite."""
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = m
+    c00 = s11 * s22 - s12 * s12
+    c01 = s02 * s12 - s01 * s22
+    c02 = s01 * s12 - s02 * s11
+    det = s00 * c00 + s01 * c01 + s02 * c02
+    if not (det > 0.0 and math.isfinite(det)):
+        return None
+    c11 = s00 * s22 - s02 * s02
+    c12 = s01 * s02 - s00 * s12
+    c22 = s00 * s11 - s01 * s01
+    k = 1.0 / det
+    return (
+        (c00 * k, c01 * k, c02 * k),
+        (c01 * k, c11 * k, c12 * k),
+        (c02 * k, c12 * k, c22 * k),
+    )
+
+
+def scan_covariance(
+    information: NDArray[np.float64],
+    inliers: int,
+    mse: float,
+    sigma_floor: float,
+    independent_beams: float,
+) -> NDArray[np.float64]:
+    """Covariance of an ICP pose (see the module docstring). ``information`` is the fit's
+    ``H = sum J' J`` over its ``inliers`` pairs, ``mse`` their mean squared residual (m^2),
+    ``sigma_floor`` the map's expected per-beam residual (m)."""
+    n = max(int(inliers), 1)
+    H = np.asarray(information, dtype=np.float64).reshape(3, 3).tolist()
+    s2 = max(float(mse) if math.isfinite(mse) else 0.0, sigma_floor * sigma_floor)
+    f = min(float(independent_beams), float(n)) / (n * s2)
+    eps = 1.0 / _HUGE  # a direction the scan does not constrain: variance about _HUGE
+    info = [
+        [H[0][0] * f + eps, 0.5 * (H[0][1] + H[1][0]) * f, 0.5 * (H[0][2] + H[2][0]) * f],
+        [0.0, H[1][1] * f + eps, 0.5 * (H[1][2] + H[2][1]) * f],
+        [0.0, 0.0, H[2][2] * f + eps],
+    ]
+    inv = _inv3(info)
+    if inv is None:
+        return np.eye(3) * _HUGE
+    return np.array(inv)
+
+
+def mahalanobis2(
+    pred: Pose, P: NDArray[np.float64], meas: Pose, R: NDArray[np.float64]
+) -> float:
+    """``v' (P + R)^-1 v`` with ``v = meas - pred`` (heading wrapped)."""
+    Si = _inv3((P + R).tolist())
+    if Si is None:
+        return math.inf
+    v0, v1, v2 = meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])
+    return (
+        Si[0][0] * v0 * v0
+        + Si[1][1] * v1 * v1
+        + Si[2][2] * v2 * v2
+        + 2.0 * (Si[0][1] * v0 * v1 + Si[0][2] * v0 * v2 + Si[1][2] * v1 * v2)
+    )
+
+
+def fuse(
+    pred: Pose, P: NDArray[np.float64], meas: Pose, R: NDArray[np.float64]
+) -> tuple[Pose, NDArray[np.float64]]:
+    """Information update of the prediction ``(pred, P)`` with the measurement ``(meas, R)``,
+    written as the Kalman form ``K = P (P + R)^-1``, ``x+ = x + K v``, ``P+ = (I - K) P``
+    (the same update, stable when ``R`` is huge along an axis). In floats."""
+    Pl = P.tolist()
+    Si = _inv3((P + R).tolist())
+    if Si is None:
+        return pred, P
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = Pl
+    (i00, i01, i02), (_, i11, i12), (_, _, i22) = Si
+    k00 = p00 * i00 + p01 * i01 + p02 * i02
+    k01 = p00 * i01 + p01 * i11 + p02 * i12
+    k02 = p00 * i02 + p01 * i12 + p02 * i22
+    k10 = p01 * i00 + p11 * i01 + p12 * i02
+    k11 = p01 * i01 + p11 * i11 + p12 * i12
+    k12 = p01 * i02 + p11 * i12 + p12 * i22
+    k20 = p02 * i00 + p12 * i01 + p22 * i02
+    k21 = p02 * i01 + p12 * i11 + p22 * i12
+    k22 = p02 * i02 + p12 * i12 + p22 * i22
+    v0, v1, v2 = meas[0] - pred[0], meas[1] - pred[1], wrap_angle(meas[2] - pred[2])
+    d0 = k00 * v0 + k01 * v1 + k02 * v2
+    d1 = k10 * v0 + k11 * v1 + k12 * v2
+    d2 = k20 * v0 + k21 * v1 + k22 * v2
+    # (I - K) P, symmetric
+    q00 = p00 - (k00 * p00 + k01 * p01 + k02 * p02)
+    q01 = p01 - (k00 * p01 + k01 * p11 + k02 * p12)
+    q02 = p02 - (k00 * p02 + k01 * p12 + k02 * p22)
+    q11 = p11 - (k10 * p01 + k11 * p11 + k12 * p12)
+    q12 = p12 - (k10 * p02 + k11 * p12 + k12 * p22)
+    q22 = p22 - (k20 * p02 + k21 * p12 + k22 * p22)
+    cov = np.array([[q00, q01, q02], [q01, q11, q12], [q02, q12, q22]])
+    return (pred[0] + d0, pred[1] + d1, wrap_angle(pred[2] + d2)), cov
