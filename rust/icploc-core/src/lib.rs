@@ -11,6 +11,7 @@
 //!   optional shrinking schedule, trimming, Huber/Cauchy weights), the Besl–McKay quaternion
 //!   solve kept to a yaw, the point-to-line alternative, convergence rules, covariance and
 //!   degeneracy from the Hessian of the final cost.
+//! * [`likelihood`]: the likelihood grid and max-pooled pyramid of the correlative searches.
 //! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
 //! * [`raycast`]: ray casting against wall segments (simulation, visibility).
 //! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
@@ -22,6 +23,7 @@ pub mod error;
 pub mod global;
 pub mod icp;
 pub mod index;
+pub mod likelihood;
 pub mod quaternion;
 pub mod raycast;
 pub mod se2;
@@ -29,7 +31,9 @@ pub mod testkit;
 pub mod text;
 
 pub use error::{IcpError, Result};
-pub use icp::{align, align_batch, IcpConfig, IcpResult, Metric, Robust, Termination};
+pub use icp::{
+    align, align_batch, Fit, IcpConfig, IcpResult, Metric, Robust, StartPath, Termination,
+};
 pub use index::MapIndex;
 pub use se2::Pose2;
 
