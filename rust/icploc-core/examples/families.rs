@@ -13,7 +13,11 @@ fn main() {
         .and_then(|s| s.parse().ok())
         .unwrap_or(200);
     let cfg = IcpConfig::default();
+    let only = std::env::var("ONLY").ok();
     for w in worlds() {
+        if only.as_deref().is_some_and(|o| o != w.name) {
+            continue;
+        }
         let (p, nrm) = sample_segments(&w.map_segments(), 0.025);
         let idx = MapIndex::new(p, Some(nrm))
             .unwrap()
@@ -39,9 +43,28 @@ fn main() {
                 ok += good as usize;
                 win += (r.start != StartPath::Plain) as usize;
                 if !good && std::env::var("VERBOSE").is_ok() {
+                    let f = |x: &icploc_core::Fit| {
+                        format!(
+                            "{:.2}/{:.3}/{:.2}/{:.3}",
+                            x.inlier_ratio, x.rms, x.see_through, x.score
+                        )
+                    };
+                    let at_truth = icploc_core::icp::assess(&c.scan, &idx, c.truth, &cfg);
+                    let plain_cfg = IcpConfig {
+                        window_search: false,
+                        ..cfg.clone()
+                    };
+                    let rt = align(&c.scan, &idx, c.truth, &plain_cfg).unwrap();
+                    let at_refined = icploc_core::icp::assess(&c.scan, &idx, rt.pose, &cfg);
                     eprintln!(
-                        "  miss {:?} truth {:?} got {:?} fit {:?} win {:?}/{:?}",
-                        r.start, c.truth, r.pose, r.fit, r.window_score, r.window_second
+                        "  miss {:?} err ({:.2}, {:.2}, {:.1} deg) fit {} | truth {} | refined-from-truth {} (d {:.3}) | win {:?}/{:?}",
+                        r.start,
+                        r.pose.x - c.truth.x,
+                        r.pose.y - c.truth.y,
+                        wrap_angle(r.pose.theta - c.truth.theta).to_degrees(),
+                        f(&r.fit.unwrap()), f(&at_truth), f(&at_refined),
+                        (rt.pose.x - c.truth.x).hypot(rt.pose.y - c.truth.y),
+                        r.window_score, r.window_second
                     );
                 }
             }

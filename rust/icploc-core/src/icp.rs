@@ -124,9 +124,9 @@ impl Default for IcpConfig {
             window_search: true,
             window_position: 1.0,
             window_heading: 30f64.to_radians(),
-            window_angle_step: 1f64.to_radians(),
+            window_angle_step: 2f64.to_radians(),
             expected_noise: 0.02,
-            accept_inlier_ratio: 0.5,
+            accept_inlier_ratio: 0.7,
             accept_see_through: 0.05,
         }
     }
@@ -576,8 +576,34 @@ fn align_unchecked(
     let mut best = plain.clone();
     let mut best_score = if plain.converged { fit.score } else { -1.0 };
     let mut from_window = false;
-    for &(seed, _) in &win.seeds {
-        let mut r = align_plain(scan, index, seed, cfg, ws);
+    // rank the coarse seeds by how well they explain the scan (see-through included: the
+    // pyramid's likelihood alone cannot tell a pose whose beams pass through walls), with
+    // the noise widened to the lattice's error; refine the best few by ICP
+    let coarse_cfg = IcpConfig {
+        expected_noise: cfg.expected_noise.max(0.5 * field.resolution() + 0.025),
+        ..cfg.clone()
+    };
+    let stride = scan.len().div_ceil(window::RANKING_POINTS).max(1);
+    let sub: Vec<[f64; 2]> = scan.iter().step_by(stride).copied().collect();
+    let mut ranked: Vec<(f64, Pose2)> = win
+        .seeds
+        .iter()
+        .map(|&(seed, _)| (assess(&sub, index, seed, &coarse_cfg).score, seed))
+        .collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    // a seed is within a lattice step of its optimum: a wide first threshold would only let
+    // clutter pull it away
+    let refine_cfg = IcpConfig {
+        max_correspondence_distance: (4.0 * field.resolution()).clamp(
+            cfg.min_correspondence_distance,
+            cfg.max_correspondence_distance,
+        ),
+        heading_search: 0.0,
+        position_search: 0.0,
+        ..cfg.clone()
+    };
+    for &(_, seed) in ranked.iter().take(window::WINDOW_REFINED) {
+        let mut r = align_plain(scan, index, seed, &refine_cfg, ws);
         if !r.converged {
             continue;
         }

@@ -17,19 +17,25 @@ use crate::likelihood::LikelihoodField;
 use crate::se2::{wrap_angle, Pose2};
 
 /// Beams checked for see-through (evenly spread over the scan).
-const SEE_THROUGH_BEAMS: usize = 64;
+const SEE_THROUGH_BEAMS: usize = 48;
 /// Beams that meet a wall at less than this angle graze it (a corridor) and do not count.
 const GRAZING_DEG: f64 = 15.0;
 /// Scan points the coarse search uses (evenly subsampled).
-const WINDOW_POINTS: usize = 72;
+const WINDOW_POINTS: usize = 48;
 /// Leaves within this fraction of the best are kept (the window's ambiguity is reported
 /// when the best distinct alternative scores at least this much of the best).
 const KEEP_RATIO: f64 = 0.8;
+/// A window pose closer than this to the map (m) is inside a wall or furniture: not a pose.
+const MIN_CLEARANCE: f64 = 0.15;
 /// Two window poses are distinct hypotheses when this far apart (m) or `DISTINCT_ANGLE`.
 pub(crate) const DISTINCT_DISTANCE: f64 = 0.3;
 pub(crate) const DISTINCT_ANGLE: f64 = 0.1;
-/// Coarse seeds refined by ICP.
-pub(crate) const WINDOW_SEEDS: usize = 3;
+/// Distinct coarse seeds ranked by [`assess`].
+pub(crate) const WINDOW_SEEDS: usize = 12;
+/// Scan points (evenly subsampled) the seeds are ranked on.
+pub(crate) const RANKING_POINTS: usize = 96;
+/// The best ranked seeds refined by ICP.
+pub(crate) const WINDOW_REFINED: usize = 3;
 
 /// How well a pose explains a scan.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -114,7 +120,7 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
         let end = r - margin;
         let mut t = margin;
         let mut steps = 0;
-        while t < end && steps < 4096 {
+        while t < end && steps < 1024 {
             steps += 1;
             let s = [pose.x + u[0] * t, pose.y + u[1] * t];
             let (d2, j) = index.correspondence(s);
@@ -137,7 +143,9 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
                     }
                 }
             }
-            t += 0.5 * thr;
+            // a crossing at or above the grazing angle brings some sample of steps this
+            // long within `thr` of the wall
+            t += 1.8 * thr;
         }
     }
     if checked == 0 {
@@ -258,6 +266,10 @@ pub(crate) fn search(
                 continue;
             }
             if n.level == 0 {
+                let p = [center.x + n.a as f64 * res, center.y + n.b as f64 * res];
+                if field.distance_at(p).is_none_or(|d| d < MIN_CLEARANCE) {
+                    continue;
+                }
                 leaves.push(n);
                 best = best.max(n.bound);
                 continue;
