@@ -97,6 +97,8 @@ pub struct IcpConfig {
     pub accept_see_through: f64,
 }
 
+/// The iteration limit may not exceed this (a larger one is a typo, and could hang a call).
+pub const MAX_ITERATIONS: usize = 100_000;
 /// Start candidates (headings × positions) the heading/position search may try at most.
 pub const MAX_START_CANDIDATES: usize = 10_000;
 /// Poses (headings × cells) the window search may cover at most.
@@ -158,6 +160,13 @@ impl IcpConfig {
         let nonneg = |v: f64| v >= 0.0 && v.is_finite();
         if self.max_iterations == 0 {
             return Err(bad("max_iterations", 0, "must be at least 1"));
+        }
+        if self.max_iterations > MAX_ITERATIONS {
+            return Err(bad(
+                "max_iterations",
+                self.max_iterations,
+                "must be at most 100,000",
+            ));
         }
         if !pos(self.max_correspondence_distance) {
             return Err(bad(

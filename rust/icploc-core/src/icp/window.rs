@@ -342,3 +342,157 @@ pub(crate) fn search(
     }
     Some(WindowOutcome { seeds, second })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::icp::{align, StartPath};
+    use crate::index::DEFAULT_CACHE_RESOLUTION;
+    use crate::testkit::{
+        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng,
+    };
+
+    fn index_of(segs: &[crate::raycast::Segment]) -> MapIndex {
+        let (p, n) = sample_segments(segs, 0.025);
+        MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+            .unwrap()
+    }
+
+    fn ok(a: Pose2, b: Pose2) -> bool {
+        (a.x - b.x).hypot(a.y - b.y) < 0.02
+            && wrap_angle(a.theta - b.theta).abs() < 0.5f64.to_radians()
+    }
+
+    #[test]
+    fn see_through_counts_beams_through_a_closed_door() {
+        // a 20 m x 2 m corridor with a cross wall at x = 10 and a 1 m door in it
+        let mut door = rectangle(20.0, 2.0);
+        door.push([10.0, 0.0, 10.0, 0.5]);
+        door.push([10.0, 1.5, 10.0, 2.0]);
+        let mut closed = rectangle(20.0, 2.0);
+        closed.push([10.0, 0.0, 10.0, 2.0]);
+        let pose = Pose2::new(1.0, 1.0, 0.0);
+        let mut rng = Rng::new(3);
+        let scan = make_scan(&door, pose, 361, 30.0, 0.005, 0.0, &mut rng);
+        let open = see_through(&scan, &index_of(&door), pose);
+        let shut = see_through(&scan, &index_of(&closed), pose);
+        let far = scan.iter().filter(|p| p[0] > 9.5).count() as f64 / scan.len() as f64;
+        assert!(open < 0.03, "door open: {open}");
+        assert!(
+            shut > 0.5 * far && far > 0.02,
+            "door closed: {shut}, beyond it {far}"
+        );
+    }
+
+    #[test]
+    fn good_fit_takes_the_plain_path() {
+        let w = clinic_world();
+        let idx = index_of(&w.map_segments());
+        let cs = world_cases(&w, 20, (0.05, 0.05, 0.02), 5);
+        let plain = cs
+            .iter()
+            .map(|c| align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap())
+            .filter(|r| r.start == StartPath::Plain && r.window_score.is_none())
+            .count();
+        // people may hide more than 30 % of a scan: then it is searched (and still right)
+        assert!(plain >= 12, "{plain} of 20 took the plain path");
+    }
+
+    #[test]
+    fn window_search_recovers_what_plain_icp_misses() {
+        for w in worlds() {
+            let idx = index_of(&w.map_segments());
+            let cs = world_cases(&w, 40, (1.0, 0.5, 25f64.to_radians()), 11);
+            let cfg = IcpConfig::default();
+            let off = IcpConfig {
+                window_search: false,
+                ..IcpConfig::default()
+            };
+            let with: usize = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &cfg).unwrap().pose, c.truth))
+                .count();
+            let without: usize = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &off).unwrap().pose, c.truth))
+                .count();
+            eprintln!(
+                "{}: {with}/40 with the window search, {without}/40 without",
+                w.name
+            );
+            assert!(with >= 37, "{}: {with}/40", w.name);
+            assert!(with > without, "{}: {with} vs {without}", w.name);
+        }
+    }
+
+    #[test]
+    fn window_reports_score_and_ambiguity() {
+        let w = clinic_world();
+        let idx = index_of(&w.map_segments());
+        let cfg = IcpConfig {
+            accept_inlier_ratio: 1.0, // always search
+            ..IcpConfig::default()
+        };
+        for c in world_cases(&w, 10, (0.5, 0.5, 0.3), 2) {
+            let r = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            assert_ne!(r.start, StartPath::Plain);
+            let (s, s2) = (r.window_score.unwrap(), r.window_second.unwrap());
+            assert!(
+                (0.0..=1.0).contains(&s) && (0.0..=s).contains(&s2),
+                "{s} {s2}"
+            );
+        }
+    }
+
+    #[test]
+    fn window_search_is_deterministic() {
+        let w = clinic_world();
+        let idx = index_of(&w.map_segments());
+        let cfg = IcpConfig::default();
+        for c in world_cases(&w, 8, (1.0, 0.5, 25f64.to_radians()), 4) {
+            let a = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            let b = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            assert_eq!(a, b);
+        }
+    }
+
+    #[test]
+    fn oversized_searches_are_config_errors() {
+        let err = |c: IcpConfig| match c.validate() {
+            Err(crate::IcpError::InvalidConfig { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        let d = IcpConfig::default;
+        assert_eq!(
+            err(IcpConfig {
+                heading_search: 3.0,
+                heading_step: 1e-9,
+                ..d()
+            }),
+            "heading_step"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                window_angle_step: 1e-9,
+                ..d()
+            }),
+            "window_angle_step"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                max_iterations: 1 << 40,
+                ..d()
+            }),
+            "max_iterations"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                expected_noise: 0.0,
+                ..d()
+            }),
+            "expected_noise"
+        );
+    }
+}
