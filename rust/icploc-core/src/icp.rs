@@ -113,7 +113,7 @@ impl Default for IcpConfig {
             min_correspondence_distance: 0.1,
             threshold_decay: 0.6,
             trim_fraction: 1.0,
-            robust: Robust::None,
+            robust: Robust::Huber,
             robust_scale: 0.05,
             mse_threshold: 1e-8,
             mse_change: 1e-6,

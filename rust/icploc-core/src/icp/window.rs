@@ -349,7 +349,7 @@ mod tests {
     use crate::icp::{align, StartPath};
     use crate::index::DEFAULT_CACHE_RESOLUTION;
     use crate::testkit::{
-        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng,
+        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng, World,
     };
 
     fn index_of(segs: &[crate::raycast::Segment]) -> MapIndex {
@@ -388,7 +388,10 @@ mod tests {
 
     #[test]
     fn good_fit_takes_the_plain_path() {
-        let w = clinic_world();
+        let w = World {
+            people: 0,
+            ..clinic_world()
+        };
         let idx = index_of(&w.map_segments());
         let cs = world_cases(&w, 20, (0.05, 0.05, 0.02), 5);
         let plain = cs
@@ -396,8 +399,8 @@ mod tests {
             .map(|c| align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap())
             .filter(|r| r.start == StartPath::Plain && r.window_score.is_none())
             .count();
-        // people may hide more than 30 % of a scan: then it is searched (and still right)
-        assert!(plain >= 12, "{plain} of 20 took the plain path");
+        // glass may pass more than 5 % of the beams: then the scan is searched
+        assert!(plain >= 16, "{plain} of 20 took the plain path");
     }
 
     #[test]
@@ -432,7 +435,7 @@ mod tests {
         let w = clinic_world();
         let idx = index_of(&w.map_segments());
         let cfg = IcpConfig {
-            accept_inlier_ratio: 1.0, // always search
+            expected_noise: 0.001, // no 1 cm-noise fit has an RMS below 2 mm: always search
             ..IcpConfig::default()
         };
         for c in world_cases(&w, 10, (0.5, 0.5, 0.3), 2) {
