@@ -128,7 +128,7 @@ impl Default for IcpConfig {
             window_heading: 30f64.to_radians(),
             window_angle_step: 2f64.to_radians(),
             expected_noise: 0.02,
-            accept_inlier_ratio: 0.7,
+            accept_inlier_ratio: 0.75,
             accept_see_through: 0.05,
         }
     }
@@ -613,7 +613,8 @@ fn align_unchecked(
     };
     for &(_, seed) in ranked.iter().take(window::WINDOW_REFINED) {
         let mut r = align_plain(scan, index, seed, &refine_cfg, ws);
-        if !r.converged {
+        // an iteration limit reached from a good seed is still a pose: the fit decides
+        if r.termination == Termination::TooFewInliers {
             continue;
         }
         let f = assess(scan, index, r.pose, cfg);
