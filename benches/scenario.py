@@ -1,7 +1,13 @@
-"""Deterministic 2D benchmark scenario: an office floor plan, sampled maps, noisy scans.
+"""Deterministic 2D benchmark scenarios: three families of floor plans, sampled maps, noisy scans.
 
 Everything here is plain numpy and depends only on the seed, so every method in
 ``benches/peers.py`` sees exactly the same maps, scans and start poses.
+
+Families (:data:`FAMILIES`, :func:`make_scenario` ``family=``): the office below; a clinic
+wing (:func:`clinic_world`: narrow rooms, a door every 3-4 m, beds and cabinets, glass room
+fronts, an 8 m scanner, people); a warehouse of pallet racks (:func:`warehouse_world`).
+The clinic and the warehouse were laid out on their own, not derived from the office.
+The office:
 
 * The map is a set of line segments (outer walls, rooms off a corridor with door gaps,
   mapped furniture, one slanted wall). :func:`sample_map` samples it uniformly at a

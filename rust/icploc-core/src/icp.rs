@@ -592,8 +592,7 @@ fn align_unchecked(
         expected_noise: cfg.expected_noise.max(0.5 * field.resolution() + 0.025),
         ..cfg.clone()
     };
-    let stride = scan.len().div_ceil(window::RANKING_POINTS).max(1);
-    let sub: Vec<[f64; 2]> = scan.iter().step_by(stride).copied().collect();
+    let sub = window::subsample(scan, scan.len().div_ceil(window::RANKING_POINTS), 3);
     let mut ranked: Vec<(f64, Pose2)> = win
         .seeds
         .iter()

@@ -378,8 +378,7 @@ proptest! {
         let k = shift % rev.len();
         rev.rotate_left(k);
         for metric in [Metric::PointToPoint, Metric::PointToLine] {
-            // the ICP proper: the window search subsamples the scan in beam order
-            let conf = IcpConfig { metric, window_search: false, ..IcpConfig::default() };
+            let conf = IcpConfig { metric, ..IcpConfig::default() };
             let a = align(&c.scan, &idx, c.initial, &conf).unwrap();
             let b = align(&rev, &idx, c.initial, &conf).unwrap();
             prop_assert!((a.pose.x - b.pose.x).abs() < 1e-9);

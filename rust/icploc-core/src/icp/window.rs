@@ -37,6 +37,31 @@ pub(crate) const RANKING_POINTS: usize = 96;
 /// The best ranked seeds refined by ICP.
 pub(crate) const WINDOW_REFINED: usize = 3;
 
+/// Is `p` in the every-`stride`-th subset of a scan? Decided by a hash of the point itself,
+/// not by its position in the array: the subset, and so the answer, does not depend on the
+/// order of the scan points.
+#[inline]
+pub(crate) fn picked(p: &[f64; 2], stride: usize) -> bool {
+    if stride <= 1 {
+        return true;
+    }
+    let mut z = p[0].to_bits() ^ p[1].to_bits().rotate_left(29);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (z ^ (z >> 31)) % stride as u64 == 0
+}
+
+/// About `n / stride` points of `scan` (at least all of them when that leaves fewer than
+/// `min`), chosen by [`picked`].
+pub(crate) fn subsample(scan: &[[f64; 2]], stride: usize, min: usize) -> Vec<[f64; 2]> {
+    let sub: Vec<[f64; 2]> = scan.iter().filter(|p| picked(p, stride)).copied().collect();
+    if sub.len() < min {
+        scan.to_vec()
+    } else {
+        sub
+    }
+}
+
 /// How well a pose explains a scan.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fit {
@@ -109,7 +134,7 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
     let min_cos = GRAZING_DEG.to_radians().sin();
     let stride = scan.len().div_ceil(SEE_THROUGH_BEAMS).max(1);
     let (mut checked, mut bad) = (0usize, 0usize);
-    for p in scan.iter().step_by(stride) {
+    for p in scan.iter().filter(|p| picked(p, stride)) {
         let r = p[0].hypot(p[1]);
         if !(r > 2.0 * margin) || !r.is_finite() {
             continue;
@@ -191,8 +216,8 @@ pub(crate) fn search(
     if usable.len() < 3 {
         return None;
     }
-    let m = usable.len().min(WINDOW_POINTS);
-    let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
+    let sub = subsample(&usable, usable.len().div_ceil(WINDOW_POINTS), 3);
+    let m = sub.len();
     let res = field.res;
     let wc = (cfg.window_position / res).round().max(0.0) as i32;
     let nk = (cfg.window_heading / cfg.window_angle_step)
