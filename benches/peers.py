@@ -114,7 +114,8 @@ HEADING_SEARCH = 0.5  # rad: icploc's built-in multi-heading start (first stage)
 def _icploc_configs(metric: str, one_call: bool, heading_search: float = 0.0) -> list[Any]:
     import icploc
 
-    common = dict(metric=metric, max_iterations=50, robust="huber", robust_scale=ROBUST_SCALE)
+    # the protocol every method gets: plain ICP (icploc's verified start off; see "icploc default")
+    common = dict(metric=metric, max_iterations=50, robust="huber", robust_scale=ROBUST_SCALE, window_search=False)
     if one_call:
         return [icploc.IcpConfig(max_correspondence_distance=D_MAX, min_correspondence_distance=D_MIN, threshold_decay=DECAY, **common)]
     cfgs = [icploc.IcpConfig(max_correspondence_distance=d, min_correspondence_distance=d, **common) for d in STAGES]
@@ -133,6 +134,7 @@ def _icploc_search_method() -> Method:
         heading_search=math.radians(30),
         heading_step=math.radians(10),
         position_search=0.5,
+        window_search=False,
     )
 
     def make(pts: NDArray[np.float64], nrm: NDArray[np.float64], spacing: float, single: bool):
@@ -146,7 +148,7 @@ def _icploc_search_method() -> Method:
     return Method(
         name="icploc p2l +search",
         library=f"icploc {icploc.__version__}",
-        settings="icp(metric=point_to_line), one call, default schedule 1.0→0.1 m ×0.6/iter, heading_search=30° step 10°, position_search=0.5 m; one thread per call",
+        settings="icp(metric=point_to_line), one call, default schedule 1.0→0.1 m ×0.6/iter, heading_search=30° step 10°, position_search=0.5 m, window_search off; one thread per call",
         make=make,
         is_icploc=True,
     )
@@ -199,7 +201,7 @@ def _icploc_method(metric: str, one_call: bool = False, heading_search: float = 
     return Method(
         name=f"icploc {short}" + (" 1-call" if one_call else "") + (" +heading" if heading_search else ""),
         library=f"icploc {icploc.__version__}",
-        settings=f"icp(metric={metric}), {sched}, ≤50 iter each, Huber {ROBUST_SCALE} m, given 2D normals; one thread per call",
+        settings=f"icp(metric={metric}), {sched}, ≤50 iter each, Huber {ROBUST_SCALE} m, given 2D normals, window_search off (plain ICP: the peers' protocol); one thread per call",
         make=make,
         is_icploc=True,
     )
