@@ -90,7 +90,8 @@ fn bench_families(c: &mut Criterion) {
             .unwrap()
             .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
             .unwrap();
-        idx.likelihood_field(); // built on first use: not part of an alignment
+        idx.likelihood_field()
+            .expect("the map fits the window grid"); // built on first use: not part of an alignment
         for (name, err) in STARTS {
             let cs = world_cases(&w, 200, err, 7);
             let (ok, med, p95, win) = success(&idx, &cs, &cfg);
@@ -177,7 +178,8 @@ fn bench_align(c: &mut Criterion) {
             let mut g = c.benchmark_group(format!("align_office_sizes_{name}_{metric:?}"));
             for &n in &SIZES {
                 let idx = cached_index(n);
-                idx.likelihood_field();
+                idx.likelihood_field()
+                    .expect("the map fits the window grid");
                 let (ok, med, p95, win) = success(&idx, &cs, &cfg);
                 eprintln!(
                     "align office {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}",

@@ -48,7 +48,8 @@ class IcpConfig:
     ``accept_see_through`` of the beams passing through mapped walls -- a branch-and-bound
     search over +-``window_position`` (m) and +-``window_heading`` (rad, every
     ``window_angle_step``) around the initial pose on the map's likelihood pyramid
-    (5 cm cells, built once per MapIndex on first use) finds the best poses there, and ICP
+    (5 cm cells, built once per MapIndex on first use; 10 or 20 cm on maps whose bounds need
+    more than 2**23 cells, and no search beyond that) finds the best poses there, and ICP
     from them gives the result that explains the scan best. When the plain fit explains
     the scan nothing more runs."""
 
@@ -147,7 +148,8 @@ class IcpResult:
     def start(self) -> Literal["plain", "window_kept_plain", "window"]:
         """Which start the result came from: ``plain`` (the ICP from the initial pose explained
         the scan), ``window_kept_plain`` (it did not; the window search ran but nothing it
-        found explained the scan better) or ``window`` (ICP from a window-search pose)."""
+        found explained the scan better -- or, with ``window_score`` None, it could not run: a
+        map too large for its grid) or ``window`` (ICP from a window-search pose)."""
     @property
     def fit_inlier_ratio(self) -> float | None:
         """Share of the scan points within 3 x expected_noise of the map at the final pose

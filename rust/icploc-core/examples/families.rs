@@ -24,7 +24,8 @@ fn main() {
             .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
             .unwrap();
         let t = Instant::now();
-        idx.likelihood_field();
+        idx.likelihood_field()
+            .expect("the map fits the window grid");
         let build = t.elapsed();
         for (name, err) in [
             ("small", (0.3, 0.3, 10f64.to_radians())),

@@ -577,7 +577,11 @@ fn align_unchecked(
     if plain.converged && explains(&fit, cfg) {
         return plain;
     }
-    let field = index.likelihood_field();
+    // no field (a map too large for its grid) or too few usable points: nothing to search
+    let Some(field) = index.likelihood_field() else {
+        plain.start = StartPath::WindowKeptPlain;
+        return plain;
+    };
     let Some(win) = window::search(field, scan, initial.normalized(), cfg) else {
         plain.start = StartPath::WindowKeptPlain;
         return plain;

@@ -163,8 +163,9 @@ pub struct MapIndex {
     normals_given: bool,
     spacing: OnceLock<f64>,
     bounds: [f64; 4],
-    /// The likelihood pyramid of `icp()`'s window search, built on first use.
-    likelihood: OnceLock<crate::likelihood::LikelihoodField>,
+    /// The likelihood pyramid of `icp()`'s window search, built on first use (`None`: the
+    /// map is too large for it).
+    likelihood: OnceLock<Option<crate::likelihood::LikelihoodField>>,
 }
 
 impl std::fmt::Debug for MapIndex {
@@ -332,10 +333,12 @@ impl MapIndex {
     }
 
     /// The max-pooled likelihood pyramid of the window search of `icp()`
-    /// ([`crate::likelihood`]), built on first use and kept.
-    pub fn likelihood_field(&self) -> &crate::likelihood::LikelihoodField {
+    /// ([`crate::likelihood`]), built on first use and kept; `None` when the map's bounds
+    /// need more than 2²³ cells even at 20 cm.
+    pub fn likelihood_field(&self) -> Option<&crate::likelihood::LikelihoodField> {
         self.likelihood
             .get_or_init(|| crate::likelihood::LikelihoodField::for_window(self))
+            .as_ref()
     }
 
     /// Closest map point: (squared distance, index).

@@ -21,6 +21,8 @@ pub const MAX_CELLS: usize = 40_000_000;
 pub const WINDOW_RESOLUTION: f64 = 0.05;
 pub const WINDOW_SIGMA: f64 = 0.1;
 pub const WINDOW_LEVELS: usize = 6;
+/// The window search's field holds at most this many cells per level (~ 90 MB in all).
+pub const WINDOW_MAX_CELLS: usize = 1 << 23;
 
 /// A likelihood grid over a map's bounds with its max-pooled pyramid.
 #[derive(Clone)]
@@ -108,16 +110,18 @@ impl LikelihoodField {
         })
     }
 
-    /// The field `icp()`'s window search uses for `index`: [`WINDOW_RESOLUTION`], coarsened
-    /// (doubled until it fits) for a map too large for [`MAX_CELLS`] cells at 5 cm.
-    pub(crate) fn for_window(index: &MapIndex) -> Self {
-        let mut res = WINDOW_RESOLUTION;
-        loop {
-            if let Ok(f) = Self::build(index, res, WINDOW_SIGMA.max(res), WINDOW_LEVELS) {
-                return f;
-            }
-            res *= 2.0;
-        }
+    /// The field `icp()`'s window search uses for `index`: [`WINDOW_RESOLUTION`], or 10 or
+    /// 20 cm when the map's bounds need more than [`WINDOW_MAX_CELLS`] cells at 5 cm;
+    /// `None` when even 20 cm does not fit (the window search is then skipped).
+    pub(crate) fn for_window(index: &MapIndex) -> Option<Self> {
+        let [x0, y0, x1, y1] = index.bounds();
+        (0..3)
+            .map(|k| WINDOW_RESOLUTION * (1 << k) as f64)
+            .find(|res| {
+                let cells = (((x1 - x0) / res).floor() + 1.0) * (((y1 - y0) / res).floor() + 1.0);
+                cells.is_finite() && cells <= WINDOW_MAX_CELLS as f64
+            })
+            .and_then(|res| Self::build(index, res, WINDOW_SIGMA.max(res), WINDOW_LEVELS).ok())
     }
 
     pub fn resolution(&self) -> f64 {
