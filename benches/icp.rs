@@ -1,10 +1,18 @@
 //! Criterion benchmarks of the core (run with `cargo bench`; single thread, release):
 //! index build, one nearest-neighbour query, and one ICP alignment of a 361-beam scan
-//! (180°, 0.5°, 1 cm noise, 20% of beams on unmapped obstacles) against an office map of
-//! 1k / 10k / 100k / 1M points from an initial error of (0.3 m, 0.3 m, 10°).
-//! Before timing each map size it prints the success rate (within 2 cm and 0.5°) and the
-//! median time of one pass over the 200 cases; criterion then times repeated passes.
-//! From the large start error (1.0 m, 0.5 m, 25°) the heading search (±30°, 10° steps) is on.
+//! (180°, 0.5°, 1 cm noise) with the default config (`IcpConfig::default()`: what
+//! `icp(scan, index, pose)` runs, verified start included):
+//!
+//! * `align_<family>_<start>`: the three scenario families of `testkit::worlds()` (the
+//!   office, 20 % clutter, 30 m; a clinic wing, people, glass, 8 m; a warehouse of racks,
+//!   10 % clutter, people, 20 m), maps sampled every 2.5 cm;
+//! * `align_office_sizes_<start>_<metric>`: the office sampled to 1k / 10k / 100k / 1M
+//!   points, point-to-line and point-to-point.
+//!
+//! Start errors (0.3 m, 0.3 m, 10°) and (1.0 m, 0.5 m, 25°), random signs. Before timing
+//! each cell it prints the success rate (within 2 cm and 0.5°), the median and the p95 time
+//! of one pass over the 200 cases and how often the window search ran; criterion then times
+//! repeated passes.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -12,8 +20,8 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use icploc_core::index::DEFAULT_CACHE_RESOLUTION;
 use icploc_core::se2::wrap_angle;
-use icploc_core::testkit::{cases, office_segments, sample_segments, Case};
-use icploc_core::{align, IcpConfig, MapIndex, Metric};
+use icploc_core::testkit::{cases, office_segments, sample_segments, world_cases, worlds, Case};
+use icploc_core::{align, IcpConfig, MapIndex, Metric, StartPath};
 
 const SIZES: [usize; 4] = [1_000, 10_000, 100_000, 1_000_000];
 
@@ -44,8 +52,10 @@ fn queries() -> Vec<[f64; 2]> {
         .collect()
 }
 
-fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration) {
+/// One pass over the cases: (successes, median, p95, window searches).
+fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration, Duration, usize) {
     let mut ok = 0;
+    let mut windows = 0;
     let mut times: Vec<Duration> = Vec::with_capacity(cs.len());
     for c in cs {
         let t0 = Instant::now();
@@ -56,9 +66,53 @@ fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration) {
         if dt < 0.02 && dth < 0.5f64.to_radians() {
             ok += 1;
         }
+        windows += (r.start != StartPath::Plain) as usize;
     }
     times.sort();
-    (ok, times[times.len() / 2])
+    (
+        ok,
+        times[times.len() / 2],
+        times[(times.len() * 95 / 100).min(times.len() - 1)],
+        windows,
+    )
+}
+
+const STARTS: [(&str, (f64, f64, f64)); 2] = [
+    ("small", (0.3, 0.3, 0.174_532_925_199_432_95)),
+    ("large", (1.0, 0.5, 0.436_332_312_998_582_4)),
+];
+
+fn bench_families(c: &mut Criterion) {
+    let cfg = IcpConfig::default();
+    for w in worlds() {
+        let (p, nrm) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(nrm))
+            .unwrap()
+            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        idx.likelihood_field()
+            .expect("the map fits the window grid"); // built on first use: not part of an alignment
+        for (name, err) in STARTS {
+            let cs = world_cases(&w, 200, err, 7);
+            let (ok, med, p95, win) = success(&idx, &cs, &cfg);
+            eprintln!(
+                "align {} {name} start error, default config: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}",
+                w.name,
+                cs.len(),
+                100.0 * ok as f64 / cs.len() as f64,
+            );
+            let mut g = c.benchmark_group(format!("align_{}_{name}", w.name));
+            let mut k = 0usize;
+            g.bench_function("default", |b| {
+                b.iter(|| {
+                    k = (k + 1) % cs.len();
+                    let c = &cs[k];
+                    black_box(align(black_box(&c.scan), &idx, c.initial, &cfg).unwrap())
+                })
+            });
+            g.finish();
+        }
+    }
 }
 
 fn bench_build(c: &mut Criterion) {
@@ -114,33 +168,23 @@ fn bench_correspondence(c: &mut Criterion) {
 
 fn bench_align(c: &mut Criterion) {
     let segs = office_segments();
-    for (name, err) in [
-        ("small", (0.3, 0.3, 10f64.to_radians())),
-        ("large", (1.0, 0.5, 25f64.to_radians())),
-    ] {
+    for (name, err) in STARTS {
         let cs = cases(&segs, 200, err, 0.01, 0.2, 7);
         for metric in [Metric::PointToLine, Metric::PointToPoint] {
-            // from the large start error, search start headings ±30° every 10°
-            let search = if name == "large" {
-                30f64.to_radians()
-            } else {
-                0.0
-            };
             let cfg = IcpConfig {
                 metric,
-                heading_search: search,
-                heading_step: 10f64.to_radians(),
                 ..IcpConfig::default()
             };
-            let mut g = c.benchmark_group(format!("align_{name}_{metric:?}"));
+            let mut g = c.benchmark_group(format!("align_office_sizes_{name}_{metric:?}"));
             for &n in &SIZES {
                 let idx = cached_index(n);
-                let (ok, med) = success(&idx, &cs, &cfg);
+                idx.likelihood_field()
+                    .expect("the map fits the window grid");
+                let (ok, med, p95, win) = success(&idx, &cs, &cfg);
                 eprintln!(
-                    "align {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {:?}",
+                    "align office {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}",
                     cs.len(),
                     100.0 * ok as f64 / cs.len() as f64,
-                    med
                 );
                 let mut k = 0usize;
                 g.bench_with_input(BenchmarkId::from_parameter(n), &n, |b, _| {
@@ -159,6 +203,6 @@ fn bench_align(c: &mut Criterion) {
 criterion_group! {
     name = benches;
     config = Criterion::default().warm_up_time(Duration::from_millis(500)).measurement_time(Duration::from_secs(3));
-    targets = bench_build, bench_nearest, bench_correspondence, bench_align
+    targets = bench_families, bench_build, bench_nearest, bench_correspondence, bench_align
 }
 criterion_main!(benches);

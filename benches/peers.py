@@ -114,7 +114,8 @@ HEADING_SEARCH = 0.5  # rad: icploc's built-in multi-heading start (first stage)
 def _icploc_configs(metric: str, one_call: bool, heading_search: float = 0.0) -> list[Any]:
     import icploc
 
-    common = dict(metric=metric, max_iterations=50, robust="huber", robust_scale=ROBUST_SCALE)
+    # the protocol every method gets: plain ICP (icploc's verified start off; see "icploc default")
+    common = dict(metric=metric, max_iterations=50, robust="huber", robust_scale=ROBUST_SCALE, window_search=False)
     if one_call:
         return [icploc.IcpConfig(max_correspondence_distance=D_MAX, min_correspondence_distance=D_MIN, threshold_decay=DECAY, **common)]
     cfgs = [icploc.IcpConfig(max_correspondence_distance=d, min_correspondence_distance=d, **common) for d in STAGES]
@@ -133,6 +134,7 @@ def _icploc_search_method() -> Method:
         heading_search=math.radians(30),
         heading_step=math.radians(10),
         position_search=0.5,
+        window_search=False,
     )
 
     def make(pts: NDArray[np.float64], nrm: NDArray[np.float64], spacing: float, single: bool):
@@ -146,7 +148,32 @@ def _icploc_search_method() -> Method:
     return Method(
         name="icploc p2l +search",
         library=f"icploc {icploc.__version__}",
-        settings="icp(metric=point_to_line), one call, default schedule 1.0→0.1 m ×0.6/iter, heading_search=30° step 10°, position_search=0.5 m; one thread per call",
+        settings="icp(metric=point_to_line), one call, default schedule 1.0→0.1 m ×0.6/iter, heading_search=30° step 10°, position_search=0.5 m, window_search off; one thread per call",
+        make=make,
+        is_icploc=True,
+    )
+
+
+def _icploc_default_method() -> Method:
+    """What a user calls first: ``icp(scan, index, pose)`` with no config (the core's
+    defaults: point-to-line, 1.0 -> 0.1 m, the verified start with its window search)."""
+    import icploc
+
+    def make(pts: NDArray[np.float64], nrm: NDArray[np.float64], spacing: float, single: bool):
+        index = icploc.MapIndex(pts, nrm)
+        # the window search's likelihood pyramid is built on first use: build it here, in
+        # the timed build, with one call
+        icploc.icp(pts[:: max(1, len(pts) // 50)][:50] - pts.mean(axis=0), index, (*pts.mean(axis=0), 0.0))
+
+        def align(scan: NDArray[np.float64], init: Any) -> tuple[float, float, float]:
+            return icploc.icp(scan, index, init).pose
+
+        return align
+
+    return Method(
+        name="icploc default",
+        library=f"icploc {icploc.__version__}",
+        settings="icp(scan, index, pose): no config, the core's defaults (point-to-line 1.0→0.1 m ×0.6/iter, verified start with the ±1 m / ±30° window search when the fit does not explain the scan); one thread per call",
         make=make,
         is_icploc=True,
     )
@@ -174,7 +201,7 @@ def _icploc_method(metric: str, one_call: bool = False, heading_search: float = 
     return Method(
         name=f"icploc {short}" + (" 1-call" if one_call else "") + (" +heading" if heading_search else ""),
         library=f"icploc {icploc.__version__}",
-        settings=f"icp(metric={metric}), {sched}, ≤50 iter each, Huber {ROBUST_SCALE} m, given 2D normals; one thread per call",
+        settings=f"icp(metric={metric}), {sched}, ≤50 iter each, Huber {ROBUST_SCALE} m, given 2D normals, window_search off (plain ICP: the peers' protocol); one thread per call",
         make=make,
         is_icploc=True,
     )
@@ -346,6 +373,7 @@ def _kiss_method() -> Method:
 def available_methods(only: set[str] | None = None) -> tuple[list[Method], dict[str, str]]:
     """Every method whose library imports; the others with the reason they were skipped."""
     factories: list[tuple[str, Callable[[], Method]]] = [
+        ("icploc default", _icploc_default_method),
         ("icploc p2p", lambda: _icploc_method("point_to_point")),
         ("icploc p2l", lambda: _icploc_method("point_to_line")),
         ("icploc p2l 1-call", lambda: _icploc_method("point_to_line", one_call=True)),
@@ -381,11 +409,24 @@ def pose_errors(est: NDArray[np.float64], truth: NDArray[np.float64]) -> tuple[N
 
 
 def run_mode(args: argparse.Namespace, mode: str) -> dict[str, Any]:
-    """Run every method on every map size and start error in this process."""
-    single = mode == "single"
+    """Run every method on every family, map size and start error in this process."""
     methods, skipped = available_methods(set(args.methods.split(",")) if args.methods else None)
     loaded_build = icploc_build_stamp()  # the module this process imported (just now)
-    scen = sc.make_scenario(num_poses=args.poses, seed=args.seed)
+    rows: list[dict[str, Any]] = []
+    for family in args.families:
+        rows.extend(_run_family(args, mode, methods, skipped, family))
+    return {
+        "mode": mode,
+        "icploc_build": loaded_build,
+        "rows": rows,
+        "skipped": skipped,
+        "settings": {m.name: {"library": m.library, "settings": m.settings} for m in methods},
+    }
+
+
+def _run_family(args: argparse.Namespace, mode: str, methods: list[Method], skipped: dict[str, str], family: str) -> list[dict[str, Any]]:
+    single = mode == "single"
+    scen = sc.make_scenario(num_poses=args.poses, seed=args.seed, family=family)
     scans = [scen.scan_points(i) for i in range(args.poses)]
     rows: list[dict[str, Any]] = []
     for size in args.sizes:
@@ -426,7 +467,7 @@ def run_mode(args: argparse.Namespace, mode: str) -> dict[str, Any]:
                 te, re = pose_errors(est, scen.poses[:n_poses])
                 rows.append(
                     {
-                        "method": name, "library": m.library, "threads": mode, "map_points": int(len(pts)),
+                        "method": name, "library": m.library, "threads": mode, "family": family, "map_points": int(len(pts)),
                         "size": size, "start": level, "poses": n_poses, "build_s": build,
                         "median_ms": float(np.median(times) * 1e3), "times_ms": (times * 1e3).tolist(),
                         "median_te_mm": float(np.median(te) * 1e3), "median_re_deg": float(np.degrees(np.median(re))),
@@ -435,20 +476,16 @@ def run_mode(args: argparse.Namespace, mode: str) -> dict[str, Any]:
                     }
                 )  # fmt: skip
                 print(
-                    f"  [{mode}] {size:>8} {level:5} {name:22} {rows[-1]['median_ms']:9.3f} ms "
+                    f"  [{mode}] {family:9} {size:>8} {level:5} {name:22} {rows[-1]['median_ms']:9.3f} ms "
                     f"te {rows[-1]['median_te_mm']:7.2f} mm succ {rows[-1]['success'] * 100:5.1f}%",
                     file=sys.stderr, flush=True,
                 )
             del align
             if m.name == "icploc p2l" and not single:
-                rows.extend(_icploc_batch_rows(pts, nrm, size, scen, scans, mode, args.poses))
-    return {
-        "mode": mode,
-        "icploc_build": loaded_build,
-        "rows": rows,
-        "skipped": skipped,
-        "settings": {m.name: {"library": m.library, "settings": m.settings} for m in methods},
-    }
+                for r in _icploc_batch_rows(pts, nrm, size, scen, scans, mode, args.poses):
+                    r["family"] = family
+                    rows.append(r)
+    return rows
 
 
 def _icploc_batch_rows(pts, nrm, size, scen, scans, mode, n_poses) -> list[dict[str, Any]]:
@@ -579,28 +616,30 @@ def render_markdown(result: dict[str, Any]) -> str:
                  f"icploc native module built {result.get('icploc_build')}.\n")  # fmt: skip
     if result.get("warning"):
         lines.append(f"**Warning: {result['warning']}.**\n")
-    lines.append("| threads | map pts | start | method | build ms | ms/align | med. err mm | med. err ° | success | icploc p2l is ×faster |")
-    lines.append("|---|---:|---|---|---:|---:|---:|---:|---:|---:|")
-    key = lambda r: (r["threads"], r["size"], r["start"])  # noqa: E731
-    ref = {key(r): r for r in rows if r["method"] == "icploc p2l"}
+    lines.append("| threads | family | map pts | start | method | build ms | ms/align | p95 ms | med. err mm | med. err ° | success | icploc default is ×faster |")
+    lines.append("|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    key = lambda r: (r["threads"], r.get("family", "office"), r["size"], r["start"])  # noqa: E731
+    ref = {key(r): r for r in rows if r["method"] == "icploc default"}
     for r in rows:
         base = ref.get(key(r))
         ratio = _fmt_ratio(r["median_ms"] / base["median_ms"]) if base and r is not base else ""
+        p95 = _fmt_ms(float(np.percentile(r["times_ms"], 95))) if r.get("times_ms") else ""
         lines.append(
-            f"| {r['threads']} | {r['map_points']:,} | {r['start']} | {r['method']} | {r['build_s'] * 1e3:.3g} | "
-            f"{_fmt_ms(r['median_ms'])} | {r['median_te_mm']:.2f} | {r['median_re_deg']:.3f} | "
-            f"{r['success'] * 100:.0f}% | {ratio} |"
+            f"| {r['threads']} | {r.get('family', 'office')} | {r['map_points']:,} | {r['start']} | {r['method']} | {r['build_s'] * 1e3:.3g} | "
+            f"{_fmt_ms(r['median_ms'])} | {p95} | {r['median_te_mm']:.2f} | {r['median_re_deg']:.3f} | "
+            f"{r['success'] * 100:.1f}% | {ratio} |"
         )
     # speed ratio of each icploc variant to each peer
     peers = sorted({r["method"] for r in rows if not r["method"].startswith("icploc")}, key=lambda n: [x["method"] for x in rows].index(n))
-    for ic in ("icploc p2l", "icploc p2l warm", "icploc p2p"):
+    for ic in ("icploc default", "icploc p2l", "icploc p2l warm", "icploc p2p"):
         if not any(r["method"] == ic for r in rows):
             continue
         lines.append(f"\n**Speed-up of {ic}** (peer median time / {ic} median time, same run; "
                      "bold: the peer's success rate is ≥ icploc's):\n")  # fmt: skip
-        lines.append("| threads | map pts | start | " + " | ".join(peers) + " | fastest peer |")
-        lines.append("|---|---:|---|" + "---:|" * (len(peers) + 1))
-        for k in sorted({key(r) for r in rows}, key=lambda k: (k[0] != "single", k[1], k[2] != "small")):
+        lines.append("| threads | family | map pts | start | " + " | ".join(peers) + " | fastest peer at ≥ its success |")
+        lines.append("|---|---|---:|---|" + "---:|" * (len(peers) + 1))
+        fam_order = {f: i for i, f in enumerate(sc.FAMILIES)}
+        for k in sorted({key(r) for r in rows}, key=lambda k: (k[0] != "single", fam_order.get(k[1], 9), k[2], k[3] != "small")):
             mine = next((r for r in rows if key(r) == k and r["method"] == ic), None)
             if mine is None:
                 continue
@@ -612,11 +651,12 @@ def render_markdown(result: dict[str, Any]) -> str:
                     continue
                 ratio = pr["median_ms"] / mine["median_ms"]
                 s = _fmt_ratio(ratio)
-                cells.append(f"**{s}**" if pr["success"] >= mine["success"] else s)
-                if best is None or pr["median_ms"] < best[1]:
+                as_good = pr["success"] >= mine["success"]
+                cells.append(f"**{s}**" if as_good else s)
+                if as_good and (best is None or pr["median_ms"] < best[1]):
                     best = (p, pr["median_ms"], ratio)
-            fastest = f"{best[0]}: {_fmt_ratio(best[2])}" if best else "—"
-            lines.append(f"| {k[0]} | {mine['map_points']:,} | {k[2]} | " + " | ".join(cells) + f" | {fastest} |")
+            fastest = f"{best[0]}: {_fmt_ratio(best[2])}" if best else "none as successful"
+            lines.append(f"| {k[0]} | {k[1]} | {mine['map_points']:,} | {k[3]} | " + " | ".join(cells) + f" | {fastest} |")
     lines.append("\n**Settings** (each peer's best reasonable settings for this problem):\n")
     settings = {}
     for m in result["modes"]:
@@ -683,7 +723,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--methods", default=None, help="comma-separated substrings of method names to run")
     p.add_argument("--replay-scans", type=int, default=None, help="scans in the end-to-end replay (0: skip)")
     p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--families", default=",".join(sc.FAMILIES), help=f"comma-separated scenario families (default {','.join(sc.FAMILIES)})")
     p.add_argument("--out", default=str(HERE / "results"), help="directory for peers.md / peers.json")
+    p.add_argument("--tag", default="", help="suffix of the output file names (peers<tag>.md), e.g. -reduced")
     p.add_argument("--child", default=None, help=argparse.SUPPRESS)
     a = p.parse_args(argv)
     if a.sizes is None:
@@ -693,6 +735,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         a.poses = 10 if a.quick else 50
     if a.replay_scans is None:
         a.replay_scans = 200 if a.quick else 2000
+    a.families = [f for f in str(a.families).split(",") if f]
+    for f in a.families:
+        if f not in sc.FAMILIES:
+            p.error(f"--families: unknown family {f!r} (choose from {', '.join(sc.FAMILIES)})")
     return a
 
 
@@ -741,7 +787,7 @@ def main(argv: list[str] | None = None) -> int:
     print(md)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    suffix = "-quick" if args.quick else ""
+    suffix = args.tag or ("-quick" if args.quick else "")
     (out / f"peers{suffix}.md").write_text(md)
     (out / f"peers{suffix}.json").write_text(json.dumps(result, indent=1))
     print(f"wrote {out / f'peers{suffix}.md'} and {out / f'peers{suffix}.json'}", file=sys.stderr)

@@ -1,7 +1,13 @@
-"""Deterministic 2D benchmark scenario: an office floor plan, sampled maps, noisy scans.
+"""Deterministic 2D benchmark scenarios: three families of floor plans, sampled maps, noisy scans.
 
 Everything here is plain numpy and depends only on the seed, so every method in
 ``benches/peers.py`` sees exactly the same maps, scans and start poses.
+
+Families (:data:`FAMILIES`, :func:`make_scenario` ``family=``): the office below; a clinic
+wing (:func:`clinic_world`: narrow rooms, a door every 3-4 m, beds and cabinets, glass room
+fronts, an 8 m scanner, people); a warehouse of pallet racks (:func:`warehouse_world`).
+The clinic and the warehouse were laid out on their own, not derived from the office.
+The office:
 
 * The map is a set of line segments (outer walls, rooms off a corridor with door gaps,
   mapped furniture, one slanted wall). :func:`sample_map` samples it uniformly at a
@@ -213,15 +219,25 @@ def simulate_scan(
     obstacle_fraction: float = 0.2,
     angles: NDArray[np.float64] | None = None,
     max_range: float = MAX_RANGE,
+    glass: NDArray[np.float64] | None = None,
+    people_only: bool = False,
 ) -> SimScan:
     """Ray-cast a scan at ``pose`` with unmapped obstacles covering exactly
-    ``round(obstacle_fraction * beams)`` beams, then add Gaussian range noise."""
+    ``round(obstacle_fraction * beams)`` beams, then add Gaussian range noise.
+
+    ``glass``: mapped glass segments (not in ``segments``); a beam that meets glass first
+    passes through it with probability one half. ``people_only``: every obstacle block is a
+    person (no boxes)."""
     a = beam_angles() if angles is None else np.asarray(angles, dtype=np.float64)
     nb = len(a)
     x, y, th = pose
     world = a + th
     dirs = np.column_stack((np.cos(world), np.sin(world)))
     r_map = raycast_segments(segments, (x, y), dirs, max_range)
+    if glass is not None and len(glass):
+        r_glass = raycast_segments(glass, (x, y), dirs, max_range)
+        stops = (r_glass < r_map) & (rng.random(nb) < 0.5)
+        r_map = np.where(stops, r_glass, r_map)
     ranges = r_map.copy()
     hit = np.zeros(nb, dtype=bool)
     obs_segs: list[tuple[float, float, float, float]] = []
@@ -247,8 +263,8 @@ def simulate_scan(
             ok = all(np.isfinite(r_map[s : s + n]).all() and r_map[s : s + n].min() > need for s, n in starts)
             if ok:
                 break
-        else:  # pragma: no cover - the office is closed and poses keep 0.5 m from walls
-            raise RuntimeError("could not place obstacles")
+        else:  # no room for the blocks (a short-range scan facing a wall): no obstacles
+            starts = []
         for s, n in starts:
             idx = np.arange(s, s + n)
             rmin = float(r_map[idx].min())
@@ -259,7 +275,7 @@ def simulate_scan(
             dmax = min(rmin - 0.2, 8.0)
             dmin = min(0.4, dmax - 0.05)
             person_d = 0.22 / math.sin(half)  # a person of radius 0.22 m spanning the block
-            if rng.random() < 0.5 and 0.5 < person_d < dmax - 0.1:
+            if (people_only or rng.random() < 0.5) and 0.5 < person_d < dmax - 0.1:
                 rad = 0.22
                 cx, cy = x + person_d * math.cos(mid), y + person_d * math.sin(mid)
                 # circle seen under exactly +-half: centre distance D, radius D sin(half)
@@ -360,14 +376,29 @@ class Scenario:
         return self.scans[i].points(noisy=True)
 
 
-def make_scenario(num_poses: int = 50, seed: int = 7, noise: float = 0.01, obstacle_fraction: float = 0.2) -> Scenario:
-    """The deterministic scenario: ``num_poses`` true poses, one noisy scan each, and a start
-    pose per error level (seeded independently of the pose count for the first poses)."""
-    segs = office_segments()
+def make_scenario(
+    num_poses: int = 50,
+    seed: int = 7,
+    noise: float = 0.01,
+    obstacle_fraction: float | None = None,
+    family: str = "office",
+) -> Scenario:
+    """The deterministic scenario of one family (:data:`FAMILIES`): ``num_poses`` true poses,
+    one noisy scan each, and a start pose per error level (seeded independently of the pose
+    count for the first poses). ``obstacle_fraction`` defaults to the family's."""
+    w = world(family)
+    segs = w.segments
+    frac = w.obstacle_fraction if obstacle_fraction is None else obstacle_fraction
     rng_pose = np.random.default_rng([seed, 1])
-    poses = sample_free_poses(segs, num_poses, rng_pose)
+    if family == "office":
+        poses = sample_free_poses(segs, num_poses, rng_pose)
+    else:
+        poses = sample_world_poses(w, num_poses, rng_pose)
     scans = [
-        simulate_scan(segs, tuple(p), np.random.default_rng([seed, 2, i]), noise, obstacle_fraction)
+        simulate_scan(
+            w.opaque, tuple(p), np.random.default_rng([seed, 2, i]), noise, frac,
+            max_range=w.max_range, glass=w.glass, people_only=w.people_only,
+        )
         for i, p in enumerate(poses)
     ]
     starts = {
@@ -375,6 +406,154 @@ def make_scenario(num_poses: int = 50, seed: int = 7, noise: float = 0.01, obsta
         for k, (name, err) in enumerate(ERROR_LEVELS.items())
     }
     return Scenario(segments=segs, poses=poses, scans=scans, starts=starts, seed=seed)
+
+
+# --------------------------------------------------------------------------- families
+#
+# Two more worlds, laid out independently of the office (not by perturbing it): the same
+# layouts as `rust/icploc-core/src/testkit.rs` (`clinic_world`, `warehouse_world`), which
+# `cargo bench` uses.
+
+Segs = list[tuple[float, float, float, float]]
+
+
+def _split_glass(seg: tuple[float, float, float, float], a: float, b: float, opaque: Segs, glass: Segs) -> None:
+    """The part of a horizontal wall segment with x in [a, b] becomes glass."""
+    x0, x1, y = min(seg[0], seg[2]), max(seg[0], seg[2]), seg[1]
+    g0, g1 = max(x0, a), min(x1, b)
+    if g0 >= g1:
+        opaque.append(seg)
+        return
+    if x0 < g0:
+        opaque.append((x0, y, g0, y))
+    glass.append((g0, y, g1, y))
+    if g1 < x1:
+        opaque.append((g1, y, x1, y))
+
+
+@dataclass
+class World:
+    """A benchmark world: mapped opaque walls and mapped glass, the scanner's range, the
+    unmapped clutter per scan, and the free regions poses are drawn from."""
+
+    name: str
+    opaque: NDArray[np.float64]
+    glass: NDArray[np.float64]
+    max_range: float
+    obstacle_fraction: float
+    people_only: bool
+    regions: list[tuple[float, float, float, float]]
+
+    @property
+    def segments(self) -> NDArray[np.float64]:
+        """Every mapped segment (opaque and glass)."""
+        return np.vstack([self.opaque, self.glass]) if len(self.glass) else self.opaque
+
+
+def clinic_world() -> World:
+    """A clinic wing, 36 m x 12 m: a 2 m corridor (y 5..7) between twelve narrow 3 m rooms
+    to the south and nine 4 m rooms to the north, a 1 m door into every room (a door every
+    3-4 m), a bed and a cabinet or desk (mapped blocks) per room, columns along the
+    corridor, two glass room fronts (nurse station, observation room), an 8 m scanner and
+    people (15 % of the beams, as 3-6 people)."""
+    opaque: Segs = list(_rect(0.0, 0.0, 36.0, 12.0))
+    glass: Segs = []
+    south_doors = []
+    for k in range(12):
+        x = 3.0 * k
+        d = x + 0.4 + 0.3 * (k % 4)
+        south_doors.append((d, d + 1.0))
+        if k > 0:
+            opaque.append((x, 0.0, x, 5.0))
+        bx = x + 0.3 + 0.4 * (k % 3)
+        opaque += _rect(bx, 0.0, bx + 0.9, 2.0)
+        if k % 2 == 0:
+            opaque += _rect(x + 2.3, 4.1, x + 2.8, 4.6)
+    north_doors = []
+    for k in range(9):
+        x = 4.0 * k
+        d = x + 0.5 + 0.5 * (k % 3)
+        north_doors.append((d, d + 1.1))
+        if k > 0:
+            opaque.append((x, 7.0, x, 12.0))
+        bx = x + 0.8 + 0.5 * (k % 2)
+        opaque += _rect(bx, 11.1, bx + 2.0, 12.0)
+        if k % 3 != 0:
+            opaque += _rect(x + 2.6, 8.0, x + 3.8, 8.6)
+    for seg in _wall_with_doors(0.0, 36.0, 5.0, south_doors):
+        _split_glass(seg, 21.0, 24.0, opaque, glass)
+    for seg in _wall_with_doors(0.0, 36.0, 7.0, north_doors):
+        _split_glass(seg, 16.0, 20.0, opaque, glass)
+    for cx in (9.0, 15.5, 27.0, 33.5):
+        opaque += _rect(cx, 5.0, cx + 0.3, 5.3)
+    regions = [(0.6, 5.6, 35.4, 6.4)]
+    regions += [(3.0 * k + 0.5, 2.4, 3.0 * k + 2.5, 3.8) for k in range(12)]
+    regions += [(4.0 * k + 0.5, 9.0, 4.0 * k + 3.5, 10.6) for k in range(9)]
+    return World("clinic", np.asarray(opaque), np.asarray(glass).reshape(-1, 4), 8.0, 0.15, True, regions)
+
+
+def warehouse_world() -> World:
+    """A warehouse, 40 m x 30 m: six rows of pallet racks (1.2 m deep) with 3 m aisles and a
+    cross aisle; each rack a line of 0.1 m uprights every 2.5 m with a pallet in two bays of
+    three (mapped); columns along the west wall, dock doors in the south wall; a 20 m
+    scanner; 10 % of the beams on unmapped clutter (pallets left in aisles, people)."""
+    opaque: Segs = _wall_with_doors(0.0, 40.0, 0.0, [(8.0, 11.0), (16.0, 19.0), (24.0, 27.0)])
+    opaque += [(40.0, 0.0, 40.0, 30.0), (40.0, 30.0, 0.0, 30.0), (0.0, 30.0, 0.0, 0.0)]
+    for a in (8.0, 16.0, 24.0):
+        opaque += [(a, 0.0, a, -1.0), (a, -1.0, a + 3.0, -1.0), (a + 3.0, -1.0, a + 3.0, 0.0)]
+    regions: list[tuple[float, float, float, float]] = []
+    for r in range(6):
+        y = 3.0 + 4.2 * r
+        for rack, (xa, xb) in enumerate(((4.0, 19.0), (21.0, 36.0))):
+            bays = round((xb - xa) / 2.5)
+            for b in range(bays + 1):
+                x = xa + 2.5 * b
+                opaque += _rect(x - 0.05, y, x + 0.05, y + 0.1)
+                opaque += _rect(x - 0.05, y + 1.1, x + 0.05, y + 1.2)
+                if b < bays and (r * 7 + rack * 3 + b) % 3 != 0:
+                    opaque += _rect(x + 0.15, y + 0.05, x + 2.35, y + 1.15)
+        regions.append((5.0, y + 1.9, 35.0, y + 3.5))
+    regions += [(5.0, 1.0, 35.0, 2.3), (19.4, 3.0, 20.6, 27.0)]
+    for cy in (8.0, 16.0, 24.0):
+        opaque += _rect(1.5, cy, 1.9, cy + 0.4)
+    return World("warehouse", np.asarray(opaque), np.zeros((0, 4)), 20.0, 0.1, False, regions)
+
+
+def office_world() -> World:
+    """The office of :func:`office_segments` as a world (30 m range, 20 % clutter)."""
+    segs = office_segments()
+    return World("office", segs, np.zeros((0, 4)), MAX_RANGE, 0.2, False, [])
+
+
+FAMILIES = ("office", "clinic", "warehouse")
+
+
+def world(name: str) -> World:
+    """One of :data:`FAMILIES`."""
+    makers = {"office": office_world, "clinic": clinic_world, "warehouse": warehouse_world}
+    if name not in makers:
+        raise ValueError(f"unknown scenario family {name!r}; choose from {', '.join(FAMILIES)}")
+    return makers[name]()
+
+
+def sample_world_poses(w: World, n: int, rng: np.random.Generator, clearance: float = 0.35) -> NDArray[np.float64]:
+    """``n`` poses in the world's free regions (uniform by area), at least ``clearance``
+    from every mapped segment, random heading."""
+    regions = np.asarray(w.regions, dtype=np.float64)
+    area = (regions[:, 2] - regions[:, 0]) * (regions[:, 3] - regions[:, 1])
+    out: list[tuple[float, float, float]] = []
+    segs = w.segments
+    while len(out) < n:
+        k = rng.choice(len(regions), size=4 * n, p=area / area.sum())
+        lo, hi = regions[k, :2], regions[k, 2:]
+        xy = lo + rng.random((4 * n, 2)) * (hi - lo)
+        d = distance_to_segments(xy, segs)
+        for (px, py), dd in zip(xy, d, strict=True):
+            if dd >= clearance:
+                out.append((float(px), float(py), float(rng.uniform(-math.pi, math.pi))))
+                if len(out) == n:
+                    break
+    return np.asarray(out, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- replay log

@@ -300,16 +300,169 @@ def test_bad_input_raises_clear_errors(world):
     assert issubclass(icploc.InvalidInputError, icploc.IcpError)
 
 
-def test_config_set_after_construction_is_validated_at_use(world):
-    segs, idx = world
+def test_config_assignment_is_validated_and_keeps_the_old_value():
     cfg = IcpConfig()
-    cfg.max_correspondence_distance = -2.0
     with pytest.raises(icploc.InvalidConfigError, match="max_correspondence_distance"):
-        icploc.icp(np.ones((20, 2)), idx, (0, 0, 0), cfg)
-    with pytest.raises(icploc.InvalidConfigError):
-        cfg.validate()
+        cfg.max_correspondence_distance = -2.0
+    assert cfg.max_correspondence_distance == IcpConfig().max_correspondence_distance
+
+
+def test_config_equality_and_dict():
     assert IcpConfig() == IcpConfig()
+    assert IcpConfig(max_iterations=7) != IcpConfig()
     assert IcpConfig().to_dict()["metric"] == "point_to_line"
+
+
+# ---------------------------------------------------------------- one source of defaults
+
+
+def test_default_call_is_the_default_config(world):
+    """icp(s, i, p) and icp(s, i, p, IcpConfig()) are the same call (the large start makes
+    both take the window search)."""
+    segs, idx = world
+    rng = np.random.default_rng(21)
+    for truth in FREE_POSES:
+        scan = scan_at(segs, truth, rng)
+        init = (truth[0] + 0.9, truth[1] - 0.5, truth[2] + math.radians(25))
+        a = icploc.icp(scan, idx, init).to_dict()
+        b = icploc.icp(scan, idx, init, IcpConfig()).to_dict()
+        for k in ("covariance", "information"):
+            np.testing.assert_array_equal(a.pop(k), b.pop(k))
+        assert a == b
+
+
+def test_localizer_icp_section_defaults_are_the_core_defaults():
+    from icploc.config import IcpSection
+
+    core = IcpConfig().to_dict()
+    assert IcpSection().to_icp_config().to_dict() == core
+
+
+def test_config_repr_lists_every_field():
+    text = repr(IcpConfig())
+    assert all(f"{k}=" in text for k in IcpConfig().to_dict())
+
+
+# ---------------------------------------------------------------- config validation (issue 14)
+
+
+@pytest.mark.parametrize("field", ["max_iterations", "min_inliers"])
+def test_negative_int_names_the_field(field):
+    with pytest.raises(icploc.InvalidConfigError, match=field):
+        IcpConfig(**{field: -5})
+
+
+@pytest.mark.parametrize("field", ["max_iterations", "min_inliers"])
+def test_huge_int_names_the_field(field):
+    with pytest.raises(icploc.InvalidConfigError, match=field):
+        IcpConfig(**{field: 10**30})
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("max_iterations", "50"), ("max_iterations", 2.5), ("robust_scale", "x"), ("window_search", 1.5),
+     ("metric", 3), ("min_inliers", True)],
+)
+def test_wrong_type_names_the_field(field, value):
+    with pytest.raises(icploc.InvalidConfigError, match=field):
+        IcpConfig(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [dict(max_iterations=0), dict(max_iterations=10**7), dict(expected_noise=0.0), dict(accept_inlier_ratio=1.5),
+     dict(accept_see_through=-0.1), dict(window_position=-1.0), dict(window_heading=4.0),
+     dict(window_angle_step=0.0), dict(window_angle_step=1e-9), dict(heading_step=float("nan"))],
+)
+def test_out_of_range_names_the_field(kw):
+    (field,) = kw
+    with pytest.raises(icploc.InvalidConfigError, match=field):
+        IcpConfig(**kw)
+
+
+def test_unknown_field_is_a_type_error():
+    with pytest.raises(TypeError, match="no field .bogus."):
+        IcpConfig(bogus=1)
+
+
+def test_heading_search_steps_are_bounded_at_construction():
+    """heading_search=3 rad every 1e-9 rad once allocated 48 GB and aborted the process."""
+    with pytest.raises(icploc.InvalidConfigError, match="heading_step"):
+        IcpConfig(heading_search=3.0, heading_step=1e-9)
+
+
+def test_heading_times_position_candidates_are_bounded():
+    # 2 * 600 + 1 headings is fine alone, but not at 9 start positions each
+    IcpConfig(heading_search=3.0, heading_step=0.005)
+    with pytest.raises(icploc.InvalidConfigError, match="heading_step"):
+        IcpConfig(heading_search=3.0, heading_step=0.005, position_search=0.5)
+
+
+@pytest.mark.parametrize("n", [-1, 0])
+def test_icp_batch_bad_num_threads_names_the_field(world, n):
+    segs, idx = world
+    scan = scan_at(segs, FREE_POSES[0], np.random.default_rng(2))
+    with pytest.raises(icploc.InvalidConfigError, match="num_threads"):
+        icploc.icp_batch([scan], idx, np.array([FREE_POSES[0]]), num_threads=n)
+
+
+def test_icp_batch_huge_num_threads_is_clamped(world):
+    """num_threads=10**6 once tried to start a million threads and hung."""
+    segs, idx = world
+    scan = scan_at(segs, FREE_POSES[0], np.random.default_rng(2))
+    poses = np.array([FREE_POSES[0]] * 4)
+    res = icploc.icp_batch([scan], idx, poses, num_threads=10**6)
+    single = icploc.icp(scan, idx, FREE_POSES[0])
+    assert [r.pose for r in res] == [single.pose] * 4
+
+
+# ---------------------------------------------------------------- the verified start
+
+
+def test_good_fit_takes_the_plain_path(world):
+    segs, idx = world
+    scan = scan_at(segs, FREE_POSES[0], np.random.default_rng(4), outliers=0.0)
+    r = icploc.icp(scan, idx, (FREE_POSES[0][0] + 0.05, FREE_POSES[0][1], FREE_POSES[0][2]))
+    assert (r.start, r.window_score, r.window_second_score) == ("plain", None, None)
+
+
+def test_window_search_recovers_a_large_start_error(world):
+    segs, idx = world
+    rng = np.random.default_rng(5)
+    wins = 0
+    for truth in FREE_POSES:
+        scan = scan_at(segs, truth, rng)
+        init = (truth[0] - 0.9, truth[1] + 0.5, truth[2] - math.radians(25))
+        r = icploc.icp(scan, idx, init)
+        dt, dth = err(r.pose, truth)
+        wins += dt < 0.02 and dth < math.radians(0.5)
+    assert wins == len(FREE_POSES)
+
+
+def test_window_search_off_is_plain_icp(world):
+    segs, idx = world
+    scan = scan_at(segs, FREE_POSES[2], np.random.default_rng(6))
+    init = (FREE_POSES[2][0] - 0.9, FREE_POSES[2][1] + 0.5, FREE_POSES[2][2] - math.radians(25))
+    r = icploc.icp(scan, idx, init, IcpConfig(window_search=False))
+    assert (r.start, r.fit_score, r.window_score) == ("plain", None, None)
+
+
+def test_window_result_reports_its_ambiguity(world):
+    segs, idx = world
+    scan = scan_at(segs, FREE_POSES[1], np.random.default_rng(7))
+    init = (FREE_POSES[1][0] + 0.9, FREE_POSES[1][1] + 0.5, FREE_POSES[1][2] + math.radians(25))
+    r = icploc.icp(scan, idx, init, IcpConfig(expected_noise=0.001))  # no fit explains it: search
+    assert r.start in ("window", "window_kept_plain")
+    assert r.window_score is not None and r.window_second_score is not None
+    assert 0.0 <= r.window_second_score <= r.window_score <= 1.0
+
+
+def test_see_through_is_small_at_the_true_pose(world):
+    segs, idx = world
+    truth = FREE_POSES[0]
+    scan = scan_at(segs, truth, np.random.default_rng(8), outliers=0.0)
+    right = icploc.icp(scan, idx, truth)
+    assert right.see_through is not None and right.see_through < 0.05
 
 
 # ---------------------------------------------------------------- properties
@@ -361,3 +514,49 @@ def test_prop_order_of_points_does_not_matter(world, perm_seed):
     a = icploc.icp(scan, idx, init)
     b = icploc.icp(scan[rng.permutation(len(scan))], idx, init)
     assert err(a.pose, b.pose)[0] < 1e-9 and err(a.pose, b.pose)[1] < 1e-9
+
+
+# ---------------------------------------------------------------- ground truth on the families
+
+_BENCHES = __import__("pathlib").Path(__file__).resolve().parents[1] / "benches"
+
+
+def _scenario_module():
+    import sys
+
+    if str(_BENCHES) not in sys.path:
+        sys.path.insert(0, str(_BENCHES))
+    import scenario
+
+    return scenario
+
+
+@pytest.fixture(scope="module", params=["office", "clinic", "warehouse"])
+def family(request):
+    sc = _scenario_module()
+    scen = sc.make_scenario(num_poses=30, seed=17, family=request.param)
+    pts, nrm = sc.sample_map(scen.segments, 0.025)
+    return request.param, scen, MapIndex(pts, nrm)
+
+
+def _family_success(family, level: str) -> int:
+    _, scen, idx = family
+    ok = 0
+    for i, truth in enumerate(scen.poses):
+        r = icploc.icp(scen.scan_points(i), idx, scen.starts[level][i])
+        dt, dth = err(r.pose, truth)
+        ok += dt < 0.02 and dth < math.radians(0.5)
+    return ok
+
+
+@pytest.mark.slow
+def test_default_call_from_the_small_start_on_every_family(family):
+    """30 poses per family (office; clinic wing: 8 m, people, glass; warehouse racks) from
+    (0.3 m, 0.3 m, 10 deg): measured 30/30 on each; at most one miss allowed."""
+    assert _family_success(family, "small") >= 29
+
+
+@pytest.mark.slow
+def test_default_call_from_the_large_start_on_every_family(family):
+    """From (1.0 m, 0.5 m, 25 deg): at most two misses of 30 allowed."""
+    assert _family_success(family, "large") >= 28

@@ -29,14 +29,29 @@ Robust = Literal["none", "huber", "cauchy"]
 
 @final
 class IcpConfig:
-    """ICP settings. Thresholds in metres. The correspondence threshold shrinks
-    geometrically from ``max_correspondence_distance`` to ``min_correspondence_distance``
-    by ``threshold_decay`` per iteration (set ``threshold_decay=1`` for the paper's fixed
-    threshold). ``mse_threshold`` is the paper's tau; ``mse_change`` the relative change of the
-    MSE below which it stops; ``heading_search`` (rad, 0 = off) tries start headings within
-    +-heading_search every ``heading_step`` with a short coarse ICP each, for large start errors;
-    ``position_search`` (m, 0 = off) adds start positions offset by +-position_search in x and y
-    when no heading at the start position already explains most (75 %) of the scan."""
+    """ICP settings. Every default is the Rust core's ``IcpConfig::default()``; keyword
+    arguments override them, and every value is checked at construction and on
+    assignment (:class:`InvalidConfigError` naming the field).
+
+    Thresholds in metres. The correspondence threshold shrinks geometrically from
+    ``max_correspondence_distance`` to ``min_correspondence_distance`` by
+    ``threshold_decay`` per iteration (``threshold_decay=1``: the paper's fixed threshold).
+    ``mse_threshold`` is the paper's tau; ``mse_change`` the relative change of the MSE
+    below which it stops. ``heading_search`` (rad, 0 = off) tries start headings within
+    +-heading_search every ``heading_step`` with a short coarse ICP each;
+    ``position_search`` (m, 0 = off) adds start positions offset by +-position_search in x
+    and y (at most 10,000 start candidates in all).
+
+    The verified start (``window_search``, on by default): when the ICP result does not
+    explain the scan -- fewer than ``accept_inlier_ratio`` of the points within
+    3 x ``expected_noise`` of the map, their RMS above 2 x ``expected_noise``, or more than
+    ``accept_see_through`` of the beams passing through mapped walls -- a branch-and-bound
+    search over +-``window_position`` (m) and +-``window_heading`` (rad, every
+    ``window_angle_step``) around the initial pose on the map's likelihood pyramid
+    (5 cm cells, built once per MapIndex on first use; 10 or 20 cm on maps whose bounds need
+    more than 2**23 cells, and no search beyond that) finds the best poses there, and ICP
+    from them gives the result that explains the scan best. When the plain fit explains
+    the scan nothing more runs."""
 
     metric: Metric
     max_iterations: int
@@ -54,25 +69,39 @@ class IcpConfig:
     heading_search: float
     heading_step: float
     position_search: float
+    window_search: bool
+    window_position: float
+    window_heading: float
+    window_angle_step: float
+    expected_noise: float
+    accept_inlier_ratio: float
+    accept_see_through: float
     def __new__(
         cls,
         *,
-        metric: Metric = "point_to_line",
-        max_iterations: int = 50,
-        max_correspondence_distance: float = 1.0,
-        min_correspondence_distance: float = 0.1,
-        threshold_decay: float = 0.6,
-        trim_fraction: float = 1.0,
-        robust: Robust = "none",
-        robust_scale: float = 0.05,
-        mse_threshold: float = 1e-8,
-        mse_change: float = 1e-7,
-        step_tolerance: float = 1e-6,
-        min_inliers: int = 10,
-        min_inlier_ratio: float = 0.0,
-        heading_search: float = 0.0,
-        heading_step: float = 0.08726646259971647,
-        position_search: float = 0.0,
+        metric: Metric = ...,
+        max_iterations: int = ...,
+        max_correspondence_distance: float = ...,
+        min_correspondence_distance: float = ...,
+        threshold_decay: float = ...,
+        trim_fraction: float = ...,
+        robust: Robust = ...,
+        robust_scale: float = ...,
+        mse_threshold: float = ...,
+        mse_change: float = ...,
+        step_tolerance: float = ...,
+        min_inliers: int = ...,
+        min_inlier_ratio: float = ...,
+        heading_search: float = ...,
+        heading_step: float = ...,
+        position_search: float = ...,
+        window_search: bool = ...,
+        window_position: float = ...,
+        window_heading: float = ...,
+        window_angle_step: float = ...,
+        expected_noise: float = ...,
+        accept_inlier_ratio: float = ...,
+        accept_see_through: float = ...,
     ) -> Self: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""
@@ -115,6 +144,34 @@ class IcpResult:
     def termination(self) -> str:
         """Why it stopped: mse_below_threshold, mse_change_below_epsilon, step_below_tolerance,
         max_iterations or too_few_inliers."""
+    @property
+    def start(self) -> Literal["plain", "window_kept_plain", "window"]:
+        """Which start the result came from: ``plain`` (the ICP from the initial pose explained
+        the scan), ``window_kept_plain`` (it did not; the window search ran but nothing it
+        found explained the scan better -- or, with ``window_score`` None, it could not run: a
+        map too large for its grid) or ``window`` (ICP from a window-search pose)."""
+    @property
+    def fit_inlier_ratio(self) -> float | None:
+        """Share of the scan points within 3 x expected_noise of the map at the final pose
+        (None with window_search off)."""
+    @property
+    def fit_rms(self) -> float | None:
+        """RMS (m) of those points' distances to the map."""
+    @property
+    def see_through(self) -> float | None:
+        """Share of the checked beams that pass through a mapped wall at the final pose."""
+    @property
+    def fit_score(self) -> float | None:
+        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+    @property
+    def window_score(self) -> float | None:
+        """Coarse (pyramid) score in [0, 1] of the window's best pose; None when the window
+        search did not run."""
+    @property
+    def window_second_score(self) -> float | None:
+        """Coarse score of the best window pose distinct from the best (>= 0.3 m or 0.1 rad
+        away), 0 when none reached 80 % of the best: close to ``window_score`` means the
+        window was ambiguous. None when the window search did not run."""
     def to_dict(self) -> dict[str, object]: ...
 
 @final
@@ -182,7 +239,8 @@ def icp_batch(
     num_threads: int | None = None,
 ) -> list[IcpResult]:
     """Align many (scan, initial pose) pairs in parallel with the GIL released. ``initial_poses``
-    is (M, 3); ``scans`` has M entries, or one entry used for every pose (multi-start)."""
+    is (M, 3); ``scans`` has M entries, or one entry used for every pose (multi-start).
+    ``num_threads`` (>= 1; default: the global pool) is clamped to 4 per core and to M."""
 
 def parse_floats(text: str) -> NDArray[np.float64]:
     """Every whitespace-separated token of ``text`` as float64 (decimal, exponent, nan, inf),

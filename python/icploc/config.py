@@ -80,29 +80,47 @@ Relocalization = Literal["global", "local"]
 LostCheck = Literal["inline", "background"]
 
 
+def _core_default(name: str) -> Any:
+    """The Rust core's default of one ICP setting (``IcpConfig::default()``: the one source)."""
+    from icploc._core import IcpConfig
+
+    return getattr(IcpConfig(), name)
+
+
 @dataclass
 class IcpSection(_Section):
-    """Settings passed to the Rust ICP core (see ``icploc.IcpConfig``).
+    """Settings passed to the Rust ICP core (see ``icploc.IcpConfig``); every default is
+    the core's own (``IcpConfig::default()`` in Rust), so an unset key means the same as
+    in ``icploc.icp()``.
 
     The paper uses point-to-point ICP with a fixed rejection threshold; point-to-line
-    converges in fewer iterations on wall maps and is the default here.
+    converges in fewer iterations on wall maps and is the core's default.
     """
 
-    metric: Metric = "point_to_line"
-    max_iterations: int = 30
+    metric: Metric = _core_default("metric")
+    max_iterations: int = _core_default("max_iterations")
     #: correspondence threshold at the first iteration (m); shrinks by ``threshold_decay``
-    max_correspondence_distance: float = 0.5
+    max_correspondence_distance: float = _core_default("max_correspondence_distance")
     #: ... down to this floor (m): the paper's "fixed level" that rejects occluding objects
-    min_correspondence_distance: float = 0.12
-    threshold_decay: float = 0.6
-    trim_fraction: float = 1.0
-    robust: Robust = "huber"
-    robust_scale: float = 0.05
-    mse_threshold: float = 1e-8
-    mse_change: float = 1e-7
-    step_tolerance: float = 1e-5
-    min_inliers: int = 10
-    min_inlier_ratio: float = 0.0
+    min_correspondence_distance: float = _core_default("min_correspondence_distance")
+    threshold_decay: float = _core_default("threshold_decay")
+    trim_fraction: float = _core_default("trim_fraction")
+    robust: Robust = _core_default("robust")
+    robust_scale: float = _core_default("robust_scale")
+    mse_threshold: float = _core_default("mse_threshold")
+    mse_change: float = _core_default("mse_change")
+    step_tolerance: float = _core_default("step_tolerance")
+    min_inliers: int = _core_default("min_inliers")
+    min_inlier_ratio: float = _core_default("min_inlier_ratio")
+    #: the verified start: a fit that does not explain the scan triggers a local
+    #: branch-and-bound search (+-window_position m, +-window_heading rad) around the start
+    window_search: bool = _core_default("window_search")
+    window_position: float = _core_default("window_position")
+    window_heading: float = _core_default("window_heading")
+    window_angle_step: float = _core_default("window_angle_step")
+    expected_noise: float = _core_default("expected_noise")
+    accept_inlier_ratio: float = _core_default("accept_inlier_ratio")
+    accept_see_through: float = _core_default("accept_see_through")
 
     #: open the first correspondence threshold to cover the odometry prediction's
     #: uncertainty (this many sigmas), up to the cap (m); for sparse logs with big steps

@@ -455,15 +455,13 @@ class McapRecorder:
         self.close()
 
 
-def hypotheses_of(localizer: Localizer) -> list[Pose]:
-    """The pose hypotheses the localizer's relocalization is following (global
-    relocalization: its tracker's latest; otherwise the dead-reckoned pose)."""
-    rel = localizer.relocalization
-    rel = getattr(rel, "inner", rel)  # a saved-state check (icploc.state) wraps the strategy
-    results = getattr(rel, "results", None)
-    if results:
-        return [tuple(h.pose) for h in results[-1].hypotheses]  # type: ignore[misc]
-    return [localizer.pose]
+def hypotheses_of(estimate: Estimate) -> list[Pose]:
+    """The pose hypotheses a lost estimate carries (``Estimate.hypotheses``, ranked by the
+    recovery strategy); with none, the dead-reckoned pose."""
+    hyps = getattr(estimate, "hypotheses", ()) or ()
+    if hyps:
+        return [tuple(h.pose) for h in hyps]  # type: ignore[misc]
+    return [estimate.pose]
 
 
 def attach(localizer: Localizer, recorder: McapRecorder) -> Callable[[], None]:
@@ -480,7 +478,7 @@ def attach(localizer: Localizer, recorder: McapRecorder) -> Callable[[], None]:
         est = orig(scan, odometry)
         if not failed[0]:
             try:
-                hyp = hypotheses_of(localizer) if est.status is Status.LOST else None
+                hyp = hypotheses_of(est) if est.status is Status.LOST else None
                 recorder.record(scan, est, hyp)
             except Exception as e:  # a dead writer must not stop the localization
                 failed[0] = True

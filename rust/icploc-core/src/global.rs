@@ -38,10 +38,8 @@ use rayon::prelude::*;
 use crate::error::{IcpError, Result};
 use crate::icp::{align, IcpConfig, Metric};
 use crate::index::MapIndex;
+use crate::likelihood::{pool, LikelihoodField};
 use crate::se2::{wrap_angle, Pose2};
-
-/// Grids larger than this many cells are refused (memory: ~ 8 bytes per cell per level).
-const MAX_CELLS: usize = 40_000_000;
 
 /// Settings of the global search. Distances in metres, angles in radians.
 #[derive(Clone, Debug, PartialEq)]
@@ -102,6 +100,8 @@ impl Default for GlobalConfig {
                 max_correspondence_distance: 0.6,
                 min_correspondence_distance: 0.1,
                 threshold_decay: 0.7,
+                // the global search is the search: its refinement is plain ICP
+                window_search: false,
                 ..IcpConfig::default()
             },
         }
@@ -234,15 +234,8 @@ impl GlobalResult {
 pub struct GlobalLocalizer {
     index: Arc<MapIndex>,
     cfg: GlobalConfig,
-    res: f64,
-    x0: f64,
-    y0: f64,
-    w: usize,
-    h: usize,
-    /// Distance (m) from each cell centre to the nearest map point.
-    dist: Vec<f32>,
-    /// Pooled likelihood, level 0 = the likelihood itself.
-    pooled: Vec<Vec<u8>>,
+    /// The likelihood grid and its max-pooled pyramid.
+    field: LikelihoodField,
     /// Pooled "some cell of the window is free".
     free: Vec<Vec<bool>>,
 }
@@ -250,10 +243,10 @@ pub struct GlobalLocalizer {
 impl std::fmt::Debug for GlobalLocalizer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("GlobalLocalizer")
-            .field("resolution", &self.res)
-            .field("origin", &(self.x0, self.y0))
-            .field("cells", &(self.w, self.h))
-            .field("levels", &self.pooled.len())
+            .field("resolution", &self.field.res)
+            .field("origin", &(self.field.x0, self.field.y0))
+            .field("cells", &(self.field.w, self.field.h))
+            .field("levels", &self.field.pooled.len())
             .finish()
     }
 }
@@ -279,92 +272,22 @@ impl GlobalLocalizer {
     /// Build the grids for `index` at `resolution` metres per cell.
     pub fn new(index: Arc<MapIndex>, resolution: f64, cfg: GlobalConfig) -> Result<Self> {
         cfg.validate()?;
-        if resolution <= 0.0 || !resolution.is_finite() {
-            return Err(IcpError::InvalidInput {
-                what: "resolution".into(),
-                reason: format!("must be positive and finite, got {resolution}"),
-            });
-        }
-        let [xmin, ymin, xmax, ymax] = index.bounds();
-        let wf = ((xmax - xmin) / resolution).floor() + 1.0;
-        let hf = ((ymax - ymin) / resolution).floor() + 1.0;
-        if !(wf.is_finite() && hf.is_finite()) || wf * hf > MAX_CELLS as f64 {
-            return Err(IcpError::InvalidInput {
-                what: "resolution".into(),
-                reason: format!(
-                    "a {:.1} m x {:.1} m map at {resolution} m needs {wf} x {hf} cells, more than {MAX_CELLS}",
-                    xmax - xmin,
-                    ymax - ymin
-                ),
-            });
-        }
-        let (w, h) = (wf as usize, hf as usize);
-        let (x0, y0) = (xmin, ymin);
-        let dist: Vec<f32> = (0..w * h)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map(|c| {
-                let (i, j) = (c % w, c / w);
-                let q = [
-                    x0 + (i as f64 + 0.5) * resolution,
-                    y0 + (j as f64 + 0.5) * resolution,
-                ];
-                index.nearest(q).0.sqrt() as f32
-            })
-            .collect();
-        let inv2s2 = 1.0 / (2.0 * cfg.sigma * cfg.sigma);
-        let base: Vec<u8> = dist
-            .iter()
-            .map(|&d| {
-                let d = d as f64;
-                (255.0 * (-d * d * inv2s2).exp()).round() as u8
-            })
-            .collect();
-        let free0: Vec<bool> = dist
+        let field = LikelihoodField::build(&index, resolution, cfg.sigma, cfg.levels)?;
+        let (w, h) = field.shape();
+        let free0: Vec<bool> = field
+            .dist
             .iter()
             .map(|&d| d as f64 >= cfg.min_clearance)
             .collect();
-        let mut pooled = vec![base];
         let mut free = vec![free0];
         for lvl in 1..=cfg.levels {
-            let s = 1usize << (lvl - 1);
-            let prev = &pooled[lvl - 1];
-            let prevf = &free[lvl - 1];
-            let (next, nextf): (Vec<u8>, Vec<bool>) = (0..w * h)
-                .into_par_iter()
-                .with_min_len(4096)
-                .map(|c| {
-                    let (i, j) = (c % w, c / w);
-                    let mut m = prev[c];
-                    let mut f = prevf[c];
-                    if i + s < w {
-                        m = m.max(prev[c + s]);
-                        f |= prevf[c + s];
-                    }
-                    if j + s < h {
-                        m = m.max(prev[c + s * w]);
-                        f |= prevf[c + s * w];
-                        if i + s < w {
-                            m = m.max(prev[c + s * w + s]);
-                            f |= prevf[c + s * w + s];
-                        }
-                    }
-                    (m, f)
-                })
-                .unzip();
-            pooled.push(next);
-            free.push(nextf);
+            let next = pool(&free[lvl - 1], w, h, 1usize << (lvl - 1), |a, b| a | b);
+            free.push(next);
         }
         Ok(Self {
             index,
             cfg,
-            res: resolution,
-            x0,
-            y0,
-            w,
-            h,
-            dist,
-            pooled,
+            field,
             free,
         })
     }
@@ -378,12 +301,12 @@ impl GlobalLocalizer {
     }
 
     pub fn resolution(&self) -> f64 {
-        self.res
+        self.field.res
     }
 
     /// Grid size in cells (width, height).
     pub fn shape(&self) -> (usize, usize) {
-        (self.w, self.h)
+        (self.field.w, self.field.h)
     }
 
     /// Number of grid cells where a pose may be (clearance from the map).
@@ -394,30 +317,7 @@ impl GlobalLocalizer {
     /// Distance (m) from `p` to the map as stored in the grid (nearest cell); `None`
     /// outside the grid.
     pub fn distance_at(&self, p: [f64; 2]) -> Option<f64> {
-        let i = ((p[0] - self.x0) / self.res).floor();
-        let j = ((p[1] - self.y0) / self.res).floor();
-        if i >= 0.0 && j >= 0.0 && (i as usize) < self.w && (j as usize) < self.h {
-            Some(self.dist[j as usize * self.w + i as usize] as f64)
-        } else {
-            None
-        }
-    }
-
-    #[inline]
-    fn sum(&self, level: usize, offs: &[(i32, i32)], i: i32, j: i32) -> u32 {
-        let g = &self.pooled[level];
-        let (w, h) = (self.w as i32, self.h as i32);
-        // a window starting left of / below the grid: the window at 0 covers its in-grid
-        // part (and more), so it still bounds it
-        let lo = 1 - (1i32 << level);
-        let mut s = 0u32;
-        for &(ox, oy) in offs {
-            let (x, y) = (i + ox, j + oy);
-            if x >= lo && y >= lo && x < w && y < h {
-                s += g[(y.max(0) * w + x.max(0)) as usize] as u32;
-            }
-        }
-        s
+        self.field.distance_at(p)
     }
 
     /// Search the whole map (or `region` = (xmin, ymin, xmax, ymax) of the sensor
@@ -446,7 +346,7 @@ impl GlobalLocalizer {
         }
         // region in cells (inclusive)
         let (ri0, rj0, ri1, rj1) = match region {
-            None => (0i32, 0i32, self.w as i32 - 1, self.h as i32 - 1),
+            None => (0i32, 0i32, self.field.w as i32 - 1, self.field.h as i32 - 1),
             Some(r) => {
                 if !r.iter().all(|v| v.is_finite()) || r[0] > r[2] || r[1] > r[3] {
                     return Err(IcpError::InvalidInput {
@@ -456,14 +356,14 @@ impl GlobalLocalizer {
                         ),
                     });
                 }
-                let i0 = ((r[0] - self.x0) / self.res).ceil().max(0.0);
-                let j0 = ((r[1] - self.y0) / self.res).ceil().max(0.0);
-                let i1 = ((r[2] - self.x0) / self.res)
+                let i0 = ((r[0] - self.field.x0) / self.field.res).ceil().max(0.0);
+                let j0 = ((r[1] - self.field.y0) / self.field.res).ceil().max(0.0);
+                let i1 = ((r[2] - self.field.x0) / self.field.res)
                     .floor()
-                    .min(self.w as f64 - 1.0);
-                let j1 = ((r[3] - self.y0) / self.res)
+                    .min(self.field.w as f64 - 1.0);
+                let j1 = ((r[3] - self.field.y0) / self.field.res)
                     .floor()
-                    .min(self.h as f64 - 1.0);
+                    .min(self.field.h as f64 - 1.0);
                 if i0 > i1 || j0 > j1 {
                     return Err(IcpError::InvalidInput {
                         what: "region".into(),
@@ -502,7 +402,7 @@ impl GlobalLocalizer {
         // subsample the scan evenly
         let m = usable.len().min(cfg.max_points);
         let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
-        let inv = 1.0 / self.res;
+        let inv = 1.0 / self.field.res;
         let offsets: Vec<Vec<(i32, i32)>> = headings
             .iter()
             .map(|&th| {
@@ -528,7 +428,8 @@ impl GlobalLocalizer {
         while j <= rj1 {
             let mut i = (ri0 / stride) * stride;
             while i <= ri1 {
-                if self.free[top][(j as usize) * self.w + i as usize] && in_region(top, i, j) {
+                if self.free[top][(j as usize) * self.field.w + i as usize] && in_region(top, i, j)
+                {
                     for k in 0..headings.len() {
                         roots.push(Node {
                             bound: 0,
@@ -544,7 +445,7 @@ impl GlobalLocalizer {
             j += stride;
         }
         roots.par_iter_mut().for_each(|n| {
-            n.bound = self.sum(top, &offsets[n.k as usize], n.i, n.j);
+            n.bound = self.field.sum(top, &offsets[n.k as usize], n.i, n.j);
         });
         roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
         let full = 255 * m as u32;
@@ -584,7 +485,7 @@ impl GlobalLocalizer {
                         let mut nk = 0;
                         for (a, b) in [(0, 0), (s, 0), (0, s), (s, s)] {
                             let (ci, cj) = (n.i + a, n.j + b);
-                            if ci >= self.w as i32 || cj >= self.h as i32 {
+                            if ci >= self.field.w as i32 || cj >= self.field.h as i32 {
                                 continue;
                             }
                             let ok = if lvl == 0 {
@@ -592,16 +493,16 @@ impl GlobalLocalizer {
                                     && ci <= ri1
                                     && cj >= rj0
                                     && cj <= rj1
-                                    && self.free[0][cj as usize * self.w + ci as usize]
+                                    && self.free[0][cj as usize * self.field.w + ci as usize]
                             } else {
                                 in_region(lvl, ci, cj)
-                                    && self.free[lvl][cj as usize * self.w + ci as usize]
+                                    && self.free[lvl][cj as usize * self.field.w + ci as usize]
                             };
                             if !ok {
                                 continue;
                             }
                             nodes += 1;
-                            let bound = self.sum(lvl, offs, ci, cj);
+                            let bound = self.field.sum(lvl, offs, ci, cj);
                             if bound < thr {
                                 continue;
                             }
@@ -639,8 +540,8 @@ impl GlobalLocalizer {
         let mut seeds: Vec<(Pose2, f64)> = Vec::new();
         for l in &leaves {
             let p = Pose2::new(
-                self.x0 + l.i as f64 * self.res,
-                self.y0 + l.j as f64 * self.res,
+                self.field.x0 + l.i as f64 * self.field.res,
+                self.field.y0 + l.j as f64 * self.field.res,
                 headings[l.k as usize],
             );
             let close = seeds.iter().any(|(q, _)| {
@@ -794,9 +695,9 @@ impl GlobalLocalizer {
     /// less than ~15 degrees, as along a corridor) does not count: on a grid it cannot be
     /// told from a beam passing just beside the wall.
     pub fn see_through(&self, scan: &[[f64; 2]], pose: Pose2) -> f64 {
-        let step = self.res;
+        let step = self.field.res;
         let spacing = self.index.spacing();
-        let thr = 0.5 * spacing + 0.5 * step + 0.75 * self.res;
+        let thr = 0.5 * spacing + 0.5 * step + 0.75 * self.field.res;
         let margin = 0.3f64.max(3.0 * self.cfg.inlier_distance);
         let normals = self.index.normals();
         let min_sin = 15f64.to_radians().sin();

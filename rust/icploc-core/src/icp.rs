@@ -17,6 +17,9 @@ use crate::index::MapIndex;
 use crate::quaternion::CrossCovariance;
 use crate::se2::{wrap_angle, Pose2};
 
+mod window;
+pub use window::{assess, see_through, Fit};
+
 /// The error metric.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Metric {
@@ -73,7 +76,33 @@ pub struct IcpConfig {
     /// start, with every searched heading — unless a heading at the start position already
     /// explains most of the scan; 0 turns it off.
     pub position_search: f64,
+    /// The verified start: when the ICP result does not explain the scan (see
+    /// `accept_inlier_ratio`, `accept_see_through`, `expected_noise`), search the window
+    /// around the initial pose (branch and bound on the map's likelihood pyramid) and
+    /// refine the best poses found there by ICP. `false` turns it off.
+    pub window_search: bool,
+    /// Half-width of the window in x and in y (m).
+    pub window_position: f64,
+    /// Half-width of the window in heading (rad).
+    pub window_heading: f64,
+    /// Heading step of the window search (rad).
+    pub window_angle_step: f64,
+    /// σ of the range noise (and map error) expected of a right fit (m): points within
+    /// 3σ of the map are inliers, and their RMS must stay below 2σ.
+    pub expected_noise: f64,
+    /// A fit with a lower share of inliers than this does not explain the scan.
+    pub accept_inlier_ratio: f64,
+    /// A fit with a higher share of beams passing through mapped walls than this does not
+    /// explain the scan.
+    pub accept_see_through: f64,
 }
+
+/// The iteration limit may not exceed this (a larger one is a typo, and could hang a call).
+pub const MAX_ITERATIONS: usize = 100_000;
+/// Start candidates (headings × positions) the heading/position search may try at most.
+pub const MAX_START_CANDIDATES: usize = 10_000;
+/// Poses (headings × cells) the window search may cover at most.
+pub const MAX_WINDOW_POSES: f64 = 5e7;
 
 impl Default for IcpConfig {
     fn default() -> Self {
@@ -84,7 +113,7 @@ impl Default for IcpConfig {
             min_correspondence_distance: 0.1,
             threshold_decay: 0.6,
             trim_fraction: 1.0,
-            robust: Robust::None,
+            robust: Robust::Huber,
             robust_scale: 0.05,
             mse_threshold: 1e-8,
             mse_change: 1e-6,
@@ -94,6 +123,13 @@ impl Default for IcpConfig {
             heading_search: 0.0,
             heading_step: 5f64.to_radians(),
             position_search: 0.0,
+            window_search: true,
+            window_position: 1.0,
+            window_heading: 30f64.to_radians(),
+            window_angle_step: 2f64.to_radians(),
+            expected_noise: 0.02,
+            accept_inlier_ratio: 0.75,
+            accept_see_through: 0.05,
         }
     }
 }
@@ -124,6 +160,13 @@ impl IcpConfig {
         let nonneg = |v: f64| v >= 0.0 && v.is_finite();
         if self.max_iterations == 0 {
             return Err(bad("max_iterations", 0, "must be at least 1"));
+        }
+        if self.max_iterations > MAX_ITERATIONS {
+            return Err(bad(
+                "max_iterations",
+                self.max_iterations,
+                "must be at most 100,000",
+            ));
         }
         if !pos(self.max_correspondence_distance) {
             return Err(bad(
@@ -223,6 +266,67 @@ impl IcpConfig {
                 "must be in [0, 1]",
             ));
         }
+        let headings = 2.0 * (self.heading_search / self.heading_step).round() + 1.0;
+        let positions = if self.position_search > 0.0 { 9.0 } else { 1.0 };
+        if headings * positions > MAX_START_CANDIDATES as f64 {
+            return Err(bad(
+                "heading_step",
+                self.heading_step,
+                "heading_search / heading_step gives more start candidates (headings x positions) than 10,000",
+            ));
+        }
+        if !(self.window_position >= 0.0 && self.window_position <= 100.0) {
+            return Err(bad(
+                "window_position",
+                self.window_position,
+                "must be in [0, 100] m",
+            ));
+        }
+        if !(self.window_heading >= 0.0 && self.window_heading <= std::f64::consts::PI) {
+            return Err(bad(
+                "window_heading",
+                self.window_heading,
+                "must be in [0, pi]",
+            ));
+        }
+        if !(self.window_angle_step > 0.0 && self.window_angle_step.is_finite()) {
+            return Err(bad(
+                "window_angle_step",
+                self.window_angle_step,
+                "must be positive and finite",
+            ));
+        }
+        let cells =
+            2.0 * (self.window_position / crate::likelihood::WINDOW_RESOLUTION).round() + 1.0;
+        let wh = 2.0 * (self.window_heading / self.window_angle_step).round() + 1.0;
+        if wh * cells * cells > MAX_WINDOW_POSES {
+            return Err(bad(
+                "window_angle_step",
+                self.window_angle_step,
+                "the window (window_position, window_heading / window_angle_step) holds more than 5e7 poses",
+            ));
+        }
+        if !pos(self.expected_noise) {
+            return Err(bad(
+                "expected_noise",
+                self.expected_noise,
+                "must be positive and finite",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.accept_inlier_ratio) {
+            return Err(bad(
+                "accept_inlier_ratio",
+                self.accept_inlier_ratio,
+                "must be in [0, 1]",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.accept_see_through) {
+            return Err(bad(
+                "accept_see_through",
+                self.accept_see_through,
+                "must be in [0, 1]",
+            ));
+        }
         Ok(())
     }
 
@@ -274,6 +378,27 @@ impl Termination {
     }
 }
 
+/// Which start the result came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StartPath {
+    /// The ICP from the initial pose explained the scan: no search.
+    Plain,
+    /// It did not; the window search ran and its refinement did not beat the plain fit.
+    WindowKeptPlain,
+    /// It did not; the result is the ICP refinement of a window-search pose.
+    Window,
+}
+
+impl StartPath {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            StartPath::Plain => "plain",
+            StartPath::WindowKeptPlain => "window_kept_plain",
+            StartPath::Window => "window",
+        }
+    }
+}
+
 /// What one alignment did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IcpResult {
@@ -294,6 +419,15 @@ pub struct IcpResult {
     /// Unit vector (map frame) of the least constrained translation.
     pub degenerate_direction: [f64; 2],
     pub termination: Termination,
+    /// Which start the result came from.
+    pub start: StartPath,
+    /// How well the final pose explains the scan (`None` with `window_search` off).
+    pub fit: Option<Fit>,
+    /// Coarse (pyramid) score in [0, 1] of the window's best pose, and of the best pose
+    /// distinct from it (≥ 0.3 m or ≈ 6° away; 0 when none scored 80 % of the best):
+    /// `None` when the window search did not run.
+    pub window_score: Option<f64>,
+    pub window_second: Option<f64>,
 }
 
 impl IcpResult {
@@ -375,6 +509,9 @@ pub fn align(
     Ok(align_unchecked(scan, index, initial, cfg, &mut ws))
 }
 
+/// `align_batch` uses at most this many threads per core (a larger request is clamped).
+pub const MAX_THREADS_PER_CORE: usize = 4;
+
 /// Align many (scan, initial pose) pairs in parallel (rayon). `scans` has one entry per
 /// pose, or a single entry used for every pose. `threads`: size of a dedicated pool, or
 /// the global pool when `None`. Each alignment has its own `Result`.
@@ -408,6 +545,11 @@ pub fn align_batch(
         None => Ok(run()),
         Some(0) => Err(bad("num_threads", 0, "must be at least 1")),
         Some(n) => {
+            // more threads than a few per core (or than alignments) only costs: clamp
+            let cores = std::thread::available_parallelism().map_or(1, |c| c.get());
+            let n = n
+                .min(MAX_THREADS_PER_CORE * cores)
+                .min(initial.len().max(1));
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(n)
                 .build()
@@ -417,7 +559,94 @@ pub fn align_batch(
     }
 }
 
+/// ICP from `initial`; then, unless the result explains the scan, the window search
+/// around `initial` and ICP from its best poses: the pose that explains the scan best.
 fn align_unchecked(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    initial: Pose2,
+    cfg: &IcpConfig,
+    ws: &mut Workspace,
+) -> IcpResult {
+    let mut plain = align_plain(scan, index, initial, cfg, ws);
+    if !cfg.window_search {
+        return plain;
+    }
+    let fit = assess(scan, index, plain.pose, cfg);
+    plain.fit = Some(fit);
+    if plain.converged && explains(&fit, cfg) {
+        return plain;
+    }
+    // no field (a map too large for its grid) or too few usable points: nothing to search
+    let Some(field) = index.likelihood_field() else {
+        plain.start = StartPath::WindowKeptPlain;
+        return plain;
+    };
+    let Some(win) = window::search(field, scan, initial.normalized(), cfg) else {
+        plain.start = StartPath::WindowKeptPlain;
+        return plain;
+    };
+    let mut best = plain.clone();
+    let mut best_score = if plain.converged { fit.score } else { -1.0 };
+    let mut from_window = false;
+    // rank the coarse seeds by how well they explain the scan (see-through included: the
+    // pyramid's likelihood alone cannot tell a pose whose beams pass through walls), with
+    // the noise widened to the lattice's error; refine the best few by ICP
+    let coarse_cfg = IcpConfig {
+        expected_noise: cfg.expected_noise.max(0.5 * field.resolution() + 0.025),
+        ..cfg.clone()
+    };
+    let sub = window::subsample(scan, scan.len().div_ceil(window::RANKING_POINTS), 3);
+    let mut ranked: Vec<(f64, Pose2)> = win
+        .seeds
+        .iter()
+        .map(|&(seed, _)| (assess(&sub, index, seed, &coarse_cfg).score, seed))
+        .collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    // a seed is within a lattice step of its optimum: a wide first threshold would only let
+    // clutter pull it away
+    let refine_cfg = IcpConfig {
+        max_correspondence_distance: (4.0 * field.resolution()).clamp(
+            cfg.min_correspondence_distance,
+            cfg.max_correspondence_distance,
+        ),
+        heading_search: 0.0,
+        position_search: 0.0,
+        ..cfg.clone()
+    };
+    for &(_, seed) in ranked.iter().take(window::WINDOW_REFINED) {
+        let mut r = align_plain(scan, index, seed, &refine_cfg, ws);
+        // an iteration limit reached from a good seed is still a pose: the fit decides
+        if r.termination == Termination::TooFewInliers {
+            continue;
+        }
+        let f = assess(scan, index, r.pose, cfg);
+        if f.score > best_score {
+            r.fit = Some(f);
+            best_score = f.score;
+            best = r;
+            from_window = true;
+        }
+    }
+    best.start = if from_window {
+        StartPath::Window
+    } else {
+        StartPath::WindowKeptPlain
+    };
+    best.window_score = Some(win.seeds[0].1);
+    best.window_second = Some(win.second);
+    best
+}
+
+/// Does `fit` explain the scan, by the acceptance settings of `cfg`?
+fn explains(fit: &Fit, cfg: &IcpConfig) -> bool {
+    fit.inlier_ratio >= cfg.accept_inlier_ratio
+        && fit.see_through <= cfg.accept_see_through
+        && fit.rms <= 2.0 * cfg.expected_noise
+}
+
+/// The ICP proper (with the optional heading/position start search), from `initial`.
+fn align_plain(
     scan: &[[f64; 2]],
     index: &MapIndex,
     initial: Pose2,
@@ -584,6 +813,10 @@ fn align_unchecked(
         degeneracy,
         degenerate_direction: direction,
         termination,
+        start: StartPath::Plain,
+        fit: None,
+        window_score: None,
+        window_second: None,
     }
 }
 
@@ -780,7 +1013,7 @@ fn heading_search(
                 start.y + oy * r,
                 wrap_angle(start.theta + h as f64 * cfg.heading_step),
             );
-            let r = align_unchecked(&sub, index, p0, &coarse, ws);
+            let r = align_plain(&sub, index, p0, &coarse, ws);
             let (s, c) = r.pose.theta.sin_cos();
             let mut hits = 0usize;
             let mut sum = 0.0;

@@ -163,6 +163,9 @@ pub struct MapIndex {
     normals_given: bool,
     spacing: OnceLock<f64>,
     bounds: [f64; 4],
+    /// The likelihood pyramid of `icp()`'s window search, built on first use (`None`: the
+    /// map is too large for it).
+    likelihood: OnceLock<Option<crate::likelihood::LikelihoodField>>,
 }
 
 impl std::fmt::Debug for MapIndex {
@@ -236,6 +239,7 @@ impl MapIndex {
             normals_given,
             spacing: OnceLock::new(),
             bounds,
+            likelihood: OnceLock::new(),
         })
     }
 
@@ -326,6 +330,15 @@ impl MapIndex {
     /// Unit normals: the given ones, or estimated once (PCA of the nearest neighbours).
     pub fn normals(&self) -> &[[f64; 2]] {
         self.normals.get_or_init(|| self.estimate_normals())
+    }
+
+    /// The max-pooled likelihood pyramid of the window search of `icp()`
+    /// ([`crate::likelihood`]), built on first use and kept; `None` when the map's bounds
+    /// need more than 2²³ cells even at 20 cm.
+    pub fn likelihood_field(&self) -> Option<&crate::likelihood::LikelihoodField> {
+        self.likelihood
+            .get_or_init(|| crate::likelihood::LikelihoodField::for_window(self))
+            .as_ref()
     }
 
     /// Closest map point: (squared distance, index).

@@ -11,6 +11,7 @@
 //!   optional shrinking schedule, trimming, Huber/Cauchy weights), the Besl–McKay quaternion
 //!   solve kept to a yaw, the point-to-line alternative, convergence rules, covariance and
 //!   degeneracy from the Hessian of the final cost.
+//! * [`likelihood`]: the likelihood grid and max-pooled pyramid of the correlative searches.
 //! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
 //! * [`gridlines`]: wall lines (and leftover surface points) traced from occupancy grids.
 //! * [`gridcast`]: occupancy grids from scans by ray casting (building maps from logs).
@@ -26,6 +27,7 @@ pub mod gridcast;
 pub mod gridlines;
 pub mod icp;
 pub mod index;
+pub mod likelihood;
 pub mod quaternion;
 pub mod raycast;
 pub mod se2;
@@ -33,7 +35,9 @@ pub mod testkit;
 pub mod text;
 
 pub use error::{IcpError, Result};
-pub use icp::{align, align_batch, IcpConfig, IcpResult, Metric, Robust, Termination};
+pub use icp::{
+    align, align_batch, Fit, IcpConfig, IcpResult, Metric, Robust, StartPath, Termination,
+};
 pub use index::MapIndex;
 pub use se2::Pose2;
 

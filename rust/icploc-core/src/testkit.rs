@@ -207,3 +207,348 @@ pub fn cases(
         })
         .collect()
 }
+
+// ------------------------------------------------------------------ scenario families
+
+/// A benchmark world: mapped opaque walls, mapped glass (a beam passes through glass
+/// with probability one half), the scanner's range, unmapped people in view, and the
+/// free space poses are drawn from. The same layouts as `benches/scenario.py`.
+#[derive(Clone, Debug)]
+pub struct World {
+    pub name: &'static str,
+    pub opaque: Vec<Segment>,
+    pub glass: Vec<Segment>,
+    pub max_range: f64,
+    /// People (0.22 m circles, unmapped) placed in view of each scan.
+    pub people: usize,
+    /// Fraction of beams shortened by other unmapped clutter.
+    pub clutter: f64,
+    /// Rectangles (xmin, ymin, xmax, ymax) poses are drawn from (uniformly by area).
+    pub regions: Vec<[f64; 4]>,
+}
+
+impl World {
+    /// Every mapped segment (opaque and glass).
+    pub fn map_segments(&self) -> Vec<Segment> {
+        let mut s = self.opaque.clone();
+        s.extend_from_slice(&self.glass);
+        s
+    }
+}
+
+fn rect_segs(x0: f64, y0: f64, x1: f64, y1: f64) -> [Segment; 4] {
+    [
+        [x0, y0, x1, y0],
+        [x1, y0, x1, y1],
+        [x1, y1, x0, y1],
+        [x0, y1, x0, y0],
+    ]
+}
+
+/// A horizontal wall at `y` from `x0` to `x1` with door gaps `[a, b)`.
+fn wall_with_doors(x0: f64, x1: f64, y: f64, doors: &[(f64, f64)]) -> Vec<Segment> {
+    let mut out = Vec::new();
+    let mut x = x0;
+    for &(a, b) in doors {
+        if a > x {
+            out.push([x, y, a, y]);
+        }
+        x = b;
+    }
+    if x < x1 {
+        out.push([x, y, x1, y]);
+    }
+    out
+}
+
+/// The office of [`office_segments`] as a world (30 m range, 20 % clutter).
+pub fn office_world() -> World {
+    World {
+        name: "office",
+        opaque: office_segments(),
+        glass: Vec::new(),
+        max_range: 30.0,
+        people: 0,
+        clutter: 0.2,
+        regions: vec![
+            [1.0, 1.0, 5.0, 7.0],
+            [7.0, 1.0, 11.0, 7.0],
+            [13.0, 1.0, 17.0, 7.0],
+            [19.0, 1.0, 23.0, 7.0],
+            [25.0, 1.0, 29.0, 7.0],
+            [1.0, 9.0, 29.0, 10.0],
+            [7.0, 12.0, 11.0, 19.0],
+            [13.0, 12.0, 17.0, 14.5],
+            [19.0, 12.0, 23.0, 14.5],
+            [25.0, 12.0, 29.0, 19.0],
+        ],
+    }
+}
+
+/// A clinic wing, 36 m x 12 m: a 2 m corridor (y 5..7) between twelve narrow 3 m rooms
+/// to the south and nine 4 m rooms to the north, a 1 m door into every room (so a door
+/// every 3-4 m), a bed and a cabinet or desk (mapped blocks) in each room, columns along
+/// the corridor, two glass room fronts (a nurse station and an observation room), an
+/// 8 m scanner and three people in view.
+pub fn clinic_world() -> World {
+    let mut opaque: Vec<Segment> = rect_segs(0.0, 0.0, 36.0, 12.0).to_vec();
+    let mut glass: Vec<Segment> = Vec::new();
+    // south rooms (x = 3k .. 3k + 3), doors at 3k + 0.4 + 0.3 (k mod 4), 1 m wide
+    let mut south_doors = Vec::new();
+    for k in 0..12 {
+        let x = 3.0 * k as f64;
+        let d = x + 0.4 + 0.3 * (k % 4) as f64;
+        south_doors.push((d, d + 1.0));
+        if k > 0 {
+            opaque.push([x, 0.0, x, 5.0]);
+        }
+        let bx = x + 0.3 + 0.4 * (k % 3) as f64;
+        opaque.extend(rect_segs(bx, 0.0, bx + 0.9, 2.0)); // bed against the back wall
+        if k % 2 == 0 {
+            opaque.extend(rect_segs(x + 2.3, 4.1, x + 2.8, 4.6)); // cabinet
+        }
+    }
+    // north rooms (x = 4k .. 4k + 4), doors at 4k + 0.5 + 0.5 (k mod 3), 1.1 m wide
+    let mut north_doors = Vec::new();
+    for k in 0..9 {
+        let x = 4.0 * k as f64;
+        let d = x + 0.5 + 0.5 * (k % 3) as f64;
+        north_doors.push((d, d + 1.1));
+        if k > 0 {
+            opaque.push([x, 7.0, x, 12.0]);
+        }
+        let bx = x + 0.8 + 0.5 * (k % 2) as f64;
+        opaque.extend(rect_segs(bx, 11.1, bx + 2.0, 12.0)); // bed
+        if k % 3 != 0 {
+            opaque.extend(rect_segs(x + 2.6, 8.0, x + 3.8, 8.6)); // desk
+        }
+    }
+    // the corridor's walls; the fronts of north room 4 (nurse station) and south room 7
+    // are glass
+    for seg in wall_with_doors(0.0, 36.0, 5.0, &south_doors) {
+        split_glass(seg, 21.0, 24.0, &mut opaque, &mut glass);
+    }
+    for seg in wall_with_doors(0.0, 36.0, 7.0, &north_doors) {
+        split_glass(seg, 16.0, 20.0, &mut opaque, &mut glass);
+    }
+    // columns along the corridor (against the south wall)
+    for &cx in &[9.0, 15.5, 27.0, 33.5] {
+        opaque.extend(rect_segs(cx, 5.0, cx + 0.3, 5.3));
+    }
+    let mut regions = vec![[0.6, 5.6, 35.4, 6.4]];
+    for k in 0..12 {
+        let x = 3.0 * k as f64;
+        regions.push([x + 0.5, 2.4, x + 2.5, 3.8]);
+    }
+    for k in 0..9 {
+        let x = 4.0 * k as f64;
+        regions.push([x + 0.5, 9.0, x + 3.5, 10.6]);
+    }
+    World {
+        name: "clinic",
+        opaque,
+        glass,
+        max_range: 8.0,
+        people: 3,
+        clutter: 0.0,
+        regions,
+    }
+}
+
+/// The part of a horizontal wall segment with x in [a, b] becomes glass.
+fn split_glass(s: Segment, a: f64, b: f64, opaque: &mut Vec<Segment>, glass: &mut Vec<Segment>) {
+    let (x0, x1, y) = (s[0].min(s[2]), s[0].max(s[2]), s[1]);
+    let (g0, g1) = (x0.max(a), x1.min(b));
+    if g0 >= g1 {
+        opaque.push(s);
+        return;
+    }
+    if x0 < g0 {
+        opaque.push([x0, y, g0, y]);
+    }
+    glass.push([g0, y, g1, y]);
+    if g1 < x1 {
+        opaque.push([g1, y, x1, y]);
+    }
+}
+
+/// A warehouse, 40 m x 30 m: six rows of pallet racks (1.2 m deep) with 3 m aisles and a
+/// cross aisle, each rack a line of 0.1 m uprights every 2.5 m with a pallet in two bays of
+/// three (mapped), columns along the west wall, dock doors in the south wall, a 20 m
+/// scanner, 10 % of beams on unmapped clutter (pallets left in aisles, forklifts) and
+/// two people.
+pub fn warehouse_world() -> World {
+    let mut opaque: Vec<Segment> = Vec::new();
+    opaque.extend(wall_with_doors(
+        0.0,
+        40.0,
+        0.0,
+        &[(8.0, 11.0), (16.0, 19.0), (24.0, 27.0)],
+    ));
+    opaque.push([40.0, 0.0, 40.0, 30.0]);
+    opaque.push([40.0, 30.0, 0.0, 30.0]);
+    opaque.push([0.0, 30.0, 0.0, 0.0]);
+    // dock pits behind the doors close the map
+    for &a in &[8.0, 16.0, 24.0] {
+        opaque.push([a, 0.0, a, -1.0]);
+        opaque.push([a, -1.0, a + 3.0, -1.0]);
+        opaque.push([a + 3.0, -1.0, a + 3.0, 0.0]);
+    }
+    let mut regions = Vec::new();
+    for r in 0..6 {
+        let y = 3.0 + 4.2 * r as f64;
+        for (rack, &(xa, xb)) in [(4.0, 19.0), (21.0, 36.0)].iter().enumerate() {
+            let bays = ((xb - xa) / 2.5f64).round() as usize;
+            for b in 0..=bays {
+                let x = xa + 2.5 * b as f64;
+                opaque.extend(rect_segs(x - 0.05, y, x + 0.05, y + 0.1));
+                opaque.extend(rect_segs(x - 0.05, y + 1.1, x + 0.05, y + 1.2));
+                if b < bays && (r * 7 + rack * 3 + b) % 3 != 0 {
+                    opaque.extend(rect_segs(x + 0.15, y + 0.05, x + 2.35, y + 1.15));
+                }
+            }
+        }
+        // the aisle north of this row
+        regions.push([5.0, y + 1.2 + 0.7, 35.0, y + 1.2 + 2.3]);
+    }
+    regions.push([5.0, 1.0, 35.0, 2.3]);
+    regions.push([19.4, 3.0, 20.6, 27.0]);
+    for &cy in &[8.0, 16.0, 24.0] {
+        opaque.extend(rect_segs(1.5, cy, 1.9, cy + 0.4));
+    }
+    World {
+        name: "warehouse",
+        opaque,
+        glass: Vec::new(),
+        max_range: 20.0,
+        people: 2,
+        clutter: 0.1,
+        regions,
+    }
+}
+
+/// The three benchmark families.
+pub fn worlds() -> Vec<World> {
+    vec![office_world(), clinic_world(), warehouse_world()]
+}
+
+/// Distance from `p` to the nearest of `segments`.
+pub fn distance_to_segments(segments: &[Segment], p: [f64; 2]) -> f64 {
+    segments
+        .iter()
+        .map(|s| {
+            let e = [s[2] - s[0], s[3] - s[1]];
+            let ee = (e[0] * e[0] + e[1] * e[1]).max(1e-300);
+            let t = (((p[0] - s[0]) * e[0] + (p[1] - s[1]) * e[1]) / ee).clamp(0.0, 1.0);
+            ((p[0] - s[0] - t * e[0]).powi(2) + (p[1] - s[1] - t * e[1]).powi(2)).sqrt()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// A random pose in the world's free regions, at least 0.35 m from every mapped segment.
+pub fn world_pose(world: &World, rng: &mut Rng) -> Pose2 {
+    let segs = world.map_segments();
+    let areas: Vec<f64> = world
+        .regions
+        .iter()
+        .map(|r| (r[2] - r[0]) * (r[3] - r[1]))
+        .collect();
+    let total: f64 = areas.iter().sum();
+    loop {
+        let mut u = rng.uniform() * total;
+        let mut k = 0;
+        while k + 1 < areas.len() && u >= areas[k] {
+            u -= areas[k];
+            k += 1;
+        }
+        let r = world.regions[k];
+        let p = [rng.range(r[0], r[2]), rng.range(r[1], r[3])];
+        if distance_to_segments(&segs, p) >= 0.35 {
+            return Pose2::new(
+                p[0],
+                p[1],
+                rng.range(-std::f64::consts::PI, std::f64::consts::PI),
+            );
+        }
+    }
+}
+
+/// A 361-beam 180° scan of `world` from `pose`: glass passes half the beams that meet
+/// it, `world.people` people stand 0.6-4 m away in view, `world.clutter` of the beams
+/// are shortened by unmapped clutter, Gaussian range noise `noise`.
+pub fn world_scan(world: &World, pose: Pose2, noise: f64, rng: &mut Rng) -> Vec<[f64; 2]> {
+    let beams = 361;
+    let angles: Vec<f64> = (0..beams)
+        .map(|i| {
+            -std::f64::consts::FRAC_PI_2 + std::f64::consts::PI * i as f64 / (beams - 1) as f64
+        })
+        .collect();
+    let opaque = raycast(&world.opaque, pose, &angles, world.max_range).expect("finite world");
+    let all = if world.glass.is_empty() {
+        opaque.clone()
+    } else {
+        raycast(&world.map_segments(), pose, &angles, world.max_range).expect("finite world")
+    };
+    // people: circles in view, in front of the walls
+    let mut people: Vec<([f64; 2], f64)> = Vec::new();
+    for _ in 0..world.people {
+        for _attempt in 0..20 {
+            let k = (rng.next_u64() % beams as u64) as usize;
+            let d = rng.range(0.6, 4.0);
+            if all[k].is_finite() && all[k] > d + 0.5 {
+                let a = pose.theta + angles[k];
+                people.push(([pose.x + d * a.cos(), pose.y + d * a.sin()], 0.22));
+                break;
+            }
+        }
+    }
+    let mut out = Vec::with_capacity(beams);
+    for (k, a) in angles.iter().enumerate() {
+        let mut r = if all[k] < opaque[k] && rng.uniform() < 0.5 {
+            opaque[k] // through the glass
+        } else {
+            all[k]
+        };
+        let wa = pose.theta + a;
+        let u = [wa.cos(), wa.sin()];
+        for (c, rad) in &people {
+            let w = [c[0] - pose.x, c[1] - pose.y];
+            let tc = u[0] * w[0] + u[1] * w[1];
+            let perp2 = w[0] * w[0] + w[1] * w[1] - tc * tc;
+            if tc > 0.0 && perp2 < rad * rad {
+                r = r.min(tc - (rad * rad - perp2).sqrt());
+            }
+        }
+        if !r.is_finite() {
+            continue;
+        }
+        let r = if rng.uniform() < world.clutter {
+            r * rng.range(0.2, 0.85)
+        } else {
+            r + noise * rng.normal()
+        };
+        out.push([r * a.cos(), r * a.sin()]);
+    }
+    out
+}
+
+/// `n` deterministic cases of `world` with initial errors of the given magnitudes.
+pub fn world_cases(world: &World, n: usize, err: (f64, f64, f64), seed: u64) -> Vec<Case> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|_| {
+            let truth = world_pose(world, &mut rng);
+            let scan = world_scan(world, truth, 0.01, &mut rng);
+            let initial = Pose2::new(
+                truth.x + rng.sign() * err.0,
+                truth.y + rng.sign() * err.1,
+                truth.theta + rng.sign() * err.2,
+            );
+            Case {
+                scan,
+                truth,
+                initial,
+            }
+        })
+        .collect()
+}

@@ -410,236 +410,330 @@ fn pairs_to_array<'py>(py: Python<'py>, p: &[[f64; 2]]) -> Bound<'py, PyArray2<f
 
 // ---------------------------------------------------------------- IcpConfig
 
-/// ICP settings (see icploc._core.pyi for the meaning of each field).
-#[pyclass(name = "IcpConfig", module = "icploc._core", get_all, set_all)]
+/// ICP settings: a wrapper of the core's `IcpConfig`, whose `Default` is the one source of
+/// every default (see icploc._core.pyi for the meaning of each field). Every value is
+/// checked when it is set (at construction or by assignment), the error naming the field.
+#[pyclass(name = "IcpConfig", module = "icploc._core")]
 #[derive(Clone)]
-struct PyIcpConfig {
-    metric: String,
-    max_iterations: usize,
-    max_correspondence_distance: f64,
-    min_correspondence_distance: f64,
-    threshold_decay: f64,
-    trim_fraction: f64,
-    robust: String,
-    robust_scale: f64,
-    mse_threshold: f64,
-    mse_change: f64,
-    step_tolerance: f64,
-    min_inliers: usize,
-    min_inlier_ratio: f64,
-    heading_search: f64,
-    heading_step: f64,
-    position_search: f64,
+pub(crate) struct PyIcpConfig {
+    pub(crate) inner: core::IcpConfig,
 }
 
-impl Default for PyIcpConfig {
-    fn default() -> Self {
-        let d = core::IcpConfig::default();
-        Self::from_core(&d)
+/// The field names, in order (constructor keywords, attributes, `to_dict` keys).
+const ICP_FIELDS: [&str; 23] = [
+    "metric",
+    "max_iterations",
+    "max_correspondence_distance",
+    "min_correspondence_distance",
+    "threshold_decay",
+    "trim_fraction",
+    "robust",
+    "robust_scale",
+    "mse_threshold",
+    "mse_change",
+    "step_tolerance",
+    "min_inliers",
+    "min_inlier_ratio",
+    "heading_search",
+    "heading_step",
+    "position_search",
+    "window_search",
+    "window_position",
+    "window_heading",
+    "window_angle_step",
+    "expected_noise",
+    "accept_inlier_ratio",
+    "accept_see_through",
+];
+
+fn config_err(
+    py: Python<'_>,
+    field: &'static str,
+    v: &Bound<'_, PyAny>,
+    reason: &'static str,
+) -> PyErr {
+    let value = v
+        .repr()
+        .map(|r| r.to_string())
+        .unwrap_or_else(|_| "?".into());
+    to_py(
+        py,
+        CoreError::InvalidConfig {
+            field,
+            value,
+            reason,
+        },
+    )
+}
+
+fn cfg_float(py: Python<'_>, field: &'static str, v: &Bound<'_, PyAny>) -> PyResult<f64> {
+    if v.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(config_err(py, field, v, "must be a number, not a bool"));
+    }
+    v.extract::<f64>()
+        .map_err(|_| config_err(py, field, v, "must be a number"))
+}
+
+fn cfg_count(py: Python<'_>, field: &'static str, v: &Bound<'_, PyAny>) -> PyResult<usize> {
+    if v.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(config_err(py, field, v, "must be an integer, not a bool"));
+    }
+    match v.extract::<i64>() {
+        Ok(n) if n >= 0 => Ok(n as usize),
+        Ok(_) => Err(config_err(py, field, v, "must be a non-negative integer")),
+        Err(_) if v.is_instance_of::<pyo3::types::PyInt>() => Err(config_err(
+            py,
+            field,
+            v,
+            "is out of range (at most 2**63 - 1)",
+        )),
+        Err(_) => Err(config_err(py, field, v, "must be an integer")),
     }
 }
 
-impl PyIcpConfig {
-    fn from_core(d: &core::IcpConfig) -> Self {
-        Self {
-            metric: match d.metric {
-                core::Metric::PointToPoint => "point_to_point",
-                core::Metric::PointToLine => "point_to_line",
+fn cfg_bool(py: Python<'_>, field: &'static str, v: &Bound<'_, PyAny>) -> PyResult<bool> {
+    v.extract::<bool>()
+        .map_err(|_| config_err(py, field, v, "must be True or False"))
+}
+
+fn cfg_str(py: Python<'_>, field: &'static str, v: &Bound<'_, PyAny>) -> PyResult<String> {
+    v.extract::<String>()
+        .map_err(|_| config_err(py, field, v, "must be a string"))
+}
+
+/// Set one field of `c` from a Python value (type-checked; not yet range-checked).
+fn set_icp_field(
+    py: Python<'_>,
+    c: &mut core::IcpConfig,
+    name: &str,
+    v: &Bound<'_, PyAny>,
+) -> PyResult<()> {
+    let Some(&field) = ICP_FIELDS.iter().find(|f| **f == name) else {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "IcpConfig has no field {name:?} (fields: {})",
+            ICP_FIELDS.join(", ")
+        )));
+    };
+    match field {
+        "metric" => {
+            c.metric = match cfg_str(py, field, v)?.as_str() {
+                "point_to_point" => core::Metric::PointToPoint,
+                "point_to_line" => core::Metric::PointToLine,
+                _ => {
+                    return Err(config_err(
+                        py,
+                        field,
+                        v,
+                        "must be 'point_to_point' or 'point_to_line'",
+                    ))
+                }
             }
-            .into(),
-            max_iterations: d.max_iterations,
-            max_correspondence_distance: d.max_correspondence_distance,
-            min_correspondence_distance: d.min_correspondence_distance,
-            threshold_decay: d.threshold_decay,
-            trim_fraction: d.trim_fraction,
-            robust: match d.robust {
-                core::Robust::None => "none",
-                core::Robust::Huber => "huber",
-                core::Robust::Cauchy => "cauchy",
+        }
+        "robust" => {
+            c.robust = match cfg_str(py, field, v)?.as_str() {
+                "none" => core::Robust::None,
+                "huber" => core::Robust::Huber,
+                "cauchy" => core::Robust::Cauchy,
+                _ => {
+                    return Err(config_err(
+                        py,
+                        field,
+                        v,
+                        "must be 'none', 'huber' or 'cauchy'",
+                    ))
+                }
             }
-            .into(),
-            robust_scale: d.robust_scale,
-            mse_threshold: d.mse_threshold,
-            mse_change: d.mse_change,
-            step_tolerance: d.step_tolerance,
-            min_inliers: d.min_inliers,
-            min_inlier_ratio: d.min_inlier_ratio,
-            heading_search: d.heading_search,
-            heading_step: d.heading_step,
-            position_search: d.position_search,
+        }
+        "max_iterations" => c.max_iterations = cfg_count(py, field, v)?,
+        "min_inliers" => c.min_inliers = cfg_count(py, field, v)?,
+        "window_search" => c.window_search = cfg_bool(py, field, v)?,
+        _ => {
+            let x = cfg_float(py, field, v)?;
+            match field {
+                "max_correspondence_distance" => c.max_correspondence_distance = x,
+                "min_correspondence_distance" => c.min_correspondence_distance = x,
+                "threshold_decay" => c.threshold_decay = x,
+                "trim_fraction" => c.trim_fraction = x,
+                "robust_scale" => c.robust_scale = x,
+                "mse_threshold" => c.mse_threshold = x,
+                "mse_change" => c.mse_change = x,
+                "step_tolerance" => c.step_tolerance = x,
+                "min_inlier_ratio" => c.min_inlier_ratio = x,
+                "heading_search" => c.heading_search = x,
+                "heading_step" => c.heading_step = x,
+                "position_search" => c.position_search = x,
+                "window_position" => c.window_position = x,
+                "window_heading" => c.window_heading = x,
+                "window_angle_step" => c.window_angle_step = x,
+                "expected_noise" => c.expected_noise = x,
+                "accept_inlier_ratio" => c.accept_inlier_ratio = x,
+                "accept_see_through" => c.accept_see_through = x,
+                _ => unreachable!("every field is handled"),
+            }
         }
     }
+    Ok(())
+}
 
-    fn to_core(&self) -> core::Result<core::IcpConfig> {
-        let metric = match self.metric.as_str() {
-            "point_to_point" => core::Metric::PointToPoint,
-            "point_to_line" => core::Metric::PointToLine,
-            _ => {
-                return Err(CoreError::InvalidConfig {
-                    field: "metric",
-                    value: self.metric.clone(),
-                    reason: "must be 'point_to_point' or 'point_to_line'",
-                })
-            }
-        };
-        let robust = match self.robust.as_str() {
-            "none" => core::Robust::None,
-            "huber" => core::Robust::Huber,
-            "cauchy" => core::Robust::Cauchy,
-            _ => {
-                return Err(CoreError::InvalidConfig {
-                    field: "robust",
-                    value: self.robust.clone(),
-                    reason: "must be 'none', 'huber' or 'cauchy'",
-                })
-            }
-        };
-        let c = core::IcpConfig {
-            metric,
-            max_iterations: self.max_iterations,
-            max_correspondence_distance: self.max_correspondence_distance,
-            min_correspondence_distance: self.min_correspondence_distance,
-            threshold_decay: self.threshold_decay,
-            trim_fraction: self.trim_fraction,
-            robust,
-            robust_scale: self.robust_scale,
-            mse_threshold: self.mse_threshold,
-            mse_change: self.mse_change,
-            step_tolerance: self.step_tolerance,
-            min_inliers: self.min_inliers,
-            min_inlier_ratio: self.min_inlier_ratio,
-            heading_search: self.heading_search,
-            heading_step: self.heading_step,
-            position_search: self.position_search,
-        };
-        c.validate()?;
-        Ok(c)
+/// One field of `c` as a Python value.
+fn get_icp_field<'py>(
+    py: Python<'py>,
+    c: &core::IcpConfig,
+    name: &str,
+) -> PyResult<Bound<'py, PyAny>> {
+    let v = match name {
+        "metric" => match c.metric {
+            core::Metric::PointToPoint => "point_to_point",
+            core::Metric::PointToLine => "point_to_line",
+        }
+        .into_pyobject(py)?
+        .into_any(),
+        "robust" => match c.robust {
+            core::Robust::None => "none",
+            core::Robust::Huber => "huber",
+            core::Robust::Cauchy => "cauchy",
+        }
+        .into_pyobject(py)?
+        .into_any(),
+        "max_iterations" => c.max_iterations.into_pyobject(py)?.into_any(),
+        "min_inliers" => c.min_inliers.into_pyobject(py)?.into_any(),
+        "window_search" => pyo3::types::PyBool::new(py, c.window_search)
+            .to_owned()
+            .into_any(),
+        "max_correspondence_distance" => {
+            c.max_correspondence_distance.into_pyobject(py)?.into_any()
+        }
+        "min_correspondence_distance" => {
+            c.min_correspondence_distance.into_pyobject(py)?.into_any()
+        }
+        "threshold_decay" => c.threshold_decay.into_pyobject(py)?.into_any(),
+        "trim_fraction" => c.trim_fraction.into_pyobject(py)?.into_any(),
+        "robust_scale" => c.robust_scale.into_pyobject(py)?.into_any(),
+        "mse_threshold" => c.mse_threshold.into_pyobject(py)?.into_any(),
+        "mse_change" => c.mse_change.into_pyobject(py)?.into_any(),
+        "step_tolerance" => c.step_tolerance.into_pyobject(py)?.into_any(),
+        "min_inlier_ratio" => c.min_inlier_ratio.into_pyobject(py)?.into_any(),
+        "heading_search" => c.heading_search.into_pyobject(py)?.into_any(),
+        "heading_step" => c.heading_step.into_pyobject(py)?.into_any(),
+        "position_search" => c.position_search.into_pyobject(py)?.into_any(),
+        "window_position" => c.window_position.into_pyobject(py)?.into_any(),
+        "window_heading" => c.window_heading.into_pyobject(py)?.into_any(),
+        "window_angle_step" => c.window_angle_step.into_pyobject(py)?.into_any(),
+        "expected_noise" => c.expected_noise.into_pyobject(py)?.into_any(),
+        "accept_inlier_ratio" => c.accept_inlier_ratio.into_pyobject(py)?.into_any(),
+        "accept_see_through" => c.accept_see_through.into_pyobject(py)?.into_any(),
+        _ => {
+            return Err(pyo3::exceptions::PyAttributeError::new_err(format!(
+                "IcpConfig has no field {name:?}"
+            )))
+        }
+    };
+    Ok(v)
+}
+
+impl PyIcpConfig {
+    pub(crate) fn to_core(&self) -> core::Result<core::IcpConfig> {
+        self.inner.validate()?;
+        Ok(self.inner.clone())
     }
 
-    fn items(&self) -> Vec<(&'static str, String)> {
-        vec![
-            ("metric", format!("{:?}", self.metric)),
-            ("max_iterations", self.max_iterations.to_string()),
-            (
-                "max_correspondence_distance",
-                self.max_correspondence_distance.to_string(),
-            ),
-            (
-                "min_correspondence_distance",
-                self.min_correspondence_distance.to_string(),
-            ),
-            ("threshold_decay", self.threshold_decay.to_string()),
-            ("trim_fraction", self.trim_fraction.to_string()),
-            ("robust", format!("{:?}", self.robust)),
-            ("robust_scale", self.robust_scale.to_string()),
-            ("mse_threshold", self.mse_threshold.to_string()),
-            ("mse_change", self.mse_change.to_string()),
-            ("step_tolerance", self.step_tolerance.to_string()),
-            ("min_inliers", self.min_inliers.to_string()),
-            ("min_inlier_ratio", self.min_inlier_ratio.to_string()),
-            ("heading_search", self.heading_search.to_string()),
-            ("heading_step", self.heading_step.to_string()),
-            ("position_search", self.position_search.to_string()),
-        ]
+    /// Set `name` to `v`, keeping the old value unless the whole config stays valid.
+    fn assign(&mut self, py: Python<'_>, name: &str, v: &Bound<'_, PyAny>) -> PyResult<()> {
+        let mut c = self.inner.clone();
+        set_icp_field(py, &mut c, name, v)?;
+        c.validate().map_err(|e| to_py(py, e))?;
+        self.inner = c;
+        Ok(())
     }
 }
 
-#[pymethods]
-impl PyIcpConfig {
+macro_rules! icp_pymethods {
+    ({ $($extra:tt)* } $($name:ident => $setter:ident),* $(,)?) => {
+        #[pymethods]
+        impl PyIcpConfig {
+            $($extra)*
+            $(
+                #[getter]
+                fn $name<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+                    get_icp_field(py, &self.inner, stringify!($name))
+                }
+                #[setter]
+                fn $setter(&mut self, py: Python<'_>, v: &Bound<'_, PyAny>) -> PyResult<()> {
+                    self.assign(py, stringify!($name), v)
+                }
+            )*
+        }
+    };
+}
+
+icp_pymethods!(
+    {
+    /// Keyword arguments override the core's defaults (`IcpConfig::default()` in Rust).
     #[new]
-    #[pyo3(signature = (*, metric="point_to_line", max_iterations=50, max_correspondence_distance=1.0,
-        min_correspondence_distance=0.1, threshold_decay=0.6, trim_fraction=1.0, robust="none",
-        robust_scale=0.05, mse_threshold=1e-8, mse_change=1e-7, step_tolerance=1e-6, min_inliers=10,
-        min_inlier_ratio=0.0, heading_search=0.0, heading_step=0.08726646259971647, position_search=0.0))]
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        py: Python<'_>,
-        metric: &str,
-        max_iterations: usize,
-        max_correspondence_distance: f64,
-        min_correspondence_distance: f64,
-        threshold_decay: f64,
-        trim_fraction: f64,
-        robust: &str,
-        robust_scale: f64,
-        mse_threshold: f64,
-        mse_change: f64,
-        step_tolerance: f64,
-        min_inliers: usize,
-        min_inlier_ratio: f64,
-        heading_search: f64,
-        heading_step: f64,
-        position_search: f64,
-    ) -> PyResult<Self> {
-        let c = Self {
-            metric: metric.into(),
-            max_iterations,
-            max_correspondence_distance,
-            min_correspondence_distance,
-            threshold_decay,
-            trim_fraction,
-            robust: robust.into(),
-            robust_scale,
-            mse_threshold,
-            mse_change,
-            step_tolerance,
-            min_inliers,
-            min_inlier_ratio,
-            heading_search,
-            heading_step,
-            position_search,
-        };
-        c.to_core().map_err(|e| to_py(py, e))?;
-        Ok(c)
+    #[pyo3(signature = (**kwargs))]
+    fn new(py: Python<'_>, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let mut c = core::IcpConfig::default();
+        if let Some(kw) = kwargs {
+            for (k, v) in kw.iter() {
+                let name: String = k.extract()?;
+                set_icp_field(py, &mut c, &name, &v)?;
+            }
+        }
+        c.validate().map_err(|e| to_py(py, e))?;
+        Ok(Self { inner: c })
     }
 
     fn validate(&self, py: Python<'_>) -> PyResult<()> {
-        self.to_core().map(|_| ()).map_err(|e| to_py(py, e))
+        self.inner.validate().map_err(|e| to_py(py, e))
     }
 
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        d.set_item("metric", &self.metric)?;
-        d.set_item("max_iterations", self.max_iterations)?;
-        d.set_item(
-            "max_correspondence_distance",
-            self.max_correspondence_distance,
-        )?;
-        d.set_item(
-            "min_correspondence_distance",
-            self.min_correspondence_distance,
-        )?;
-        d.set_item("threshold_decay", self.threshold_decay)?;
-        d.set_item("trim_fraction", self.trim_fraction)?;
-        d.set_item("robust", &self.robust)?;
-        d.set_item("robust_scale", self.robust_scale)?;
-        d.set_item("mse_threshold", self.mse_threshold)?;
-        d.set_item("mse_change", self.mse_change)?;
-        d.set_item("step_tolerance", self.step_tolerance)?;
-        d.set_item("min_inliers", self.min_inliers)?;
-        d.set_item("min_inlier_ratio", self.min_inlier_ratio)?;
-        d.set_item("heading_search", self.heading_search)?;
-        d.set_item("heading_step", self.heading_step)?;
-        d.set_item("position_search", self.position_search)?;
+        for f in ICP_FIELDS {
+            d.set_item(f, get_icp_field(py, &self.inner, f)?)?;
+        }
         Ok(d)
     }
 
-    fn __repr__(&self) -> String {
-        let parts: Vec<String> = self
-            .items()
-            .into_iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect();
-        format!("IcpConfig({})", parts.join(", "))
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        let mut parts = Vec::new();
+        for f in ICP_FIELDS {
+            parts.push(format!("{f}={}", get_icp_field(py, &self.inner, f)?.repr()?));
+        }
+        Ok(format!("IcpConfig({})", parts.join(", ")))
     }
 
     fn __eq__(&self, other: &Bound<'_, PyAny>) -> bool {
         match other.extract::<PyRef<'_, PyIcpConfig>>() {
-            Ok(o) => self.items() == o.items(),
+            Ok(o) => self.inner == o.inner,
             Err(_) => false,
         }
     }
-}
+    }
+    metric => set_metric,
+    max_iterations => set_max_iterations,
+    max_correspondence_distance => set_max_correspondence_distance,
+    min_correspondence_distance => set_min_correspondence_distance,
+    threshold_decay => set_threshold_decay,
+    trim_fraction => set_trim_fraction,
+    robust => set_robust,
+    robust_scale => set_robust_scale,
+    mse_threshold => set_mse_threshold,
+    mse_change => set_mse_change,
+    step_tolerance => set_step_tolerance,
+    min_inliers => set_min_inliers,
+    min_inlier_ratio => set_min_inlier_ratio,
+    heading_search => set_heading_search,
+    heading_step => set_heading_step,
+    position_search => set_position_search,
+    window_search => set_window_search,
+    window_position => set_window_position,
+    window_heading => set_window_heading,
+    window_angle_step => set_window_angle_step,
+    expected_noise => set_expected_noise,
+    accept_inlier_ratio => set_accept_inlier_ratio,
+    accept_see_through => set_accept_see_through,
+);
 
 // ---------------------------------------------------------------- IcpResult
 
@@ -701,6 +795,34 @@ impl PyIcpResult {
     fn termination(&self) -> &'static str {
         self.inner.termination.as_str()
     }
+    #[getter]
+    fn start(&self) -> &'static str {
+        self.inner.start.as_str()
+    }
+    #[getter]
+    fn fit_inlier_ratio(&self) -> Option<f64> {
+        self.inner.fit.map(|f| f.inlier_ratio)
+    }
+    #[getter]
+    fn fit_rms(&self) -> Option<f64> {
+        self.inner.fit.map(|f| f.rms)
+    }
+    #[getter]
+    fn see_through(&self) -> Option<f64> {
+        self.inner.fit.map(|f| f.see_through)
+    }
+    #[getter]
+    fn fit_score(&self) -> Option<f64> {
+        self.inner.fit.map(|f| f.score)
+    }
+    #[getter]
+    fn window_score(&self) -> Option<f64> {
+        self.inner.window_score
+    }
+    #[getter]
+    fn window_second_score(&self) -> Option<f64> {
+        self.inner.window_second
+    }
 
     fn to_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
@@ -716,13 +838,20 @@ impl PyIcpResult {
         d.set_item("degeneracy", self.inner.degeneracy)?;
         d.set_item("degenerate_direction", self.degenerate_direction())?;
         d.set_item("termination", self.termination())?;
+        d.set_item("start", self.start())?;
+        d.set_item("fit_inlier_ratio", self.fit_inlier_ratio())?;
+        d.set_item("fit_rms", self.fit_rms())?;
+        d.set_item("see_through", self.see_through())?;
+        d.set_item("fit_score", self.fit_score())?;
+        d.set_item("window_score", self.window_score())?;
+        d.set_item("window_second_score", self.window_second_score())?;
         Ok(d)
     }
 
     fn __repr__(&self) -> String {
         let p = self.inner.pose;
         format!(
-            "IcpResult(pose=({:.6}, {:.6}, {:.6}), converged={}, iterations={}, mse={:.3e}, inliers={}/{}, degeneracy={:.3}, termination='{}')",
+            "IcpResult(pose=({:.6}, {:.6}, {:.6}), converged={}, iterations={}, mse={:.3e}, inliers={}/{}, degeneracy={:.3}, termination='{}', start='{}')",
             p.x,
             p.y,
             p.theta,
@@ -732,7 +861,8 @@ impl PyIcpResult {
             self.inner.inliers,
             self.inner.num_points,
             self.inner.degeneracy,
-            self.inner.termination.as_str()
+            self.inner.termination.as_str(),
+            self.inner.start.as_str()
         )
     }
 }
@@ -776,9 +906,19 @@ fn icp_batch(
     index: &Bound<'_, PyMapIndex>,
     initial_poses: &Bound<'_, PyAny>,
     config: Option<PyRef<'_, PyIcpConfig>>,
-    num_threads: Option<usize>,
+    num_threads: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<Vec<PyIcpResult>> {
     let cfg = config_arg(py, config)?;
+    let num_threads = match num_threads {
+        Some(v) if !v.is_none() => {
+            let n = cfg_count(py, "num_threads", v)?;
+            if n == 0 {
+                return Err(config_err(py, "num_threads", v, "must be at least 1"));
+            }
+            Some(n)
+        }
+        _ => None,
+    };
     let mut arrays = Vec::new();
     for (k, s) in scans.try_iter()?.enumerate() {
         arrays.push(array2(py, &s?, 2, &format!("scans[{k}]"))?);

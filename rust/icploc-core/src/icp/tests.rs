@@ -133,11 +133,18 @@ fn heading_search_rescues_large_start_errors() {
             })
             .count()
     };
-    let plain = count(&IcpConfig::default());
+    // the heading search on its own (the verified start's window search off), unweighted
+    // as it was tuned (with Huber weights it rescues 31 of 40, not 36)
+    let base = IcpConfig {
+        window_search: false,
+        robust: Robust::None,
+        ..IcpConfig::default()
+    };
+    let plain = count(&base);
     let searched = count(&IcpConfig {
         heading_search: 30f64.to_radians(),
         heading_step: 10f64.to_radians(),
-        ..IcpConfig::default()
+        ..base.clone()
     });
     assert!(searched >= 36, "{searched}/40");
     assert!(searched > plain, "{searched} vs {plain}");
@@ -145,7 +152,7 @@ fn heading_search_rescues_large_start_errors() {
         heading_search: 30f64.to_radians(),
         heading_step: 10f64.to_radians(),
         position_search: 0.5,
-        ..IcpConfig::default()
+        ..base.clone()
     });
     assert!(with_position >= searched, "{with_position} vs {searched}");
 }

@@ -1,0 +1,562 @@
+//! The verified start of [`crate::icp::align`]: does a fit explain the scan, and if not,
+//! where in a local window around the start is the pose that does.
+//!
+//! * [`assess`]: the share of scan points on the map (point-to-line within 3σ of the
+//!   expected noise), their RMS, and the share of beams that pass through a mapped wall
+//!   (negative information: a laser does not see through walls), from the index's
+//!   closest-point answers.
+//! * [`search`]: a branch-and-bound correlative search (Olson; Cartographer's fast
+//!   correlative matcher) over translations within ±`window_position` and headings within
+//!   ±`window_heading` of the start, on the max-pooled likelihood pyramid of
+//!   [`crate::likelihood`]: exact best pose on the lattice (cells × heading step), plus the
+//!   best distinct alternative (the window's ambiguity).
+
+use crate::icp::IcpConfig;
+use crate::index::MapIndex;
+use crate::likelihood::LikelihoodField;
+use crate::se2::{wrap_angle, Pose2};
+
+/// Beams checked for see-through (evenly spread over the scan).
+const SEE_THROUGH_BEAMS: usize = 48;
+/// Beams that meet a wall at less than this angle graze it (a corridor) and do not count.
+const GRAZING_DEG: f64 = 15.0;
+/// Scan points the coarse search uses (evenly subsampled).
+const WINDOW_POINTS: usize = 48;
+/// Leaves within this fraction of the best are kept (the window's ambiguity is reported
+/// when the best distinct alternative scores at least this much of the best).
+const KEEP_RATIO: f64 = 0.8;
+/// A window pose closer than this to the map (m) is inside a wall or furniture: not a pose.
+const MIN_CLEARANCE: f64 = 0.15;
+/// Two window poses are distinct hypotheses when this far apart (m) or `DISTINCT_ANGLE`.
+pub(crate) const DISTINCT_DISTANCE: f64 = 0.3;
+pub(crate) const DISTINCT_ANGLE: f64 = 0.1;
+/// Distinct coarse seeds ranked by [`assess`].
+pub(crate) const WINDOW_SEEDS: usize = 12;
+/// Scan points (evenly subsampled) the seeds are ranked on.
+pub(crate) const RANKING_POINTS: usize = 96;
+/// The best ranked seeds refined by ICP.
+pub(crate) const WINDOW_REFINED: usize = 3;
+
+/// Is `p` in the every-`stride`-th subset of a scan? Decided by a hash of the point itself,
+/// not by its position in the array: the subset, and so the answer, does not depend on the
+/// order of the scan points.
+#[inline]
+pub(crate) fn picked(p: &[f64; 2], stride: usize) -> bool {
+    if stride <= 1 {
+        return true;
+    }
+    let mut z = p[0].to_bits() ^ p[1].to_bits().rotate_left(29);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    (z ^ (z >> 31)) % stride as u64 == 0
+}
+
+/// About `n / stride` points of `scan` (at least all of them when that leaves fewer than
+/// `min`), chosen by [`picked`].
+pub(crate) fn subsample(scan: &[[f64; 2]], stride: usize, min: usize) -> Vec<[f64; 2]> {
+    let sub: Vec<[f64; 2]> = scan.iter().filter(|p| picked(p, stride)).copied().collect();
+    if sub.len() < min {
+        scan.to_vec()
+    } else {
+        sub
+    }
+}
+
+/// How well a pose explains a scan.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fit {
+    /// Share of the scan points within 3σ (point-to-line) of the map.
+    pub inlier_ratio: f64,
+    /// RMS of those inliers' distances (m).
+    pub rms: f64,
+    /// Share of the checked beams that pass through a mapped wall.
+    pub see_through: f64,
+    /// Mean Gaussian likelihood (σ = expected noise) of the point distances, times one
+    /// minus `see_through`, in [0, 1]: the ranking score of candidate poses.
+    pub score: f64,
+}
+
+/// Distance from the map-frame point `q` to the map: point-to-line through the nearest
+/// map point when it is near (a sparsely sampled wall is a line, not its samples).
+#[inline]
+fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64) -> f64 {
+    let (d2, j) = index.correspondence(q);
+    if d2 <= near2 {
+        let (x, n) = (index.points()[j], normals[j]);
+        (n[0] * (q[0] - x[0]) + n[1] * (q[1] - x[1])).abs()
+    } else {
+        d2.sqrt()
+    }
+}
+
+/// How well `pose` explains `scan` (sensor-frame points, sensor at the origin).
+pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig) -> Fit {
+    let normals = index.normals();
+    let sigma = cfg.expected_noise;
+    let band = 3.0 * sigma;
+    let near = 2.0 * index.spacing() + band;
+    let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+    let (s, c) = pose.theta.sin_cos();
+    let (mut inl, mut sq, mut lik) = (0usize, 0.0, 0.0);
+    for p in scan {
+        let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+        let e = map_distance(index, normals, q, near * near);
+        lik += (-e * e * inv2s2).exp();
+        if e <= band {
+            inl += 1;
+            sq += e * e;
+        }
+    }
+    let n = scan.len().max(1) as f64;
+    let st = see_through(scan, index, pose);
+    Fit {
+        inlier_ratio: inl as f64 / n,
+        rms: if inl > 0 {
+            (sq / inl as f64).sqrt()
+        } else {
+            f64::INFINITY
+        },
+        see_through: st,
+        score: lik / n * (1.0 - st),
+    }
+}
+
+/// Share of (at most [`SEE_THROUGH_BEAMS`]) beams, sensor to return, that cross a mapped
+/// wall more than 0.3 m before their return: sphere tracing on the closest-point answers,
+/// and where the beam comes near a map point, whether it crosses that point's wall line
+/// steeply (not grazing) at a point on the wall — within half a sample spacing (+ 5 mm) of a
+/// map point, by the exact k-d tree answer — not through a gap beside it.
+pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
+    let normals = index.normals();
+    let spacing = index.spacing();
+    let thr = 0.5 * spacing + 0.04;
+    let on_wall2 = (0.5 * spacing + 0.005).powi(2);
+    let margin = 0.3;
+    let min_cos = GRAZING_DEG.to_radians().sin();
+    let stride = scan.len().div_ceil(SEE_THROUGH_BEAMS).max(1);
+    let (mut checked, mut bad) = (0usize, 0usize);
+    for p in scan.iter().filter(|p| picked(p, stride)) {
+        let r = p[0].hypot(p[1]);
+        if !(r > 2.0 * margin) || !r.is_finite() {
+            continue;
+        }
+        checked += 1;
+        let q = pose.transform(*p);
+        let u = [(q[0] - pose.x) / r, (q[1] - pose.y) / r];
+        let end = r - margin;
+        let mut t = margin;
+        let mut steps = 0;
+        while t < end && steps < 1024 {
+            steps += 1;
+            let s = [pose.x + u[0] * t, pose.y + u[1] * t];
+            let (d2, j) = index.correspondence(s);
+            let d = d2.sqrt();
+            if d > thr {
+                t += (d - thr).max(0.5 * thr);
+                continue;
+            }
+            let (x, n) = (index.points()[j], normals[j]);
+            let cos = u[0] * n[0] + u[1] * n[1];
+            if cos.abs() >= min_cos {
+                // where the beam meets the line of that wall
+                let sd = (s[0] - x[0]) * n[0] + (s[1] - x[1]) * n[1];
+                let tc = t - sd / cos;
+                if tc > margin && tc < end {
+                    let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
+                    // exact (k-d tree) here: a beam through a doorway passes centimetres
+                    // from the jamb, and the cached answer may be a cell off
+                    if index.nearest(cp).0 <= on_wall2 {
+                        bad += 1;
+                        break;
+                    }
+                }
+            }
+            // a crossing at or above the grazing angle brings some sample of steps this
+            // long within `thr` of the wall
+            t += 1.8 * thr;
+        }
+    }
+    if checked == 0 {
+        0.0
+    } else {
+        bad as f64 / checked as f64
+    }
+}
+
+/// What the window search found.
+#[derive(Clone, Debug)]
+pub(crate) struct WindowOutcome {
+    /// Distinct coarse seeds, best first: (pose, score in [0, 1]).
+    pub seeds: Vec<(Pose2, f64)>,
+    /// Score of the best alternative distinct from the best; 0 when none reached
+    /// `KEEP_RATIO` of the best.
+    pub second: f64,
+}
+
+#[derive(Clone, Copy)]
+struct Node {
+    bound: u32,
+    level: u8,
+    k: u32,
+    a: i32,
+    b: i32,
+}
+
+/// Branch-and-bound over the window around `center`: translations on the field's cells
+/// within ±`cfg.window_position`, headings every `cfg.window_angle_step` within
+/// ±`cfg.window_heading`. `None` when the scan has too few usable points.
+pub(crate) fn search(
+    field: &LikelihoodField,
+    scan: &[[f64; 2]],
+    center: Pose2,
+    cfg: &IcpConfig,
+) -> Option<WindowOutcome> {
+    let usable: Vec<[f64; 2]> = scan
+        .iter()
+        .copied()
+        .filter(|p| p[0] * p[0] + p[1] * p[1] > 1e-4)
+        .collect();
+    if usable.len() < 3 {
+        return None;
+    }
+    let sub = subsample(&usable, usable.len().div_ceil(WINDOW_POINTS), 3);
+    let m = sub.len();
+    let res = field.res;
+    let wc = (cfg.window_position / res).round().max(0.0) as i32;
+    let nk = (cfg.window_heading / cfg.window_angle_step)
+        .round()
+        .max(0.0) as i32;
+    let headings: Vec<f64> = (-nk..=nk)
+        .map(|k| wrap_angle(center.theta + k as f64 * cfg.window_angle_step))
+        .collect();
+    // per heading: the cells of the points with the sensor at the window centre
+    let offsets: Vec<Vec<(i32, i32)>> = headings
+        .iter()
+        .map(|&th| {
+            let (s, c) = th.sin_cos();
+            sub.iter()
+                .map(|p| {
+                    field.cell([
+                        center.x + c * p[0] - s * p[1],
+                        center.y + s * p[0] + c * p[1],
+                    ])
+                })
+                .collect()
+        })
+        .collect();
+    let span = 2 * wc + 1;
+    let mut top = 0usize;
+    while (1i32 << top) < span && top < field.levels() {
+        top += 1;
+    }
+    let stride = 1i32 << top;
+    let mut roots: Vec<Node> = Vec::new();
+    for (k, offs) in offsets.iter().enumerate() {
+        let mut b = -wc;
+        while b <= wc {
+            let mut a = -wc;
+            while a <= wc {
+                roots.push(Node {
+                    bound: field.sum(top, offs, a, b),
+                    level: top as u8,
+                    k: k as u32,
+                    a,
+                    b,
+                });
+                a += stride;
+            }
+            b += stride;
+        }
+    }
+    // best root first; ties: nearest heading to the start
+    roots.sort_unstable_by_key(|n| {
+        (
+            std::cmp::Reverse(n.bound),
+            (n.k as i32 - nk).abs(),
+            n.a.abs() + n.b.abs(),
+        )
+    });
+    let full = 255 * m as u32;
+    let floor = (0.1 * full as f64) as u32;
+    let mut best = floor;
+    let threshold = |b: u32| ((b as f64) * KEEP_RATIO).ceil() as u32;
+    let mut leaves: Vec<Node> = Vec::new();
+    let mut stack: Vec<Node> = Vec::new();
+    for root in &roots {
+        if root.bound < threshold(best).max(floor) {
+            continue;
+        }
+        stack.clear();
+        stack.push(*root);
+        while let Some(n) = stack.pop() {
+            let thr = threshold(best).max(floor);
+            if n.bound < thr {
+                continue;
+            }
+            if n.level == 0 {
+                let p = [center.x + n.a as f64 * res, center.y + n.b as f64 * res];
+                if field.distance_at(p).is_none_or(|d| d < MIN_CLEARANCE) {
+                    continue;
+                }
+                leaves.push(n);
+                best = best.max(n.bound);
+                continue;
+            }
+            let lvl = n.level as usize - 1;
+            let s = 1i32 << lvl;
+            let offs = &offsets[n.k as usize];
+            let mut kids = [n; 4];
+            let mut nkids = 0;
+            for (da, db) in [(0, 0), (s, 0), (0, s), (s, s)] {
+                let (a, b) = (n.a + da, n.b + db);
+                if a > wc || b > wc {
+                    continue;
+                }
+                let bound = field.sum(lvl, offs, a, b);
+                if bound < thr {
+                    continue;
+                }
+                kids[nkids] = Node {
+                    bound,
+                    level: lvl as u8,
+                    k: n.k,
+                    a,
+                    b,
+                };
+                nkids += 1;
+            }
+            let kids = &mut kids[..nkids];
+            kids.sort_unstable_by_key(|c| c.bound);
+            stack.extend_from_slice(kids);
+        }
+    }
+    let keep = threshold(best).max(floor);
+    leaves.retain(|l| l.bound >= keep);
+    // ties by closeness to the start: the result does not depend on the visiting order
+    leaves.sort_unstable_by_key(|l| {
+        (
+            std::cmp::Reverse(l.bound),
+            (l.k as i32 - nk).abs(),
+            l.a.abs() + l.b.abs(),
+            l.k,
+            l.b,
+            l.a,
+        )
+    });
+    let pose_of = |l: &Node| {
+        Pose2::new(
+            center.x + l.a as f64 * res,
+            center.y + l.b as f64 * res,
+            headings[l.k as usize],
+        )
+    };
+    let distinct = |p: &Pose2, q: &Pose2| {
+        (p.x - q.x).hypot(p.y - q.y) > DISTINCT_DISTANCE
+            || wrap_angle(p.theta - q.theta).abs() > DISTINCT_ANGLE
+    };
+    let mut seeds: Vec<(Pose2, f64)> = Vec::new();
+    for l in &leaves {
+        let p = pose_of(l);
+        if seeds.iter().all(|(q, _)| distinct(&p, q)) {
+            seeds.push((p, l.bound as f64 / full as f64));
+            if seeds.len() >= WINDOW_SEEDS {
+                break;
+            }
+        }
+    }
+    let second = seeds.get(1).map(|s| s.1).unwrap_or(0.0);
+    if seeds.is_empty() {
+        return None;
+    }
+    Some(WindowOutcome { seeds, second })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::icp::{align, StartPath};
+    use crate::index::DEFAULT_CACHE_RESOLUTION;
+    use crate::testkit::{
+        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng, World,
+    };
+
+    fn index_of(segs: &[crate::raycast::Segment]) -> MapIndex {
+        let (p, n) = sample_segments(segs, 0.025);
+        MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+            .unwrap()
+    }
+
+    fn ok(a: Pose2, b: Pose2) -> bool {
+        (a.x - b.x).hypot(a.y - b.y) < 0.02
+            && wrap_angle(a.theta - b.theta).abs() < 0.5f64.to_radians()
+    }
+
+    #[test]
+    fn see_through_counts_beams_through_a_closed_door() {
+        // a 20 m x 2 m corridor with a cross wall at x = 10 and a 1 m door in it
+        let mut door = rectangle(20.0, 2.0);
+        door.push([10.0, 0.0, 10.0, 0.5]);
+        door.push([10.0, 1.5, 10.0, 2.0]);
+        let mut closed = rectangle(20.0, 2.0);
+        closed.push([10.0, 0.0, 10.0, 2.0]);
+        let pose = Pose2::new(1.0, 1.0, 0.0);
+        let mut rng = Rng::new(3);
+        let scan = make_scan(&door, pose, 361, 30.0, 0.005, 0.0, &mut rng);
+        // the beams that went through the doorway: through the wall when it is closed
+        let beyond: Vec<[f64; 2]> = scan.iter().copied().filter(|p| p[0] > 9.5).collect();
+        assert!(beyond.len() >= 8, "{} beams beyond the door", beyond.len());
+        let open = see_through(&beyond, &index_of(&door), pose);
+        let shut = see_through(&beyond, &index_of(&closed), pose);
+        assert!(open < 0.1, "door open: {open}");
+        assert!(shut > 0.9, "door closed: {shut}");
+        // the rest of the scan (along the corridor, grazing its walls) crosses nothing
+        let rest: Vec<[f64; 2]> = scan.iter().copied().filter(|p| p[0] <= 9.5).collect();
+        assert!(see_through(&rest, &index_of(&closed), pose) < 0.03);
+    }
+
+    #[test]
+    fn good_fit_takes_the_plain_path() {
+        // no people, no glass (its fronts open): the map explains every scan
+        let w = World {
+            people: 0,
+            glass: Vec::new(),
+            ..clinic_world()
+        };
+        let idx = index_of(&w.map_segments());
+        let cs = world_cases(&w, 20, (0.05, 0.05, 0.02), 5);
+        let plain = cs
+            .iter()
+            .map(|c| align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap())
+            .filter(|r| r.start == StartPath::Plain && r.window_score.is_none())
+            .count();
+        assert!(plain >= 18, "{plain} of 20 took the plain path");
+    }
+
+    #[test]
+    fn window_search_recovers_what_plain_icp_misses() {
+        for w in worlds() {
+            let idx = index_of(&w.map_segments());
+            let cs = world_cases(&w, 40, (1.0, 0.5, 25f64.to_radians()), 11);
+            let cfg = IcpConfig::default();
+            let off = IcpConfig {
+                window_search: false,
+                ..IcpConfig::default()
+            };
+            let with: usize = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &cfg).unwrap().pose, c.truth))
+                .count();
+            let without: usize = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &off).unwrap().pose, c.truth))
+                .count();
+            eprintln!(
+                "{}: {with}/40 with the window search, {without}/40 without",
+                w.name
+            );
+            assert!(with >= 37, "{}: {with}/40", w.name);
+            assert!(with > without, "{}: {with} vs {without}", w.name);
+        }
+    }
+
+    #[test]
+    fn window_reports_score_and_ambiguity() {
+        let w = clinic_world();
+        let idx = index_of(&w.map_segments());
+        let cfg = IcpConfig {
+            expected_noise: 0.001, // no 1 cm-noise fit has an RMS below 2 mm: always search
+            ..IcpConfig::default()
+        };
+        for c in world_cases(&w, 10, (0.5, 0.5, 0.3), 2) {
+            let r = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            assert_ne!(r.start, StartPath::Plain);
+            let (s, s2) = (r.window_score.unwrap(), r.window_second.unwrap());
+            assert!(
+                (0.0..=1.0).contains(&s) && (0.0..=s).contains(&s2),
+                "{s} {s2}"
+            );
+        }
+    }
+
+    #[test]
+    fn window_search_is_deterministic() {
+        let w = clinic_world();
+        let idx = index_of(&w.map_segments());
+        let cfg = IcpConfig::default();
+        for c in world_cases(&w, 8, (1.0, 0.5, 25f64.to_radians()), 4) {
+            let a = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            let b = align(&c.scan, &idx, c.initial, &cfg).unwrap();
+            assert_eq!(a, b);
+        }
+    }
+
+    #[test]
+    fn a_map_too_large_for_the_window_grid_skips_the_search() {
+        // a room plus one stray point 1e200 m away: no grid covers the bounds
+        let segs = rectangle(8.0, 5.0);
+        let (mut p, mut n) = sample_segments(&segs, 0.025);
+        p.push([1e200, 1e200]);
+        n.push([1.0, 0.0]);
+        let idx = MapIndex::new(p, Some(n)).unwrap();
+        assert!(idx.likelihood_field().is_none());
+        let mut rng = Rng::new(1);
+        let scan = make_scan(
+            &segs,
+            Pose2::new(3.0, 2.0, 0.3),
+            361,
+            30.0,
+            0.01,
+            0.3,
+            &mut rng,
+        );
+        let cfg = IcpConfig {
+            expected_noise: 0.001, // the fit never explains the scan: the search is wanted
+            ..IcpConfig::default()
+        };
+        let r = align(&scan, &idx, Pose2::new(3.4, 2.3, 0.5), &cfg).unwrap();
+        assert_eq!(
+            (r.start, r.window_score),
+            (StartPath::WindowKeptPlain, None)
+        );
+    }
+
+    #[test]
+    fn oversized_searches_are_config_errors() {
+        let err = |c: IcpConfig| match c.validate() {
+            Err(crate::IcpError::InvalidConfig { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        let d = IcpConfig::default;
+        assert_eq!(
+            err(IcpConfig {
+                heading_search: 3.0,
+                heading_step: 1e-9,
+                ..d()
+            }),
+            "heading_step"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                window_angle_step: 1e-9,
+                ..d()
+            }),
+            "window_angle_step"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                max_iterations: 1 << 40,
+                ..d()
+            }),
+            "max_iterations"
+        );
+        assert_eq!(
+            err(IcpConfig {
+                expected_noise: 0.0,
+                ..d()
+            }),
+            "expected_noise"
+        );
+    }
+}

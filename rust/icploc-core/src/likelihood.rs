@@ -1,0 +1,212 @@
+//! The likelihood field of a map and its max-pooled pyramid: the scoring grid of the
+//! correlative (branch-and-bound) searches — the global search ([`crate::global`]) and
+//! the local window search of [`crate::icp::align`].
+//!
+//! * `dist`: distance from each cell centre to the closest map point (k-d tree), f32;
+//! * `pooled[0]`: the likelihood `255·exp(−d²/2σ²)` as u8;
+//! * `pooled[h]`: at cell (i, j), the maximum of `pooled[0]` over the 2ʰ × 2ʰ window
+//!   starting there — so the sum of `pooled[h]` under a scan's points is an exact upper
+//!   bound of the score of every translation in that window.
+
+use rayon::prelude::*;
+
+use crate::error::{IcpError, Result};
+use crate::index::MapIndex;
+
+/// Grids larger than this many cells are refused (memory: ~ 8 bytes per cell per level).
+pub const MAX_CELLS: usize = 40_000_000;
+
+/// The field the window search of `icp()` uses, built lazily once per [`MapIndex`]
+/// ([`MapIndex::likelihood_field`]): 5 cm cells, σ = 0.1 m, 6 pooled levels.
+pub const WINDOW_RESOLUTION: f64 = 0.05;
+pub const WINDOW_SIGMA: f64 = 0.1;
+pub const WINDOW_LEVELS: usize = 6;
+/// The window search's field holds at most this many cells per level (~ 90 MB in all).
+pub const WINDOW_MAX_CELLS: usize = 1 << 23;
+
+/// A likelihood grid over a map's bounds with its max-pooled pyramid.
+#[derive(Clone)]
+pub struct LikelihoodField {
+    pub(crate) res: f64,
+    pub(crate) x0: f64,
+    pub(crate) y0: f64,
+    pub(crate) w: usize,
+    pub(crate) h: usize,
+    /// Distance (m) from each cell centre to the nearest map point.
+    pub(crate) dist: Vec<f32>,
+    /// Pooled likelihood, level 0 = the likelihood itself.
+    pub(crate) pooled: Vec<Vec<u8>>,
+}
+
+impl std::fmt::Debug for LikelihoodField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LikelihoodField")
+            .field("resolution", &self.res)
+            .field("origin", &(self.x0, self.y0))
+            .field("cells", &(self.w, self.h))
+            .field("levels", &self.pooled.len())
+            .finish()
+    }
+}
+
+impl LikelihoodField {
+    /// Build the field of `index` at `resolution` m per cell, likelihood σ `sigma`, with
+    /// `levels` pooled levels above the base. Refuses grids of more than [`MAX_CELLS`].
+    pub fn build(index: &MapIndex, resolution: f64, sigma: f64, levels: usize) -> Result<Self> {
+        if resolution <= 0.0 || !resolution.is_finite() {
+            return Err(IcpError::InvalidInput {
+                what: "resolution".into(),
+                reason: format!("must be positive and finite, got {resolution}"),
+            });
+        }
+        let [xmin, ymin, xmax, ymax] = index.bounds();
+        let wf = ((xmax - xmin) / resolution).floor() + 1.0;
+        let hf = ((ymax - ymin) / resolution).floor() + 1.0;
+        if !(wf.is_finite() && hf.is_finite()) || wf * hf > MAX_CELLS as f64 {
+            return Err(IcpError::InvalidInput {
+                what: "resolution".into(),
+                reason: format!(
+                    "a {:.1} m x {:.1} m map at {resolution} m needs {wf} x {hf} cells, more than {MAX_CELLS}",
+                    xmax - xmin,
+                    ymax - ymin
+                ),
+            });
+        }
+        let (w, h) = (wf as usize, hf as usize);
+        let (x0, y0) = (xmin, ymin);
+        let dist: Vec<f32> = (0..w * h)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|c| {
+                let (i, j) = (c % w, c / w);
+                let q = [
+                    x0 + (i as f64 + 0.5) * resolution,
+                    y0 + (j as f64 + 0.5) * resolution,
+                ];
+                index.nearest(q).0.sqrt() as f32
+            })
+            .collect();
+        let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+        let base: Vec<u8> = dist
+            .iter()
+            .map(|&d| {
+                let d = d as f64;
+                (255.0 * (-d * d * inv2s2).exp()).round() as u8
+            })
+            .collect();
+        let mut pooled = vec![base];
+        for lvl in 1..=levels {
+            let next = pool(&pooled[lvl - 1], w, h, 1usize << (lvl - 1), u8::max);
+            pooled.push(next);
+        }
+        Ok(Self {
+            res: resolution,
+            x0,
+            y0,
+            w,
+            h,
+            dist,
+            pooled,
+        })
+    }
+
+    /// The field `icp()`'s window search uses for `index`: [`WINDOW_RESOLUTION`], or 10 or
+    /// 20 cm when the map's bounds need more than [`WINDOW_MAX_CELLS`] cells at 5 cm;
+    /// `None` when even 20 cm does not fit (the window search is then skipped).
+    pub(crate) fn for_window(index: &MapIndex) -> Option<Self> {
+        let [x0, y0, x1, y1] = index.bounds();
+        (0..3)
+            .map(|k| WINDOW_RESOLUTION * (1 << k) as f64)
+            .find(|res| {
+                let cells = (((x1 - x0) / res).floor() + 1.0) * (((y1 - y0) / res).floor() + 1.0);
+                cells.is_finite() && cells <= WINDOW_MAX_CELLS as f64
+            })
+            .and_then(|res| Self::build(index, res, WINDOW_SIGMA.max(res), WINDOW_LEVELS).ok())
+    }
+
+    pub fn resolution(&self) -> f64 {
+        self.res
+    }
+
+    /// Grid size in cells (width, height).
+    pub fn shape(&self) -> (usize, usize) {
+        (self.w, self.h)
+    }
+
+    /// Number of pooled levels above the base.
+    pub fn levels(&self) -> usize {
+        self.pooled.len() - 1
+    }
+
+    /// Distance (m) from `p` to the map as stored in the grid (nearest cell); `None`
+    /// outside the grid.
+    pub fn distance_at(&self, p: [f64; 2]) -> Option<f64> {
+        let i = ((p[0] - self.x0) / self.res).floor();
+        let j = ((p[1] - self.y0) / self.res).floor();
+        if i >= 0.0 && j >= 0.0 && (i as usize) < self.w && (j as usize) < self.h {
+            Some(self.dist[j as usize * self.w + i as usize] as f64)
+        } else {
+            None
+        }
+    }
+
+    /// The cell (i, j) of a map-frame point (may lie outside the grid).
+    #[inline]
+    pub(crate) fn cell(&self, p: [f64; 2]) -> (i32, i32) {
+        let i = ((p[0] - self.x0) / self.res).floor();
+        let j = ((p[1] - self.y0) / self.res).floor();
+        (
+            i.clamp(i32::MIN as f64 / 4.0, i32::MAX as f64 / 4.0) as i32,
+            j.clamp(i32::MIN as f64 / 4.0, i32::MAX as f64 / 4.0) as i32,
+        )
+    }
+
+    /// Sum of pooled level `level` under the cells `offs` shifted by (i, j): at level 0 the
+    /// exact score of that translation, above it an upper bound of every translation in
+    /// the 2^level × 2^level window starting there.
+    #[inline]
+    pub(crate) fn sum(&self, level: usize, offs: &[(i32, i32)], i: i32, j: i32) -> u32 {
+        let g = &self.pooled[level];
+        let (w, h) = (self.w as i32, self.h as i32);
+        // a window starting left of / below the grid: the window at 0 covers its in-grid
+        // part (and more), so it still bounds it
+        let lo = 1 - (1i32 << level);
+        let mut s = 0u32;
+        for &(ox, oy) in offs {
+            let (x, y) = (i + ox, j + oy);
+            if x >= lo && y >= lo && x < w && y < h {
+                s += g[(y.max(0) * w + x.max(0)) as usize] as u32;
+            }
+        }
+        s
+    }
+}
+
+/// One max-pooling step: cell c takes `op` over c and its neighbours `s` cells right, up
+/// and diagonally (where inside the grid).
+pub(crate) fn pool<T: Copy + Send + Sync>(
+    prev: &[T],
+    w: usize,
+    h: usize,
+    s: usize,
+    op: fn(T, T) -> T,
+) -> Vec<T> {
+    (0..w * h)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|c| {
+            let (i, j) = (c % w, c / w);
+            let mut m = prev[c];
+            if i + s < w {
+                m = op(m, prev[c + s]);
+            }
+            if j + s < h {
+                m = op(m, prev[c + s * w]);
+                if i + s < w {
+                    m = op(m, prev[c + s * w + s]);
+                }
+            }
+            m
+        })
+        .collect()
+}
