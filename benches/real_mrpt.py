@@ -134,7 +134,7 @@ KLD_minSamplesPerBin=0
 
 [PF_options]
 PF_algorithm=pfStandardProposal
-resamplingMethod=prSystematic
+resamplingMethod=prMultinomial
 adaptiveSampleSize=1
 BETA=0.5
 sampleSize=1
