@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+#: the reading written for a NaN / inf reading of a log that has no saturation value
+NO_RETURN_FILL = 81.91
+
 __all__ = [
     "FlaserLog",
     "beam_angles",
@@ -86,11 +89,16 @@ def read_flaser(path: str | Path) -> FlaserLog:
         raise ValueError(f"{path}: no FLASER line")
     m = np.asarray(rows, dtype=np.float64)
     r = m[:, :n_beams]
-    if not np.all(np.isfinite(m)):
-        raise ValueError(f"{path}: non-finite FLASER values")
-    top = float(r.max())
+    if not np.all(np.isfinite(m[:, n_beams:])):
+        raise ValueError(f"{path}: non-finite FLASER pose or timestamp")
+    bad = ~np.isfinite(r)
+    top = float(r[~bad].max()) if (~bad).any() else 0.0
     # a saturation value (no return) repeats exactly; a real far wall does not
-    no_return = top if np.mean(r >= top - 1e-6) > 0.002 and top > 5.0 else math.inf
+    no_return = top if np.mean(r[~bad] >= top - 1e-6) > 0.002 and top > 5.0 else math.inf
+    if bad.any():
+        # NaN / inf readings (laserazosSM3) are no-returns: written as a saturation value
+        no_return = no_return if math.isfinite(no_return) else NO_RETURN_FILL
+        r = np.where(bad, no_return, r)
     return FlaserLog(
         path=path,
         ranges=r,
