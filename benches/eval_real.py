@@ -15,8 +15,9 @@ Writes ``benches/results/real.md`` (the table, also on stdout) and ``benches/res
 (``--quick``: ``real-quick.*``; ``--out-dir`` elsewhere). Maps, logs and peer work files go to
 a cache outside the project: ``$XDG_CACHE_HOME/icploc-bench-real`` (default
 ``~/.cache/icploc-bench-real``; ``--cache``). Methods: ``icploc`` (public Python path
-``icploc.replay.replay`` in a child process, for poses and status; plus ``icploc replay``
-CLI as a child process for the whole-process time), ``numpy`` (benches/numpy_tracker.py),
+``icploc.replay.replay``, the function ``icploc replay`` calls, in a child process: poses,
+status and the whole-process time; ``--icploc-cli`` also runs the ``icploc replay`` command
+as its own process, reports its time and checks its poses against the API's), ``numpy`` (benches/numpy_tracker.py),
 ``mrpt`` (``apt-get install mrpt-apps``), ``amcl`` (``pip install amcl``, the ``bench``
 extra). A missing peer is reported as such, not silently dropped.
 
@@ -138,8 +139,13 @@ def run_method(
     python: str,
     seed: int,
     timeout: float,
+    icploc_cli: bool = False,
 ) -> dict:
-    """Run one method on one log; returns poses, status (or None), time_s (whole process)."""
+    """Run one method on one log; returns poses, status (or None), time_s (whole process).
+
+    icploc: the child process runs ``icploc.replay.replay`` (what ``icploc replay`` calls);
+    with ``icploc_cli`` the ``icploc replay`` command also runs as its own process, its time
+    is the one reported and its TUM poses are checked against the API's."""
     work.mkdir(parents=True, exist_ok=True)
     pose_s = ",".join(f"{v:.9f}" for v in pose)
     runner = str(HERE / "real_runners.py")
@@ -160,7 +166,7 @@ def run_method(
     if method == "icploc":
         res["api_time_s"] = dt
         cli = Path(python).parent / "icploc"
-        if cli.exists():
+        if icploc_cli and cli.exists():
             tum = work / "icploc_cli.tum"
             cmd = [str(cli), "replay", str(log_path), "--map", str(map_yaml), f"--initial-pose={pose_s}",
                    "--out", str(tum), "--no-progress"]  # fmt: skip
@@ -237,6 +243,7 @@ def evaluate_log(
                         got = run_method(
                             m, work, log_path, log.ranges[loc], odom[loc], yaml_path, pose,  # type: ignore[arg-type]
                             min(args.max_range, log.no_return), args.python, _seed(args.seed, name, f.index), args.timeout,
+                            args.icploc_cli,
                         )  # fmt: skip
                     except Exception as e:  # one failing method must not hide the others
                         acc["errors"].append(f"fold {f.index}: {type(e).__name__}: {e}")
@@ -245,7 +252,7 @@ def evaluate_log(
                     acc["ref"].append(ref[loc])
                     acc["status"].extend(got["status"] if got.get("status") is not None else [None] * len(loc))
                     acc["time"] += got["time_s"]
-                    for k in ("api_time_s", "cli_time_s", "cli_vs_api_max_m", "cli_error", "convert_s"):
+                    for k in ("api_time_s", "cli_time_s", "cli_vs_api_max_m", "cli_error", "convert_s", "parse_s", "localize_s"):
                         if k in got:
                             acc.setdefault(k, []).append(got[k])
                     print(f"  {name} {base_name} {int(res * 100)} cm fold {f.index} {m}: "
@@ -268,7 +275,7 @@ def evaluate_log(
                     row.update(rm.summarise(est, rf, status))
                     row["time_s"] = acc["time"]
                     row["scans_per_s"] = len(est) / acc["time"] if acc["time"] > 0 else None
-                    for k in ("api_time_s", "cli_time_s", "convert_s"):
+                    for k in ("api_time_s", "cli_time_s", "convert_s", "parse_s", "localize_s"):
                         if k in acc:
                             row[k] = float(np.sum(acc[k]))
                     if "cli_vs_api_max_m" in acc:
@@ -321,7 +328,8 @@ def evaluate_laserazos(args: argparse.Namespace) -> list[dict]:
                                    "scans_localized": len(loc), "reference": "our ICP reference"}  # fmt: skip
             try:
                 got = run_method(m, work, log_path, log.ranges[loc], odom[loc], yaml_path, pose,  # type: ignore[arg-type]
-                                 rmax, args.python, _seed(args.seed, "laserazos"), args.timeout)  # fmt: skip
+                                 rmax, args.python, _seed(args.seed, "laserazos"), args.timeout,
+                                 args.icploc_cli)  # fmt: skip
             except Exception as e:
                 row["error"] = f"{type(e).__name__}: {e}"
                 rows.append(row)
@@ -404,6 +412,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--python", default=sys.executable, help="interpreter whose icploc is measured")
     ap.add_argument("--timeout", type=float, default=1800.0, help="per child process (s)")
     ap.add_argument("--no-laserazos", dest="laserazos", action="store_false")
+    ap.add_argument("--icploc-cli", action="store_true",
+                    help="also run the `icploc replay` command per log and report its whole-process time")  # fmt: skip
     ap.add_argument("--laserazos-only", action="store_true")
     args = ap.parse_args(argv)
     bad = [m for m in args.methods if m not in METHODS]

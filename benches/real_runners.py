@@ -41,7 +41,13 @@ def run_icploc(log: Path, map_yaml: Path, pose: tuple[float, float, float]) -> d
     res = replay(log, map_yaml, initial_pose=pose)
     poses = [[float(v) for v in e.pose] for e in res.estimates]
     status = [str(getattr(e.status, "value", e.status)) for e in res.estimates]
-    return {"poses": poses, "status": status, "stamps": [float(e.stamp) for e in res.estimates]}
+    return {
+        "poses": poses,
+        "status": status,
+        "stamps": [float(e.stamp) for e in res.estimates],
+        "parse_s": float(res.load_time),
+        "localize_s": float(res.localize_time),
+    }
 
 
 def _scan_points(r, angles, max_range):  # type: ignore[no-untyped-def]
