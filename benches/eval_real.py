@@ -415,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--icploc-cli", action="store_true",
                     help="also run the `icploc replay` command per log and report its whole-process time")  # fmt: skip
     ap.add_argument("--laserazos-only", action="store_true")
+    ap.add_argument("--merge", nargs="+", default=[], metavar="JSON",
+                    help="include the rows of earlier real.json files (this run's rows win for the same log, map, base, method)")  # fmt: skip
     args = ap.parse_args(argv)
     bad = [m for m in args.methods if m not in METHODS]
     if bad:
@@ -444,6 +446,19 @@ def main(argv: list[str] | None = None) -> int:
     if args.laserazos or args.laserazos_only:
         rows.extend(evaluate_laserazos(args))
     wall = time.perf_counter() - t0
+    commands = [" ".join([Path(sys.executable).name, *sys.argv]) if argv is None else " ".join(argv)]
+    if args.merge:
+        # rows of earlier runs, replaced by this run's rows for the same cell and method
+        key = lambda r: (r.get("log"), r.get("map_res_m"), r.get("base"), r.get("method"))  # noqa: E731
+        mine = {key(r) for r in rows}
+        old: list[dict] = []
+        for f in args.merge:
+            got = json.loads(Path(f).read_text())
+            old.extend(r for r in got["rows"] if key(r) not in mine)
+            commands[:0] = [got["meta"]["command"]]
+            wall += float(got["meta"].get("wall_s", 0.0))
+        order = {m: i for i, m in enumerate(METHODS)}
+        rows = sorted(old + rows, key=lambda r: (str(r.get("log")), r.get("map_res_m") or 0, str(r.get("base")), order.get(r.get("method"), 9)))
     stem = "real-quick" if args.quick else "real"
     args.out_dir.mkdir(parents=True, exist_ok=True)
     icploc_version = subprocess.run(
@@ -451,7 +466,8 @@ def main(argv: list[str] | None = None) -> int:
         capture_output=True, text=True,
     ).stdout  # fmt: skip
     meta = {
-        "command": " ".join([Path(sys.executable).name, *sys.argv]) if argv is None else " ".join(argv),
+        "command": " + ".join(commands),
+        "amcl_settings": __import__("real_runners").AMCL_SETTINGS,
         "wall_s": wall,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "icploc": icploc_version,
