@@ -1,4 +1,4 @@
-"""Real-data localization benchmark that does not flatter: icploc, MRPT pf-localization,
+r"""Real-data localization benchmark that does not flatter: icploc, MRPT pf-localization,
 nav2 AMCL and a numpy ICP tracker on real scans, realistic raw odometry, sparse scans and
 map_server grids built from a different pass.
 
@@ -10,11 +10,16 @@ Usage (from any directory; the interpreter running this script is the one whose
     .venv/bin/python benches/eval_real.py intel --res 0.10 --bases good --methods icploc,numpy
     /work/wt-loc/.venv/bin/python /work/wt-bench/benches/eval_real.py --quick --methods icploc
     .venv/bin/python benches/eval_real.py --laserazos-only
+    # your worktree's icploc against the committed peers' rows (they are not rerun):
+    /work/wt-loc/.venv/bin/python /work/wt-bench/benches/eval_real.py --methods icploc \
+        --merge /work/wt-bench/benches/results/real.json --out-dir /tmp/real-loc
 
 Writes ``benches/results/real.md`` (the table, also on stdout) and ``benches/results/real.json``
 (``--quick``: ``real-quick.*``; ``--out-dir`` elsewhere). Maps, logs and peer work files go to
 a cache outside the project: ``$XDG_CACHE_HOME/icploc-bench-real`` (default
-``~/.cache/icploc-bench-real``; ``--cache``). Methods: ``icploc`` (public Python path
+``~/.cache/icploc-bench-real``; ``--cache``); each run's peer work files go to a
+``work/<pid>`` folder there, removed at the end unless ``--keep-work``, so runs from several
+worktrees at once do not clash. Methods: ``icploc`` (public Python path
 ``icploc.replay.replay``, the function ``icploc replay`` calls, in a child process: poses,
 status and the whole-process time; ``--icploc-cli`` also runs the ``icploc replay`` command
 as its own process, reports its time and checks its poses against the API's), ``numpy`` (benches/numpy_tracker.py),
@@ -41,7 +46,8 @@ What is done to the data (all seeded, reproducible):
     whose place another pass saw (``revisited_share``).
 (d) laserazosSM3 with its own raw odometry and no reference: a reference is made by
     sequential scan-to-submap ICP (benches/real_reference.py, no loop closure); the 5/10 cm
-    maps are rasterised from it using the scans not within 1 of a localized one; the score
+    maps are rasterised from it using the scans more than one scan away from a localized
+    one; the score
     is the map-fit residual (per scan, the median distance of the beam endpoints at the
     estimated pose to the nearest occupied cell, capped at 1 m), the share of scans that
     fit poorly (residual > 0.2 m) and icploc's lost share; the error against the made
@@ -237,7 +243,7 @@ def evaluate_log(
                     rl.write_flaser(log_path, log.ranges[loc], odom[loc], stamps[loc])
                 pose = tuple(float(v) for v in ref[loc[0]])
                 for m in args.methods:
-                    work = args.cache / "work" / f"{name}_{base_name}_{int(res * 100)}cm_f{f.index}" / m
+                    work = args.work / f"{name}_{base_name}_{int(res * 100)}cm_f{f.index}" / m
                     acc = per_method[m]
                     try:
                         got = run_method(
@@ -323,7 +329,7 @@ def evaluate_laserazos(args: argparse.Namespace) -> list[dict]:
             rg.write_map_server(grid, yaml_path)
         occ = rg.read_map_server(yaml_path).occupied_centres()
         for m in args.methods:
-            work = args.cache / "work" / f"laserazos_{int(res * 100)}cm" / m
+            work = args.work / f"laserazos_{int(res * 100)}cm" / m
             row: dict[str, Any] = {"log": "laserazosSM3", "map_res_m": res, "base": "real", "method": m,
                                    "scans_localized": len(loc), "reference": "our ICP reference"}  # fmt: skip
             try:
@@ -415,6 +421,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--icploc-cli", action="store_true",
                     help="also run the `icploc replay` command per log and report its whole-process time")  # fmt: skip
     ap.add_argument("--laserazos-only", action="store_true")
+    ap.add_argument("--keep-work", action="store_true", help="keep the per-run work folder (peer inputs, logs)")
     ap.add_argument("--merge", nargs="+", default=[], metavar="JSON",
                     help="include the rows of earlier real.json files (this run's rows win for the same log, map, base, method)")  # fmt: skip
     args = ap.parse_args(argv)
@@ -432,6 +439,7 @@ def main(argv: list[str] | None = None) -> int:
         names = args.names or DEFAULT_LOGS
         args.res = args.res or [0.05, 0.10]
     args.cache.mkdir(parents=True, exist_ok=True)
+    args.work = args.cache / "work" / str(os.getpid())
     bases = fit_bases(args.data)
     t0 = time.perf_counter()
     print(HEADER)
@@ -501,6 +509,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
     ]
     (args.out_dir / f"{stem}.md").write_text("\n".join(md))
+    if not args.keep_work:
+        shutil.rmtree(args.work, ignore_errors=True)
     print("\n".join(md[-8:]))
     return 0
 

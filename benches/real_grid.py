@@ -12,6 +12,7 @@ resolution.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -119,14 +120,20 @@ def write_map_server(grid: Grid, yaml_path: str | Path) -> Path:
     img[grid.occupied] = OCC
     img = img[::-1]
     H, W = img.shape
-    with open(pgm, "wb") as f:
+    # written to temporary names and renamed, the YAML last: a reader in another process
+    # never sees half a map
+    tmp_pgm = pgm.with_name(pgm.name + f".{os.getpid()}.tmp")
+    with open(tmp_pgm, "wb") as f:
         f.write(f"P5\n{W} {H}\n255\n".encode())
         f.write(img.tobytes())
-    yaml_path.write_text(
+    tmp_pgm.replace(pgm)
+    tmp_yaml = yaml_path.with_name(yaml_path.name + f".{os.getpid()}.tmp")
+    tmp_yaml.write_text(
         f"image: {pgm.name}\nresolution: {grid.resolution}\n"
         f"origin: [{grid.origin[0]:.6f}, {grid.origin[1]:.6f}, 0.0]\n"
         "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
     )
+    tmp_yaml.replace(yaml_path)
     return yaml_path
 
 

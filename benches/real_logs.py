@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import gzip
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -119,7 +120,7 @@ def write_flaser(
     odometry ``odom`` (no reference pose is left in the file for any localizer to see)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
     with open(tmp, "w") as f:
         f.write("# icploc benches/eval_real.py: real scans, synthesised raw odometry\n")
         for r, o, t in zip(ranges, odom, stamps, strict=True):
