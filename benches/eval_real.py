@@ -421,6 +421,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--icploc-cli", action="store_true",
                     help="also run the `icploc replay` command per log and report its whole-process time")  # fmt: skip
     ap.add_argument("--laserazos-only", action="store_true")
+    ap.add_argument("--merge-only", action="store_true", help="run nothing: write the --merge rows as one table")
     ap.add_argument("--keep-work", action="store_true", help="keep the per-run work folder (peer inputs, logs)")
     ap.add_argument("--merge", nargs="+", default=[], metavar="JSON",
                     help="include the rows of earlier real.json files (this run's rows win for the same log, map, base, method)")  # fmt: skip
@@ -444,7 +445,9 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     print(HEADER)
     rows: list[dict] = []
-    if not args.laserazos_only:
+    if args.merge_only:
+        args.laserazos = args.laserazos_only = False
+    elif not args.laserazos_only:
         for p in find_logs(args.data, names):
             try:
                 rows.extend(evaluate_log(p, bases, args))
