@@ -382,6 +382,32 @@ HEADER = (
 )
 
 
+def laserazos_table(rows: list[dict]) -> list[str]:
+    """laserazosSM3 (its own raw odometry, no reference): map fit first."""
+    if not rows:
+        return []
+    out = [
+        "laserazosSM3, its own wheel odometry; no reference exists, so: map-fit residual (median distance of the beam "
+        f"endpoints to the map, per scan), share of scans fitting worse than {POOR_FIT_M * 100:.0f} cm, icploc's lost "
+        "share, and (secondary) the error against our ICP-made reference:",
+        "",
+        "| map | method | scans | fit median cm | fit p95 cm | poor fit | lost | vs reference median / p95 / max cm | scans/s |",
+        "|---|---|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    for r in rows:
+        res = f"{int(round(r['map_res_m'] * 100))} cm"
+        if "fit_median_m" not in r:
+            out.append(f"| {res} | {r['method']} | – | – | – | – | – | {r.get('error', '')} | – |")
+            continue
+        lost = "–" if r.get("lost_share") is None else f"{r['lost_share'] * 100:.0f} %"
+        out.append(
+            f"| {res} | {r['method']} | {r['scans']} | {_cm(r['fit_median_m'])} | {_cm(r['fit_p95_m'])} | "
+            f"{r['poor_fit_share'] * 100:.0f} % | {lost} | {_cm(r['median_m'])} / {_cm(r['p95_m'])} / {_cm(r['max_m'])} | "
+            f"{r['scans_per_s']:,.0f} |"
+        )
+    return [*out, ""]
+
+
 def pooled(rows: list[dict]) -> list[str]:
     """One line per method: the medians over the (log, map, base) cells of the radish logs,
     worst max, summed false tracking, total scans / total time."""
@@ -490,12 +516,13 @@ def main(argv: list[str] | None = None) -> int:
     md = [
         "# Real-data localization benchmark (benches/eval_real.py)",
         "",
-        f"Command: `{meta['command']}`; {wall / 60:.1f} min wall on {os.cpu_count()} cores. "
+        f"Command: `{meta['command']}`; {wall / 60:.1f} min of runs on {os.cpu_count()} shared cores. "
         "See the docstring of benches/eval_real.py for what is done to the data.",
         "",
         HEADER,
-        *[_md_row(r) for r in rows if "map_res_m" in r],
+        *[_md_row(r) for r in rows if "map_res_m" in r and r.get("base") != "real"],
         "",
+        *laserazos_table([r for r in rows if r.get("base") == "real"]),
         "Pooled over the radish cells (median of the per-cell medians and p95s, worst max, summed false tracking, "
         "total scans / total whole-process time):",
         "",
