@@ -495,7 +495,11 @@ def main(argv: list[str] | None = None) -> int:
             commands[:0] = [got["meta"]["command"]]
             wall += float(got["meta"].get("wall_s", 0.0))
         order = {m: i for i, m in enumerate(METHODS)}
-        rows = sorted(old + rows, key=lambda r: (str(r.get("log")), r.get("map_res_m") or 0, str(r.get("base")), order.get(r.get("method"), 9)))
+        base_order = {"good": 0, "bad": 1, "real": 2}
+        rows = sorted(
+            old + rows,
+            key=lambda r: (str(r.get("log")), base_order.get(r.get("base"), 3), r.get("map_res_m") or 0, order.get(r.get("method"), 9)),
+        )
     stem = "real-quick" if args.quick else "real"
     args.out_dir.mkdir(parents=True, exist_ok=True)
     icploc_version = subprocess.run(
