@@ -354,6 +354,14 @@ def evaluate_laserazos(args: argparse.Namespace) -> list[dict]:
     return rows
 
 
+def evaluate(path: Path, split: str, seed: int = 0, **kw: Any) -> dict[str, Any]:
+    """The former dense held-out check (benches/real_dense_check.py), kept for
+    tests/test_replay_real.py; not part of this benchmark."""
+    from real_dense_check import evaluate as dense
+
+    return dense(path, split, seed, **kw)
+
+
 # --------------------------------------------------------------------------- output
 
 
