@@ -265,7 +265,10 @@ class Localizer:
         self.config = (config or LocalizerConfig()).validate()
         self.index = _as_index(map, self.config)
         self.map = map
-        self.icp_config = self.config.icp.to_icp_config()
+        # the core's verified start (a window search when a fit does not explain the scan) is
+        # off in the localizer's ICPs: here the chi-square gate, the verification and the
+        # recovery strategies decide what a doubtful fit means
+        self.icp_config = dataclasses.replace(self.config.icp, window_search=False).to_icp_config()
         lc = self.config.localizer
         if recovery is None:
             if lc.relocalization == "global":
@@ -473,6 +476,7 @@ class Localizer:
                 min_correspondence_distance=key[0],
                 robust_scale=key[1],
                 max_correspondence_distance=max(key[2], key[0]),
+                window_search=False,  # see __init__
             ).to_icp_config()
             self._icp_configs[key] = cfg
         return cfg
