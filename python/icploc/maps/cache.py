@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from .map import Map
 
 #: bump when the fitting or the stored layout changes (invalidates every entry)
-FIT_VERSION = 2
+FIT_VERSION = 3
 
 _warned = False
 

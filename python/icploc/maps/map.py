@@ -39,7 +39,8 @@ FORMATS = {
 #: shortest line, share of surface cells lines must explain (else points only), largest
 #: door-sized gap across which collinear pieces are fitted jointly, snapping to the
 #: dominant direction, and the face offset into the occupied side in cells (None: the
-#: ROS YAML's ``icploc_surface_offset``, else 0)
+#: ROS YAML's ``icploc_surface_offset``, else :data:`icploc.maps.ros.DEFAULT_SURFACE_OFFSET`
+#: for map_server maps and 0 for arrays given to :meth:`Map.from_grid`)
 DEFAULT_FIT: dict[str, Any] = {
     "min_length": 0.15,
     "min_explained": 0.2,
