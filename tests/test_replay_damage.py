@@ -63,11 +63,18 @@ def test_damaged_log_loses_exactly_the_unreadable_scans(logs: dict) -> None:
 def test_damaged_log_has_the_accuracy_of_the_clean_log(logs: dict) -> None:
     c, b = logs["clean_res"].metrics, logs["bad_res"].metrics
     # the damaged log loses 1 % of the beams and 6 scans: within 1 mm of the clean p95 / max
-    assert (b["ate_p95_m"], b["ate_max_m"]) <= (c["ate_p95_m"] + 0.001, c["ate_max_m"] + 0.001)
+    assert b["ate_p95_m"] <= c["ate_p95_m"] + 0.001
+    assert b["ate_max_m"] <= c["ate_max_m"] + 0.001
 
 
-def test_damaged_log_tracks_every_scan_it_keeps(logs: dict) -> None:
-    assert logs["bad_res"].status_counts == {"tracking": logs["bad_res"].scans}
+def test_damaged_log_is_never_lost(logs: dict) -> None:
+    assert logs["bad_res"].status_counts.get("lost", 0) == 0
+
+
+def test_damaged_log_doubts_no_more_scans_than_the_clean_log(logs: dict) -> None:
+    # the clean log has a few `degraded` (unverified) scans of its own, where people hide walls
+    bad, clean = logs["bad_res"].status_counts, logs["clean_res"].status_counts
+    assert bad.get("degraded", 0) <= clean.get("degraded", 0)
 
 
 def test_damaged_log_summary_lists_the_dropped_lines(logs: dict) -> None:
