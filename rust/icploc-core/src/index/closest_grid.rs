@@ -30,7 +30,16 @@ const NONE: u32 = u32::MAX;
 /// Bound of a cell's error, in cells: see the module documentation.
 pub(super) const CELL_ERROR: f64 = 0.25;
 /// Cell coordinates (from the grid origin) stay below this, so tile coordinates fit 31 bits.
-const MAX_CELL_COORD: f64 = (1u64 << 36) as f64;
+const MAX_CELL_COORD: u64 = 1 << 36;
+/// |q / res| must stay below this for the cell's integer coordinate to be computed.
+const MAX_CELL_QUOTIENT: f64 = (1u64 << 60) as f64;
+
+/// ⌊x⌋ for |x| < 2⁶⁰ (a truncation and a fix-up: cheaper than `f64::floor` on baseline x86-64).
+#[inline(always)]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - i64::from((t as f64) > x)
+}
 
 /// Why a grid was not built at the requested resolution.
 #[derive(Debug, Clone, PartialEq)]
@@ -61,9 +70,12 @@ impl std::fmt::Display for Unbuilt {
 }
 
 pub(super) struct ClosestGrid {
-    /// lower-left corner of cell (0, 0)
-    x0: f64,
-    y0: f64,
+    /// cell (i, j) of the grid is the square [(i + bx)·res, (i + bx + 1)·res) ×
+    /// [(j + by)·res, …): its lattice is anchored at the world origin and the tiles at
+    /// multiples of TILE cells, so the cells over one part of a map do not depend on where
+    /// its other parts are
+    bx: i64,
+    by: i64,
     res: f64,
     /// answers farther than this (squared, m²) from the query go to the k-d tree
     reach2: f64,
@@ -110,17 +122,25 @@ impl ClosestGrid {
             });
         }
         let k = kf as u64;
-        let pad = (k + 1) as f64 * tile_w;
-        // the origin sits on a multiple of the tile width: the cells (hence the answers)
-        // over one part of a map do not depend on where its other parts are
-        let x0 = ((bounds[0] - pad) / tile_w).floor() * tile_w;
-        let y0 = ((bounds[1] - pad) / tile_w).floor() * tile_w;
         let span = (bounds[2] - bounds[0]).max(bounds[3] - bounds[1]);
-        if !((span + 2.0 * pad + tile_w) / res < MAX_CELL_COORD) {
+        let q = bounds.map(|b| b / res);
+        if !q.iter().all(|v| v.abs() < MAX_CELL_QUOTIENT) {
+            return Err(Unbuilt::TooWide { span });
+        }
+        let tile = TILE as i64;
+        let pad = (k as i64 + 1) * tile;
+        let bx = (floor_i64(q[0]).div_euclid(tile)) * tile - pad;
+        let by = (floor_i64(q[1]).div_euclid(tile)) * tile - pad;
+        if !((floor_i64(q[2]) - bx + pad) < MAX_CELL_COORD as i64
+            && (floor_i64(q[3]) - by + pad) < MAX_CELL_COORD as i64)
+        {
             return Err(Unbuilt::TooWide { span });
         }
         let cell_of = |p: [f64; 2]| -> (u64, u64) {
-            (((p[0] - x0) / res) as u64, ((p[1] - y0) / res) as u64)
+            (
+                (floor_i64(p[0] / res) - bx) as u64,
+                (floor_i64(p[1] / res) - by) as u64,
+            )
         };
 
         // the tiles holding points, then every tile within k of those
@@ -167,8 +187,8 @@ impl ClosestGrid {
             table[i] = (t, slot as u32);
         }
         let mut grid = Self {
-            x0,
-            y0,
+            bx,
+            by,
             res,
             reach2: reach * reach,
             table,
@@ -187,13 +207,18 @@ impl ClosestGrid {
     /// The cell's map index for query `q`, if `q` falls in a filled cell.
     #[inline(always)]
     pub(super) fn lookup(&self, q: [f64; 2]) -> Option<usize> {
-        let fx = (q[0] - self.x0) / self.res;
-        let fy = (q[1] - self.y0) / self.res;
+        let fx = q[0] / self.res;
+        let fy = q[1] / self.res;
         // also false for NaN
-        if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD && fy < MAX_CELL_COORD) {
+        if !(fx.abs() < MAX_CELL_QUOTIENT && fy.abs() < MAX_CELL_QUOTIENT) {
             return None;
         }
-        let (gx, gy) = (fx as u64, fy as u64);
+        // negative differences wrap to huge values and fail the bound
+        let gx = floor_i64(fx).wrapping_sub(self.bx) as u64;
+        let gy = floor_i64(fy).wrapping_sub(self.by) as u64;
+        if !(gx < MAX_CELL_COORD && gy < MAX_CELL_COORD) {
+            return None;
+        }
         let s = self.slot_of(key(gx >> TILE_SHIFT, gy >> TILE_SHIFT))?;
         let lx = (gx as usize) & (TILE - 1);
         let ly = (gy as usize) & (TILE - 1);
@@ -241,12 +266,15 @@ impl ClosestGrid {
                 }
             }
         }
-        let (x0, y0, res) = (self.x0, self.y0, self.res);
+        let (bx, by, res) = (self.bx, self.by, self.res);
         let centre = |s: usize, lx: usize, ly: usize| -> [f64; 2] {
             let t = keys[s];
             let gx = (((t & 0xFFFF_FFFF) as usize) << TILE_SHIFT) + lx;
             let gy = (((t >> 32) as usize) << TILE_SHIFT) + ly;
-            [x0 + (gx as f64 + 0.5) * res, y0 + (gy as f64 + 0.5) * res]
+            [
+                ((gx as i64 + bx) as f64 + 0.5) * res,
+                ((gy as i64 + by) as f64 + 0.5) * res,
+            ]
         };
         // flat index of the cell (lx + dx, ly + dy) of tile s, through the neighbour table
         let at = |s: usize, lx: usize, ly: usize, dx: isize, dy: isize| -> Option<usize> {
@@ -283,8 +311,8 @@ impl ClosestGrid {
         // seeds: every point is tried exactly on the 3 × 3 cells around its own
         let mut last = (u64::MAX, 0usize);
         for (j, p) in points.iter().enumerate() {
-            let gx = ((p[0] - x0) / res) as u64;
-            let gy = ((p[1] - y0) / res) as u64;
+            let gx = (floor_i64(p[0] / res) - bx) as u64;
+            let gy = (floor_i64(p[1] / res) - by) as u64;
             let t = key(gx >> TILE_SHIFT, gy >> TILE_SHIFT);
             let s = if t == last.0 {
                 last.1
@@ -449,8 +477,8 @@ mod tests {
                     let gx = (((t & 0xFFFF_FFFF) as usize) << TILE_SHIFT) + lx;
                     let gy = (((t >> 32) as usize) << TILE_SHIFT) + ly;
                     let c = [
-                        g.x0 + (gx as f64 + 0.5) * res,
-                        g.y0 + (gy as f64 + 0.5) * res,
+                        ((gx as i64 + g.bx) as f64 + 0.5) * res,
+                        ((gy as i64 + g.by) as f64 + 0.5) * res,
                     ];
                     let exact = brute(points, c);
                     if exact > reach * reach {
