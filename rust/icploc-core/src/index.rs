@@ -41,8 +41,9 @@ pub const DEFAULT_CACHE_RESOLUTION: f64 = 0.02;
 /// The closest-point grid never holds more cells than this (4 bytes each: 32 MB); when the
 /// requested resolution needs more, there is no grid and ICP gets exact k-d tree answers.
 pub const MAX_CACHE_CELLS: usize = 1 << 23;
-/// Answers through the grid are used up to this distance (m) from the query (the largest
-/// correspondence distance the localizer opens up to); farther ones come from the tree.
+/// Answers through the grid are within its tolerance of the exact ones whenever the nearest
+/// map point is within this distance (m) of the query: grid tiles exist within this distance
+/// (plus two cells) of every map point, and only there.
 pub const CACHE_REACH: f64 = 2.0;
 /// Map coordinates must lie within ±this (m): beyond it squared distances and centimetre
 /// cells stop being representable.
@@ -220,21 +221,20 @@ impl MapIndex {
         self.cache.as_ref().map_or(0, |c| c.tiles())
     }
 
-    /// The correspondence query of ICP: through the closest-point grid when there is one
-    /// and its answer lies within [`CACHE_REACH`] of `q` (then at most
-    /// `(√2 + 0.25)·resolution` farther than the exact nearest point: √2 from answering for
-    /// the cell's centre, 0.25 from the grid's propagation), else the exact k-d tree answer.
-    /// Returns
-    /// (squared distance from `q` to the returned point, index).
+    /// The correspondence query of ICP. Returns (squared distance from `q` to the returned
+    /// point, its index). When the exact nearest map point is within [`CACHE_REACH`] of `q`,
+    /// the answer is at most [`MapIndex::cache_tolerance`] farther (`(√2 + 0.25)·resolution`:
+    /// √2 from answering for the cell's centre, 0.25 from the grid's propagation); when none
+    /// is, it is a map point farther than `CACHE_REACH` (so a correspondence threshold up to
+    /// 2 m rejects it, as it would the exact one): the grid cell's (usually the nearest) or,
+    /// outside the grid's tiles, the exact k-d tree answer. Without a grid: exact.
     #[inline]
     pub fn correspondence(&self, q: [f64; 2]) -> (f64, usize) {
         if let Some(c) = &self.cache {
             if let Some(j) = c.lookup(q) {
                 let p = self.points[j];
                 let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
-                if d2 <= c.reach2() {
-                    return (d2, j);
-                }
+                return (d2, j);
             }
         }
         self.nearest(q)

@@ -15,10 +15,11 @@
 //! a fraction of a cell: measured ≤ 0.09·res over 400 random point clusters and ≤ 0.144·res
 //! over 3,000 random maps of three walls (at 2–13 cm cells, 1–7 cm wall sampling); the
 //! bound used, and asserted by the property tests, is `CELL_ERROR` = 0.25. Hence, for a
-//! query `q` in a filled cell whose answer `a` lies within `reach` of `q`:
-//! `|q − a| ≤ |q − p*| + (√2 + CELL_ERROR)·res` (`p*` the exact nearest point; √2·res from
-//! answering for the cell centre instead of `q`). The index answers every other query from
-//! the k-d tree.
+//! query `q` whose exact nearest point `p*` is within `reach`, the cell answer `a` has
+//! `|q − a| ≤ |q − p*| + (√2 + CELL_ERROR)·res` (√2·res from answering for the cell centre
+//! instead of `q`). Farther queries get a map point farther than `reach` (a real point, so
+//! at least as far as `p*`), or no answer where there is no tile (the index then asks the
+//! k-d tree).
 
 use std::collections::HashSet;
 
@@ -77,8 +78,6 @@ pub(super) struct ClosestGrid {
     bx: i64,
     by: i64,
     res: f64,
-    /// answers farther than this (squared, m²) from the query go to the k-d tree
-    reach2: f64,
     /// open addressing: (tile key, tile slot); slot NONE marks an empty entry
     table: Vec<(u64, u32)>,
     /// 64 − log2(table.len())
@@ -190,7 +189,6 @@ impl ClosestGrid {
             bx,
             by,
             res,
-            reach2: reach * reach,
             table,
             shift,
             cells: vec![NONE; keys.len() * TILE_CELLS],
@@ -226,12 +224,6 @@ impl ClosestGrid {
         (j != NONE).then_some(j as usize)
     }
 
-    /// Squared distance beyond which a cached answer is not trusted.
-    #[inline(always)]
-    pub(super) fn reach2(&self) -> f64 {
-        self.reach2
-    }
-
     pub(super) fn resolution(&self) -> f64 {
         self.res
     }
@@ -248,6 +240,8 @@ impl ClosestGrid {
     }
 
     /// Seed and propagate. `keys` are the tile keys in slot order (sorted row-major).
+    // the slot index addresses cells and neighbours, not only `origin`
+    #[allow(clippy::needless_range_loop)]
     fn fill(&mut self, points: &[[f64; 2]], keys: &[u64]) {
         let nt = keys.len();
         // neighbour slots of every tile: index (dy + 1) * 3 + (dx + 1), 4 = itself
@@ -364,23 +358,46 @@ impl ClosestGrid {
                 a = s;
             }
         }
+        // centre of cell (0, 0) of every tile
+        let origin: Vec<[f64; 2]> = (0..nt).map(|s| centre(s, 0, 0)).collect();
+        let inner = |lx: usize, ly: usize| lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE;
+        const T: usize = TILE;
         // forward: rows upwards; left to right from the row below, then right to left
         for &(a, b) in &rows {
             for ly in 0..TILE {
                 for s in a..b {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
                     for lx in 0..TILE {
-                        let c = s * TILE_CELLS + (ly << TILE_SHIFT) + lx;
-                        let q = centre(s, lx, ly);
-                        relax(c, at(s, lx, ly, -1, 0), q);
-                        relax(c, at(s, lx, ly, -1, -1), q);
-                        relax(c, at(s, lx, ly, 0, -1), q);
-                        relax(c, at(s, lx, ly, 1, -1), q);
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        if inner(lx, ly) {
+                            relax(c, Some(c - 1), q);
+                            relax(c, Some(c - T - 1), q);
+                            relax(c, Some(c - T), q);
+                            relax(c, Some(c - T + 1), q);
+                        } else {
+                            relax(c, at(s, lx, ly, -1, 0), q);
+                            relax(c, at(s, lx, ly, -1, -1), q);
+                            relax(c, at(s, lx, ly, 0, -1), q);
+                            relax(c, at(s, lx, ly, 1, -1), q);
+                        }
                     }
                 }
                 for s in (a..b).rev() {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
                     for lx in (0..TILE).rev() {
-                        let c = s * TILE_CELLS + (ly << TILE_SHIFT) + lx;
-                        relax(c, at(s, lx, ly, 1, 0), centre(s, lx, ly));
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        let n = if lx + 1 < TILE {
+                            Some(c + 1)
+                        } else {
+                            at(s, lx, ly, 1, 0)
+                        };
+                        relax(c, n, q);
                     }
                 }
             }
@@ -389,19 +406,38 @@ impl ClosestGrid {
         for &(a, b) in rows.iter().rev() {
             for ly in (0..TILE).rev() {
                 for s in (a..b).rev() {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
                     for lx in (0..TILE).rev() {
-                        let c = s * TILE_CELLS + (ly << TILE_SHIFT) + lx;
-                        let q = centre(s, lx, ly);
-                        relax(c, at(s, lx, ly, 1, 0), q);
-                        relax(c, at(s, lx, ly, 1, 1), q);
-                        relax(c, at(s, lx, ly, 0, 1), q);
-                        relax(c, at(s, lx, ly, -1, 1), q);
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        if inner(lx, ly) {
+                            relax(c, Some(c + 1), q);
+                            relax(c, Some(c + T + 1), q);
+                            relax(c, Some(c + T), q);
+                            relax(c, Some(c + T - 1), q);
+                        } else {
+                            relax(c, at(s, lx, ly, 1, 0), q);
+                            relax(c, at(s, lx, ly, 1, 1), q);
+                            relax(c, at(s, lx, ly, 0, 1), q);
+                            relax(c, at(s, lx, ly, -1, 1), q);
+                        }
                     }
                 }
                 for s in a..b {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
                     for lx in 0..TILE {
-                        let c = s * TILE_CELLS + (ly << TILE_SHIFT) + lx;
-                        relax(c, at(s, lx, ly, -1, 0), centre(s, lx, ly));
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        let n = if lx > 0 {
+                            Some(c - 1)
+                        } else {
+                            at(s, lx, ly, -1, 0)
+                        };
+                        relax(c, n, q);
                     }
                 }
             }
