@@ -1,8 +1,10 @@
 //! The closest-point grid behind [`MapIndex::correspondence`](super::MapIndex::correspondence):
 //! per cell, the map point closest to the cell's centre (a "closest point transform").
 //!
-//! The grid is sparse: square tiles of `TILE`² cells exist only within `reach` (plus two
-//! cells) of a map point, found through a small open-addressing hash of tile coordinates.
+//! The grid is sparse: square tiles of `TILE`² cells exist within `reach` (plus two cells)
+//! of a map point and in the gaps of up to `GAP_FILL` tiles between those along rows and
+//! columns (the free space of a building), found through a small open-addressing hash of
+//! tile coordinates.
 //! A stray point kilometres from the building therefore costs a few tiles around itself,
 //! not a coarser grid everywhere. Cells are filled by seeding every point exactly into the
 //! 3 × 3 cells around its own and propagating seeds in two raster passes over the tiles
@@ -28,6 +30,8 @@ const TILE_SHIFT: u32 = 5;
 const TILE: usize = 1 << TILE_SHIFT;
 const TILE_CELLS: usize = TILE * TILE;
 const NONE: u32 = u32::MAX;
+/// Gaps of up to this many tiles between tiles of a row (or column) are filled.
+const GAP_FILL: u64 = 16;
 /// Bound of a cell's error, in cells: see the module documentation.
 pub(super) const CELL_ERROR: f64 = 0.25;
 /// Cell coordinates (from the grid origin) stay below this, so tile coordinates fit 31 bits.
@@ -172,8 +176,35 @@ impl ClosestGrid {
             }
         }
         drop(own);
+        // fill gaps of up to GAP_FILL tiles along rows and columns: the free space inside a
+        // building is covered (queries there stay O(1); the tree is slow far from dense
+        // walls), far-apart parts stay apart
         let mut keys: Vec<u64> = tiles.into_iter().collect();
+        for transpose in [false, true] {
+            let flip = |t: u64| (t << 32) | (t >> 32);
+            let mut line: Vec<u64> = if transpose {
+                keys.iter().map(|&t| flip(t)).collect()
+            } else {
+                keys.clone()
+            };
+            line.sort_unstable();
+            let mut extra = Vec::new();
+            for w in line.windows(2) {
+                let gap = w[1].wrapping_sub(w[0]);
+                if w[0] >> 32 == w[1] >> 32 && gap > 1 && gap <= GAP_FILL + 1 {
+                    extra.extend((w[0] + 1..w[1]).map(|t| if transpose { flip(t) } else { t }));
+                }
+            }
+            keys.extend(extra);
+            if keys.len() > max_tiles {
+                return Err(Unbuilt::TooManyCells {
+                    needed: keys.len() * TILE_CELLS,
+                    max_cells,
+                });
+            }
+        }
         keys.sort_unstable();
+        keys.dedup();
 
         let cap = (2 * keys.len()).next_power_of_two().max(2);
         let shift = 64 - cap.trailing_zeros();
