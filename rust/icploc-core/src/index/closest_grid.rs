@@ -30,6 +30,8 @@ const TILE_SHIFT: u32 = 5;
 const TILE: usize = 1 << TILE_SHIFT;
 const TILE_CELLS: usize = TILE * TILE;
 const NONE: u32 = u32::MAX;
+/// A dense tile directory is used up to this many entries (4 MB).
+const DENSE_DIRECTORY: u64 = 1 << 20;
 /// Gaps of up to this many tiles between tiles of a row (or column) are filled.
 const GAP_FILL: u64 = 16;
 /// Bound of a cell's error, in cells: see the module documentation.
@@ -82,12 +84,87 @@ pub(super) struct ClosestGrid {
     bx: i64,
     by: i64,
     res: f64,
-    /// open addressing: (tile key, tile slot); slot NONE marks an empty entry
-    table: Vec<(u64, u32)>,
-    /// 64 − log2(table.len())
-    shift: u32,
+    /// tile key → tile slot
+    dir: Directory,
     /// TILE_CELLS map indices per tile, tiles in row-major order of their coordinates
     cells: Vec<u32>,
+}
+
+/// Tile coordinates → tile slot: a dense array over the tiles' bounding box when that has at
+/// most `DENSE_DIRECTORY` entries (one read per query), else an open-addressing hash (a map
+/// in far-apart parts).
+enum Directory {
+    Dense {
+        w: u64,
+        h: u64,
+        slots: Vec<u32>,
+    },
+    /// (tile key, slot), slot NONE marks an empty entry; `shift` = 64 − log2(len)
+    Hash {
+        table: Vec<(u64, u32)>,
+        shift: u32,
+    },
+}
+
+impl Directory {
+    fn new(keys: &[u64]) -> Self {
+        let w = keys.iter().map(|&t| t & 0xFFFF_FFFF).max().unwrap_or(0) + 1;
+        let h = keys.last().map_or(0, |&t| t >> 32) + 1;
+        if w.saturating_mul(h) <= DENSE_DIRECTORY {
+            let mut slots = vec![NONE; (w * h) as usize];
+            for (slot, &t) in keys.iter().enumerate() {
+                slots[((t >> 32) * w + (t & 0xFFFF_FFFF)) as usize] = slot as u32;
+            }
+            return Directory::Dense { w, h, slots };
+        }
+        let cap = (2 * keys.len()).next_power_of_two().max(2);
+        let shift = 64 - cap.trailing_zeros();
+        let mut table = vec![(0u64, NONE); cap];
+        for (slot, &t) in keys.iter().enumerate() {
+            let mut i = hash_slot(t, shift);
+            while table[i].1 != NONE {
+                i = (i + 1) & (cap - 1);
+            }
+            table[i] = (t, slot as u32);
+        }
+        Directory::Hash { table, shift }
+    }
+
+    #[inline(always)]
+    fn get(&self, tx: u64, ty: u64) -> Option<usize> {
+        match self {
+            Directory::Dense { w, h, slots } => {
+                if tx < *w && ty < *h {
+                    let s = slots[(ty * w + tx) as usize];
+                    (s != NONE).then_some(s as usize)
+                } else {
+                    None
+                }
+            }
+            Directory::Hash { table, shift } => {
+                let t = key(tx, ty);
+                let mask = table.len() - 1;
+                let mut i = hash_slot(t, *shift);
+                loop {
+                    let (k, s) = table[i];
+                    if s == NONE {
+                        return None;
+                    }
+                    if k == t {
+                        return Some(s as usize);
+                    }
+                    i = (i + 1) & mask;
+                }
+            }
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        match self {
+            Directory::Dense { slots, .. } => slots.len() * std::mem::size_of::<u32>(),
+            Directory::Hash { table, .. } => table.len() * std::mem::size_of::<(u64, u32)>(),
+        }
+    }
 }
 
 /// Tile key: row in the high 32 bits, so sorting keys sorts tiles row-major.
@@ -160,28 +237,30 @@ impl ClosestGrid {
             }
             last = t;
         }
-        let mut tiles: HashSet<u64> = HashSet::with_capacity(own.len() * 4);
+        // own.len() ≤ max_tiles and (2k + 1)² ≤ max_tiles were checked: this stays small
+        let mut keys: Vec<u64> = Vec::with_capacity(own.len() * (2 * k as usize + 1).pow(2));
         for &t in &own {
             let (tx, ty) = (t & 0xFFFF_FFFF, t >> 32);
             for dy in 0..=2 * k {
                 for dx in 0..=2 * k {
-                    tiles.insert(key(tx + dx - k, ty + dy - k));
+                    keys.push(key(tx + dx - k, ty + dy - k));
                 }
-            }
-            if tiles.len() > max_tiles {
-                return Err(Unbuilt::TooManyCells {
-                    needed: tiles.len() * TILE_CELLS,
-                    max_cells,
-                });
             }
         }
         drop(own);
+        keys.sort_unstable();
+        keys.dedup();
+        if keys.len() > max_tiles {
+            return Err(Unbuilt::TooManyCells {
+                needed: keys.len() * TILE_CELLS,
+                max_cells,
+            });
+        }
         // fill gaps of up to GAP_FILL tiles along rows and columns: the free space inside a
         // building is covered (queries there stay O(1); the tree is slow far from dense
         // walls), far-apart parts stay apart
-        let mut keys: Vec<u64> = tiles.into_iter().collect();
         for transpose in [false, true] {
-            let flip = |t: u64| (t << 32) | (t >> 32);
+            let flip = |t: u64| t.rotate_right(32);
             let mut line: Vec<u64> = if transpose {
                 keys.iter().map(|&t| flip(t)).collect()
             } else {
@@ -206,22 +285,11 @@ impl ClosestGrid {
         keys.sort_unstable();
         keys.dedup();
 
-        let cap = (2 * keys.len()).next_power_of_two().max(2);
-        let shift = 64 - cap.trailing_zeros();
-        let mut table = vec![(0u64, NONE); cap];
-        for (slot, &t) in keys.iter().enumerate() {
-            let mut i = hash_slot(t, shift);
-            while table[i].1 != NONE {
-                i = (i + 1) & (cap - 1);
-            }
-            table[i] = (t, slot as u32);
-        }
         let mut grid = Self {
             bx,
             by,
             res,
-            table,
-            shift,
+            dir: Directory::new(&keys),
             cells: vec![NONE; keys.len() * TILE_CELLS],
         };
         grid.fill(points, &keys);
@@ -230,7 +298,7 @@ impl ClosestGrid {
 
     #[inline(always)]
     fn slot_of(&self, t: u64) -> Option<usize> {
-        table_slot(&self.table, self.shift, t)
+        self.dir.get(t & 0xFFFF_FFFF, t >> 32)
     }
 
     /// The cell's map index for query `q`, if `q` falls in a filled cell.
@@ -259,6 +327,33 @@ impl ClosestGrid {
         self.res
     }
 
+    /// The tile keys in slot order.
+    #[cfg(test)]
+    fn keys(&self) -> Vec<u64> {
+        let mut k = Vec::new();
+        let t = self.tiles();
+        // slots are dense 0..t: find each slot's key by scanning the directory
+        match &self.dir {
+            Directory::Dense { w, slots, .. } => {
+                k.resize(t, 0);
+                for (i, &s) in slots.iter().enumerate() {
+                    if s != NONE {
+                        k[s as usize] = key(i as u64 % w, i as u64 / w);
+                    }
+                }
+            }
+            Directory::Hash { table, .. } => {
+                k.resize(t, 0);
+                for &(kk, s) in table {
+                    if s != NONE {
+                        k[s as usize] = kk;
+                    }
+                }
+            }
+        }
+        k
+    }
+
     /// Number of tiles.
     pub(super) fn tiles(&self) -> usize {
         self.cells.len() / TILE_CELLS
@@ -266,8 +361,7 @@ impl ClosestGrid {
 
     /// Heap bytes held (cells and hash table).
     pub(super) fn bytes(&self) -> usize {
-        self.cells.len() * std::mem::size_of::<u32>()
-            + self.table.len() * std::mem::size_of::<(u64, u32)>()
+        self.cells.len() * std::mem::size_of::<u32>() + self.dir.bytes()
     }
 
     /// Seed and propagate. `keys` are the tile keys in slot order (sorted row-major).
@@ -333,6 +427,8 @@ impl ClosestGrid {
         let cells = &mut self.cells;
         let mut best = vec![f64::INFINITY; cells.len()];
 
+        // centre of cell (0, 0) of every tile
+        let origin: Vec<[f64; 2]> = (0..nt).map(|s| centre(s, 0, 0)).collect();
         // seeds: every point is tried exactly on the 3 × 3 cells around its own
         let mut last = (u64::MAX, 0usize);
         for (j, p) in points.iter().enumerate() {
@@ -343,7 +439,7 @@ impl ClosestGrid {
                 last.1
             } else {
                 // every point's own tile exists (it was inserted above)
-                let Some(s) = table_slot(&self.table, self.shift, t) else {
+                let Some(s) = self.dir.get(t & 0xFFFF_FFFF, t >> 32) else {
                     continue;
                 };
                 last = (t, s);
@@ -351,11 +447,32 @@ impl ClosestGrid {
             };
             let lx = (gx as usize) & (TILE - 1);
             let ly = (gy as usize) & (TILE - 1);
+            if lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE {
+                let [ox, oy] = origin[s];
+                for dy in 0..3 {
+                    let cy = oy + (ly + dy - 1) as f64 * res;
+                    let row = s * TILE_CELLS + ((ly + dy - 1) << TILE_SHIFT);
+                    for dx in 0..3 {
+                        let c = row + lx + dx - 1;
+                        let cx = ox + (lx + dx - 1) as f64 * res;
+                        let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
+                        if d < best[c] {
+                            best[c] = d;
+                            cells[c] = j as u32;
+                        }
+                    }
+                }
+                continue;
+            }
             for dy in -1..=1isize {
                 for dx in -1..=1isize {
                     if let Some(c) = at(s, lx, ly, dx, dy) {
                         let (cs, cl) = (c / TILE_CELLS, c % TILE_CELLS);
-                        let q = centre(cs, cl & (TILE - 1), cl >> TILE_SHIFT);
+                        let [ox, oy] = origin[cs];
+                        let q = [
+                            ox + (cl & (TILE - 1)) as f64 * res,
+                            oy + (cl >> TILE_SHIFT) as f64 * res,
+                        ];
                         let d = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
                         if d < best[c] {
                             best[c] = d;
@@ -389,8 +506,6 @@ impl ClosestGrid {
                 a = s;
             }
         }
-        // centre of cell (0, 0) of every tile
-        let origin: Vec<[f64; 2]> = (0..nt).map(|s| centre(s, 0, 0)).collect();
         let inner = |lx: usize, ly: usize| lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE;
         const T: usize = TILE;
         // forward: rows upwards; left to right from the row below, then right to left
@@ -476,24 +591,6 @@ impl ClosestGrid {
     }
 }
 
-/// The slot of tile `t` in an open-addressing table (a free function so it can be used
-/// while the grid's cells are borrowed mutably).
-#[inline(always)]
-fn table_slot(table: &[(u64, u32)], shift: u32, t: u64) -> Option<usize> {
-    let mask = table.len() - 1;
-    let mut i = hash_slot(t, shift);
-    loop {
-        let (k, s) = table[i];
-        if s == NONE {
-            return None;
-        }
-        if k == t {
-            return Some(s as usize);
-        }
-        i = (i + 1) & mask;
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -530,13 +627,7 @@ mod tests {
     /// hold exactly that one). Returns (cells checked, cells holding exactly the nearest).
     fn check_cells(points: &[[f64; 2]], res: f64, reach: f64) -> (usize, usize) {
         let g = ClosestGrid::build(points, bounds(points), res, reach, 1 << 22).unwrap();
-        let mut keys: Vec<u64> = g
-            .table
-            .iter()
-            .filter(|e| e.1 != NONE)
-            .map(|e| e.0)
-            .collect();
-        keys.sort_unstable();
+        let keys = g.keys();
         let (mut checked, mut exact_cells) = (0, 0);
         for (s, &t) in keys.iter().enumerate() {
             for ly in 0..TILE {
