@@ -84,6 +84,8 @@ pub(super) struct ClosestGrid {
     bx: i64,
     by: i64,
     res: f64,
+    /// 1 / res (queries multiply: a cell off by one rounding at a border is as good)
+    inv_res: f64,
     /// tile key → tile slot
     dir: Directory,
     /// TILE_CELLS map indices per tile, tiles in row-major order of their coordinates
@@ -94,6 +96,13 @@ pub(super) struct ClosestGrid {
 /// most `DENSE_DIRECTORY` entries (one read per query), else an open-addressing hash (a map
 /// in far-apart parts).
 enum Directory {
+    /// every tile of the box [tx0, tx0 + w) × [ty0, ty0 + h) exists, in row-major slots
+    Full {
+        tx0: u64,
+        ty0: u64,
+        w: u64,
+        h: u64,
+    },
     Dense {
         w: u64,
         h: u64,
@@ -107,7 +116,11 @@ enum Directory {
 }
 
 impl Directory {
-    fn new(keys: &[u64]) -> Self {
+    /// The directory of `keys` (sorted row-major); `full` when they are the whole box.
+    fn new(keys: &[u64], full: Option<[u64; 4]>) -> Self {
+        if let Some([tx0, ty0, w, h]) = full {
+            return Directory::Full { tx0, ty0, w, h };
+        }
         let w = keys.iter().map(|&t| t & 0xFFFF_FFFF).max().unwrap_or(0) + 1;
         let h = keys.last().map_or(0, |&t| t >> 32) + 1;
         if w.saturating_mul(h) <= DENSE_DIRECTORY {
@@ -133,6 +146,10 @@ impl Directory {
     #[inline(always)]
     fn get(&self, tx: u64, ty: u64) -> Option<usize> {
         match self {
+            Directory::Full { tx0, ty0, w, h } => {
+                let (x, y) = (tx.wrapping_sub(*tx0), ty.wrapping_sub(*ty0));
+                (x < *w && y < *h).then_some((y * w + x) as usize)
+            }
             Directory::Dense { w, h, slots } => {
                 if tx < *w && ty < *h {
                     let s = slots[(ty * w + tx) as usize];
@@ -161,6 +178,7 @@ impl Directory {
 
     fn bytes(&self) -> usize {
         match self {
+            Directory::Full { .. } => 0,
             Directory::Dense { slots, .. } => slots.len() * std::mem::size_of::<u32>(),
             Directory::Hash { table, .. } => table.len() * std::mem::size_of::<(u64, u32)>(),
         }
@@ -284,12 +302,27 @@ impl ClosestGrid {
         }
         keys.sort_unstable();
         keys.dedup();
+        // when the tiles cover at least half of their bounding box, take the whole box: a
+        // query then finds its tile by arithmetic, as in a plain grid (at most 2× the cells)
+        let (tx0, tx1) = keys.iter().fold((u64::MAX, 0), |(a, b), &t| {
+            (a.min(t & 0xFFFF_FFFF), b.max(t & 0xFFFF_FFFF))
+        });
+        let (ty0, ty1) = (keys[0] >> 32, keys[keys.len() - 1] >> 32);
+        let (w, h) = (tx1 - tx0 + 1, ty1 - ty0 + 1);
+        let full = (w.saturating_mul(h) <= max_tiles as u64 && w * h <= 2 * keys.len() as u64)
+            .then_some([tx0, ty0, w, h]);
+        if full.is_some() {
+            keys = (ty0..=ty1)
+                .flat_map(|ty| (tx0..=tx1).map(move |tx| key(tx, ty)))
+                .collect();
+        }
 
         let mut grid = Self {
             bx,
             by,
             res,
-            dir: Directory::new(&keys),
+            inv_res: 1.0 / res,
+            dir: Directory::new(&keys, full),
             cells: vec![NONE; keys.len() * TILE_CELLS],
         };
         grid.fill(points, &keys);
@@ -304,8 +337,8 @@ impl ClosestGrid {
     /// The cell's map index for query `q`, if `q` falls in a filled cell.
     #[inline(always)]
     pub(super) fn lookup(&self, q: [f64; 2]) -> Option<usize> {
-        let fx = q[0] / self.res;
-        let fy = q[1] / self.res;
+        let fx = q[0] * self.inv_res;
+        let fy = q[1] * self.inv_res;
         // also false for NaN
         if !(fx.abs() < MAX_CELL_QUOTIENT && fy.abs() < MAX_CELL_QUOTIENT) {
             return None;
@@ -334,6 +367,13 @@ impl ClosestGrid {
         let t = self.tiles();
         // slots are dense 0..t: find each slot's key by scanning the directory
         match &self.dir {
+            Directory::Full { tx0, ty0, w, h } => {
+                for y in 0..*h {
+                    for x in 0..*w {
+                        k.push(key(tx0 + x, ty0 + y));
+                    }
+                }
+            }
             Directory::Dense { w, slots, .. } => {
                 k.resize(t, 0);
                 for (i, &s) in slots.iter().enumerate() {
