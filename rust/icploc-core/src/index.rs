@@ -159,8 +159,10 @@ impl MapIndex {
     /// Add a closest-point grid of cell size `resolution` (m) for ICP correspondences;
     /// `None` or 0 removes it (exact k-d tree answers only).
     ///
-    /// The grid is sparse: tiles exist only within [`CACHE_REACH`] of a map point, so a
-    /// stray point far from the building costs a few tiles, not resolution. The resolution
+    /// The grid is sized from where the map is: tiles of 32 × 32 cells exist within
+    /// [`CACHE_REACH`] of map points and across gaps of up to 16 tiles between them (the
+    /// whole tile box when that at most doubles the cells), so a stray point far from the
+    /// building costs a few tiles, not resolution. The resolution
     /// is never coarsened: when the grid would need more than [`MAX_CACHE_CELLS`] cells
     /// (or the map spans more than it can address) there is no grid, ICP gets exact tree
     /// answers, and [`MapIndex::cache_fallback`] says why.

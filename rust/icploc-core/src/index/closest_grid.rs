@@ -3,10 +3,11 @@
 //!
 //! The grid is sparse: square tiles of `TILE`² cells exist within `reach` (plus two cells)
 //! of a map point and in the gaps of up to `GAP_FILL` tiles between those along rows and
-//! columns (the free space of a building), found through a small open-addressing hash of
-//! tile coordinates.
-//! A stray point kilometres from the building therefore costs a few tiles around itself,
-//! not a coarser grid everywhere. Cells are filled by seeding every point exactly into the
+//! columns (the free space of a building). When they cover at least half of their bounding
+//! box the whole box is taken (a query finds its tile by arithmetic); otherwise a directory
+//! maps tile coordinates to tiles (a dense array over the box up to 2²⁰ entries, else an
+//! open-addressing hash). A stray point kilometres from the building therefore costs a few
+//! tiles around itself, not a coarser grid everywhere. Cells are filled by seeding every point exactly into the
 //! 3 × 3 cells around its own and propagating seeds in two raster passes over the tiles
 //! (a vector distance transform).
 //!
@@ -337,18 +338,15 @@ impl ClosestGrid {
     /// The cell's map index for query `q`, if `q` falls in a filled cell.
     #[inline(always)]
     pub(super) fn lookup(&self, q: [f64; 2]) -> Option<usize> {
-        let fx = q[0] * self.inv_res;
-        let fy = q[1] * self.inv_res;
+        // x − bx (bx an integer below 2⁵³) is exact or rounded only right at a cell border
+        // (harmless: the neighbouring cell), so its truncation is ⌊x⌋ − bx
+        let fx = q[0] * self.inv_res - self.bx as f64;
+        let fy = q[1] * self.inv_res - self.by as f64;
         // also false for NaN
-        if !(fx.abs() < MAX_CELL_QUOTIENT && fy.abs() < MAX_CELL_QUOTIENT) {
+        if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD as f64 && fy < MAX_CELL_COORD as f64) {
             return None;
         }
-        // negative differences wrap to huge values and fail the bound
-        let gx = floor_i64(fx).wrapping_sub(self.bx) as u64;
-        let gy = floor_i64(fy).wrapping_sub(self.by) as u64;
-        if !(gx < MAX_CELL_COORD && gy < MAX_CELL_COORD) {
-            return None;
-        }
+        let (gx, gy) = (fx as u64, fy as u64);
         let s = self.slot_of(key(gx >> TILE_SHIFT, gy >> TILE_SHIFT))?;
         let lx = (gx as usize) & (TILE - 1);
         let ly = (gy as usize) & (TILE - 1);
