@@ -89,6 +89,9 @@ pub(super) struct ClosestGrid {
     inv_res: f64,
     /// tile key → tile slot
     dir: Directory,
+    /// with a full box: (first cell x, first cell y, width, height) in cells, and `cells`
+    /// is then row-major over the box (a query is one multiply-add, as in a plain grid)
+    full: Option<[u64; 4]>,
     /// TILE_CELLS map indices per tile, tiles in row-major order of their coordinates
     cells: Vec<u32>,
 }
@@ -324,9 +327,24 @@ impl ClosestGrid {
             res,
             inv_res: 1.0 / res,
             dir: Directory::new(&keys, full),
+            full: None,
             cells: vec![NONE; keys.len() * TILE_CELLS],
         };
         grid.fill(points, &keys);
+        if let Some([tx0, ty0, w, h]) = full {
+            // tile-major → row-major over the box
+            let (cw, ch) = (w as usize * TILE, h as usize * TILE);
+            let mut rm = vec![NONE; cw * ch];
+            for (s, tile) in grid.cells.chunks_exact(TILE_CELLS).enumerate() {
+                let (sx, sy) = (s % w as usize, s / w as usize);
+                for ly in 0..TILE {
+                    let dst = (sy * TILE + ly) * cw + sx * TILE;
+                    rm[dst..dst + TILE].copy_from_slice(&tile[ly * TILE..(ly + 1) * TILE]);
+                }
+            }
+            grid.cells = rm;
+            grid.full = Some([tx0 * TILE as u64, ty0 * TILE as u64, cw as u64, ch as u64]);
+        }
         Ok(grid)
     }
 
@@ -347,6 +365,14 @@ impl ClosestGrid {
             return None;
         }
         let (gx, gy) = (fx as u64, fy as u64);
+        if let Some([x0, y0, w, h]) = self.full {
+            let (x, y) = (gx.wrapping_sub(x0), gy.wrapping_sub(y0));
+            if !(x < w && y < h) {
+                return None;
+            }
+            let j = self.cells[(y * w + x) as usize];
+            return (j != NONE).then_some(j as usize);
+        }
         let s = self.slot_of(key(gx >> TILE_SHIFT, gy >> TILE_SHIFT))?;
         let lx = (gx as usize) & (TILE - 1);
         let ly = (gy as usize) & (TILE - 1);
@@ -356,6 +382,19 @@ impl ClosestGrid {
 
     pub(super) fn resolution(&self) -> f64 {
         self.res
+    }
+
+    /// The cell (lx, ly) of tile slot `s`, whichever the layout.
+    #[cfg(test)]
+    fn cell(&self, s: usize, lx: usize, ly: usize) -> u32 {
+        match self.full {
+            Some([_, _, w, _]) => {
+                let tw = w as usize / TILE;
+                let (sx, sy) = (s % tw, s / tw);
+                self.cells[(sy * TILE + ly) * w as usize + sx * TILE + lx]
+            }
+            None => self.cells[s * TILE_CELLS + ly * TILE + lx],
+        }
     }
 
     /// The tile keys in slot order.
@@ -680,7 +719,7 @@ mod tests {
                     if exact > reach * reach {
                         continue;
                     }
-                    let j = g.cells[s * TILE_CELLS + ly * TILE + lx];
+                    let j = g.cell(s, lx, ly);
                     assert_ne!(j, NONE, "cell {gx},{gy} within reach has no point");
                     let p = points[j as usize];
                     let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
