@@ -185,11 +185,23 @@ class MapIndex:
         cache_resolution: float | None = ...,
     ) -> Self:
         """Build the k-d tree. ``cache_resolution`` (m): cell size of the precomputed
-        nearest-point cache ICP uses for correspondences (answers exact to within a cell,
-        O(1) whatever the map size); ``None`` or 0 for exact k-d tree answers only."""
+        closest-point grid ICP uses for correspondences (O(1) whatever the map size; answers at
+        most ``1.67·cache_resolution`` farther than the exact nearest point when that is within
+        2 m, else a map point farther than 2 m; tiles exist only within 2 m of map points);
+        ``None`` or 0 for exact k-d tree answers only. The resolution is never coarsened: when
+        the grid would exceed its memory bound (2²³ cells, 32 MB) there is none and
+        ``cache_fallback`` says why. Map coordinates must be within ±1e9 m."""
     def __len__(self) -> int: ...
     @property
-    def cache_resolution(self) -> float | None: ...
+    def cache_resolution(self) -> float | None:
+        """Cell size of the closest-point grid (None: exact k-d tree answers)."""
+    @property
+    def cache_fallback(self) -> str | None:
+        """Why the requested closest-point grid was not built (ICP then gets exact, slower,
+        k-d tree answers); None when it was built or not asked for."""
+    @property
+    def cache_bytes(self) -> int:
+        """Heap bytes held by the closest-point grid (0 without one)."""
     @property
     def spacing(self) -> float:
         """Median nearest-neighbour spacing of the map points (m)."""

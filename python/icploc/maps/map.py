@@ -4,6 +4,7 @@ from, and the uniformly sampled points + normals the ICP core matches against.""
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -477,7 +478,10 @@ class Map:
             p, n = self.sample(s)
             if len(p) == 0:
                 raise MapError(self.source, "lines", "map has no points to index")
-            self._indexes[s] = MapIndex(p, n)
+            idx = MapIndex(p, n)
+            if idx.cache_fallback is not None:  # said once: the index is kept
+                warnings.warn(f"{self.source}: {idx.cache_fallback}", RuntimeWarning, stacklevel=2)
+            self._indexes[s] = idx
         return self._indexes[s]
 
     # ------------------------------------------------------------------ visibility

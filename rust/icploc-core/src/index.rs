@@ -7,6 +7,10 @@ use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
+mod closest_grid;
+
+use closest_grid::ClosestGrid;
+
 use crate::error::{IcpError, Result};
 use crate::se2::{wrap_angle, Pose2};
 
@@ -32,132 +36,30 @@ fn to_tree(p: [f64; 2]) -> [f64; 2] {
 /// Neighbours used to estimate a normal when none are given.
 const NORMAL_NEIGHBOURS: usize = 7;
 
-/// Default cell size of the nearest-point cache (m).
+/// Default cell size of the closest-point grid (m).
 pub const DEFAULT_CACHE_RESOLUTION: f64 = 0.02;
-/// The cache never holds more cells than this (the resolution is coarsened instead).
-const MAX_CACHE_CELLS: usize = 1 << 23;
-/// The cache covers the map's bounds plus this margin (m); farther queries use the tree.
-const CACHE_MARGIN: f64 = 2.0;
-
-/// A grid over the map holding, per cell, the map point closest to the cell's centre:
-/// the "closest point transform" of the map, computed once by seeding each cell with the
-/// points inside it and propagating seeds in two raster passes (a vector distance
-/// transform). Queries are then one array read, whatever the map's size or density.
-struct NearestCache {
-    x0: f64,
-    y0: f64,
-    res: f64,
-    nx: usize,
-    ny: usize,
-    /// map index of the closest point to each cell centre
-    cells: Vec<u32>,
-}
-
-impl NearestCache {
-    fn build(points: &[[f64; 2]], x0: f64, y0: f64, res: f64, nx: usize, ny: usize) -> Self {
-        const NONE: u32 = u32::MAX;
-        let mut cells = vec![NONE; nx * ny];
-        // squared distance from each cell centre to its current seed
-        let mut best = vec![f64::INFINITY; nx * ny];
-        // seeds: every point claims its own cell (the one nearest the centre wins)
-        for (j, p) in points.iter().enumerate() {
-            let fx = (p[0] - x0) / res;
-            let fy = (p[1] - y0) / res;
-            if !(fx >= 0.0 && fy >= 0.0 && fx < nx as f64 && fy < ny as f64) {
-                continue;
-            }
-            let (ix, iy) = (fx as usize, fy as usize);
-            let k = iy * nx + ix;
-            let cx = x0 + (ix as f64 + 0.5) * res;
-            let cy = y0 + (iy as f64 + 0.5) * res;
-            let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
-            if d < best[k] {
-                best[k] = d;
-                cells[k] = j as u32;
-            }
-        }
-        // propagate: each cell takes a neighbour's seed when that seed is closer
-        let mut relax = |k: usize, nk: usize, cx: f64, cy: f64| {
-            let s = cells[nk];
-            if s == NONE || s == cells[k] {
-                return;
-            }
-            let p = points[s as usize];
-            let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
-            if d < best[k] {
-                best[k] = d;
-                cells[k] = s;
-            }
-        };
-        for iy in 0..ny {
-            let cy = y0 + (iy as f64 + 0.5) * res;
-            for ix in 0..nx {
-                let cx = x0 + (ix as f64 + 0.5) * res;
-                let k = iy * nx + ix;
-                if ix > 0 {
-                    relax(k, k - 1, cx, cy);
-                }
-                if iy > 0 {
-                    relax(k, k - nx, cx, cy);
-                    if ix > 0 {
-                        relax(k, k - nx - 1, cx, cy);
-                    }
-                    if ix + 1 < nx {
-                        relax(k, k - nx + 1, cx, cy);
-                    }
-                }
-            }
-            for ix in (0..nx.saturating_sub(1)).rev() {
-                let cx = x0 + (ix as f64 + 0.5) * res;
-                let k = iy * nx + ix;
-                relax(k, k + 1, cx, cy);
-            }
-        }
-        for iy in (0..ny).rev() {
-            let cy = y0 + (iy as f64 + 0.5) * res;
-            for ix in (0..nx).rev() {
-                let cx = x0 + (ix as f64 + 0.5) * res;
-                let k = iy * nx + ix;
-                if ix + 1 < nx {
-                    relax(k, k + 1, cx, cy);
-                }
-                if iy + 1 < ny {
-                    relax(k, k + nx, cx, cy);
-                    if ix + 1 < nx {
-                        relax(k, k + nx + 1, cx, cy);
-                    }
-                    if ix > 0 {
-                        relax(k, k + nx - 1, cx, cy);
-                    }
-                }
-            }
-            for ix in 1..nx {
-                let cx = x0 + (ix as f64 + 0.5) * res;
-                let k = iy * nx + ix;
-                relax(k, k - 1, cx, cy);
-            }
-        }
-        drop(best);
-        Self {
-            x0,
-            y0,
-            res,
-            nx,
-            ny,
-            cells,
-        }
-    }
-}
+/// The closest-point grid never holds more cells than this (4 bytes each: 32 MB); when the
+/// requested resolution needs more, there is no grid and ICP gets exact k-d tree answers.
+pub const MAX_CACHE_CELLS: usize = 1 << 23;
+/// Answers through the grid are within its tolerance of the exact ones whenever the nearest
+/// map point is within this distance (m) of the query: grid tiles exist within this distance
+/// (plus two cells) of every map point, and only there.
+pub const CACHE_REACH: f64 = 2.0;
+/// Map coordinates must lie within ±this (m): beyond it squared distances and centimetre
+/// cells stop being representable.
+pub const MAX_MAP_COORDINATE: f64 = 1e9;
 
 /// An immutable nearest-neighbour index over 2D map points, with optional unit normals.
 ///
 /// Queries go to a kiddo k-d tree. ICP's correspondence search may go through an optional
-/// nearest-point cache (see [`MapIndex::with_cache`]) that answers with the closest map
-/// point of the query's cache cell centre: exact to within the cell size, and O(1) whatever
-/// the map's size or density.
+/// closest-point grid (see [`MapIndex::with_cache`]) that answers with the closest map
+/// point of the query's cell centre: at most `1.67·resolution` farther than the exact
+/// nearest point, and O(1) whatever the map's size or density.
 pub struct MapIndex {
     tree: Tree,
-    cache: Option<NearestCache>,
+    cache: Option<ClosestGrid>,
+    /// why the requested grid was not built (ICP then gets exact tree answers)
+    cache_fallback: Option<String>,
     points: Vec<[f64; 2]>,
     normals: OnceLock<Vec<[f64; 2]>>,
     normals_given: bool,
@@ -192,6 +94,20 @@ impl MapIndex {
             });
         }
         crate::check_finite("map points", &points)?;
+        if let Some(row) = points
+            .iter()
+            .position(|p| !(p[0].abs() <= MAX_MAP_COORDINATE && p[1].abs() <= MAX_MAP_COORDINATE))
+        {
+            let p = points[row];
+            return Err(IcpError::InvalidInput {
+                what: "map points".into(),
+                reason: format!(
+                    "row {row} ({:e}, {:e}) is farther than {MAX_MAP_COORDINATE:e} m from the \
+                     origin (map coordinates are metres)",
+                    p[0], p[1]
+                ),
+            });
+        }
         let normals_given = normals.is_some();
         let normals_lock = OnceLock::new();
         if let Some(mut n) = normals {
@@ -234,6 +150,7 @@ impl MapIndex {
         Ok(Self {
             tree,
             cache: None,
+            cache_fallback: None,
             points,
             normals: normals_lock,
             normals_given,
@@ -243,13 +160,21 @@ impl MapIndex {
         })
     }
 
-    /// Add a nearest-point cache of cell size `resolution` (m) for ICP correspondences;
-    /// `None` or 0 removes it (exact k-d tree answers only). The grid covers the map's
-    /// bounds plus 2 m and holds at most 2²³ cells (the resolution is coarsened to fit);
-    /// it is computed here, in two raster passes (tens of ms for an office floor).
+    /// Add a closest-point grid of cell size `resolution` (m) for ICP correspondences;
+    /// `None` or 0 removes it (exact k-d tree answers only).
+    ///
+    /// The grid is sized from where the map is: tiles of 32 × 32 cells exist within
+    /// [`CACHE_REACH`] of map points and across gaps of up to 16 tiles between them (the
+    /// whole tile box when that at most doubles the cells), so a stray point far from the
+    /// building costs a few tiles, not resolution. The resolution
+    /// is never coarsened: when the grid would need more than [`MAX_CACHE_CELLS`] cells
+    /// (or the map spans more than it can address) there is no grid, ICP gets exact tree
+    /// answers, and [`MapIndex::cache_fallback`] says why.
     pub fn with_cache(mut self, resolution: Option<f64>) -> Result<Self> {
-        self.cache = match resolution.filter(|r| *r != 0.0) {
-            None => None,
+        self.cache = None;
+        self.cache_fallback = None;
+        match resolution.filter(|r| *r != 0.0) {
+            None => {}
             Some(r) if !(r > 0.0 && r.is_finite()) => {
                 return Err(IcpError::InvalidConfig {
                     field: "cache_resolution",
@@ -258,42 +183,61 @@ impl MapIndex {
                 })
             }
             Some(r) => {
-                let [x0, y0, x1, y1] = self.bounds;
-                let (w, h) = (x1 - x0 + 2.0 * CACHE_MARGIN, y1 - y0 + 2.0 * CACHE_MARGIN);
-                let mut res = r;
-                if (w / res).ceil() * (h / res).ceil() > MAX_CACHE_CELLS as f64 {
-                    res = (w * h / MAX_CACHE_CELLS as f64).sqrt() * 1.01;
+                match ClosestGrid::build(&self.points, self.bounds, r, CACHE_REACH, MAX_CACHE_CELLS)
+                {
+                    Ok(g) => self.cache = Some(g),
+                    Err(why) => {
+                        self.cache_fallback = Some(format!(
+                            "closest-point grid at cache_resolution={r} m not built: {why}; \
+                             ICP uses exact (slower) k-d tree answers"
+                        ))
+                    }
                 }
-                let nx = ((w / res).ceil() as usize).max(1);
-                let ny = ((h / res).ceil() as usize).max(1);
-                Some(NearestCache::build(
-                    &self.points,
-                    x0 - CACHE_MARGIN,
-                    y0 - CACHE_MARGIN,
-                    res,
-                    nx,
-                    ny,
-                ))
             }
-        };
+        }
         Ok(self)
     }
 
-    /// Cell size of the nearest-point cache, if any.
+    /// Cell size of the closest-point grid, if there is one (it is always the requested one).
     pub fn cache_resolution(&self) -> Option<f64> {
-        self.cache.as_ref().map(|c| c.res)
+        self.cache.as_ref().map(|c| c.resolution())
     }
 
-    /// The correspondence query of ICP: through the cache when there is one (the closest
-    /// map point of the query's cell centre), else the exact k-d tree answer. Returns
-    /// (squared distance from `q` to the returned point, index).
+    /// How much farther than the exact nearest point an answer of [`MapIndex::correspondence`]
+    /// may be (m): `(√2 + 0.25)·resolution` with a grid, 0 without one.
+    pub fn cache_tolerance(&self) -> f64 {
+        self.cache_resolution().map_or(0.0, |r| {
+            (std::f64::consts::SQRT_2 + closest_grid::CELL_ERROR) * r
+        })
+    }
+
+    /// Why the requested closest-point grid was not built, if it was not (ICP then gets
+    /// exact k-d tree answers, which are slower).
+    pub fn cache_fallback(&self) -> Option<&str> {
+        self.cache_fallback.as_deref()
+    }
+
+    /// Heap bytes held by the closest-point grid (0 without one).
+    pub fn cache_bytes(&self) -> usize {
+        self.cache.as_ref().map_or(0, |c| c.bytes())
+    }
+
+    /// Number of tiles of the closest-point grid (0 without one).
+    pub fn cache_tiles(&self) -> usize {
+        self.cache.as_ref().map_or(0, |c| c.tiles())
+    }
+
+    /// The correspondence query of ICP. Returns (squared distance from `q` to the returned
+    /// point, its index). When the exact nearest map point is within [`CACHE_REACH`] of `q`,
+    /// the answer is at most [`MapIndex::cache_tolerance`] farther (`(√2 + 0.25)·resolution`:
+    /// √2 from answering for the cell's centre, 0.25 from the grid's propagation); when none
+    /// is, it is a map point farther than `CACHE_REACH` (so a correspondence threshold up to
+    /// 2 m rejects it, as it would the exact one): the grid cell's (usually the nearest) or,
+    /// outside the grid's tiles, the exact k-d tree answer. Without a grid: exact.
     #[inline]
     pub fn correspondence(&self, q: [f64; 2]) -> (f64, usize) {
         if let Some(c) = &self.cache {
-            let fx = (q[0] - c.x0) / c.res;
-            let fy = (q[1] - c.y0) / c.res;
-            if fx >= 0.0 && fy >= 0.0 && fx < c.nx as f64 && fy < c.ny as f64 {
-                let j = c.cells[fy as usize * c.nx + fx as usize] as usize;
+            if let Some(j) = c.lookup(q) {
                 let p = self.points[j];
                 let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
                 return (d2, j);
@@ -601,33 +545,177 @@ mod tests {
         }
     }
 
+    fn brute_d2(pts: &[[f64; 2]], q: [f64; 2]) -> f64 {
+        pts.iter()
+            .map(|p| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// The documented tolerance of an answer through the grid: `(√2 + CELL_ERROR)·res`
+    /// farther than the exact nearest point (plus rounding relative to the coordinates' size).
+    fn within_tolerance(
+        idx: &MapIndex,
+        pts: &[[f64; 2]],
+        q: [f64; 2],
+    ) -> std::result::Result<(), String> {
+        let (d2, j) = idx.correspondence(q);
+        let p = pts[j];
+        let own = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2);
+        if own != d2 {
+            return Err(format!(
+                "{q:?}: reported d2 {d2} is not that of point {j} ({own})"
+            ));
+        }
+        let exact = brute_d2(pts, q).sqrt();
+        let res = idx.cache_resolution().unwrap_or(0.0);
+        let scale = q[0].abs().max(q[1].abs()).max(1.0);
+        if d2.sqrt()
+            <= exact + res * (std::f64::consts::SQRT_2 + closest_grid::CELL_ERROR) + 1e-12 * scale
+        {
+            Ok(())
+        } else {
+            Err(format!(
+                "{q:?}: answer at {} m, nearest at {exact} m",
+                d2.sqrt()
+            ))
+        }
+    }
+
     #[test]
     fn cache_answers_within_a_cell_of_exact() {
         let pts = wall_points();
-        let exact = MapIndex::new(pts.clone(), None).unwrap();
-        let cached = MapIndex::new(pts, None)
+        let cached = MapIndex::new(pts.clone(), None)
             .unwrap()
             .with_cache(Some(0.02))
             .unwrap();
         assert_eq!(cached.cache_resolution(), Some(0.02));
+        assert_eq!(cached.cache_fallback(), None);
+        assert!((cached.cache_tolerance() - 0.02 * 1.664_213_562_373_095).abs() < 1e-15);
         let mut rng = crate::testkit::Rng::new(4);
-        for _ in 0..2000 {
+        for _ in 0..5000 {
             let q = [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)];
-            let (d2e, _) = exact.nearest(q);
-            let (d2c, _) = cached.correspondence(q);
-            // the cell centre is within res·√2/2 of q: the answer is at most that farther
-            assert!(d2c.sqrt() <= d2e.sqrt() + 0.02 * std::f64::consts::SQRT_2 + 1e-12);
+            within_tolerance(&cached, &pts, q).unwrap();
         }
+    }
+
+    #[test]
+    fn cache_resolution_must_be_positive_and_zero_means_none() {
         assert!(MapIndex::new(vec![[0.0, 0.0]], None)
             .unwrap()
             .with_cache(Some(-1.0))
             .is_err());
-        assert!(MapIndex::new(vec![[0.0, 0.0]], None)
+        let idx = MapIndex::new(vec![[0.0, 0.0]], None)
             .unwrap()
             .with_cache(Some(0.0))
+            .unwrap();
+        assert_eq!(idx.cache_resolution(), None);
+        assert_eq!(idx.cache_fallback(), None);
+        assert_eq!(idx.cache_bytes(), 0);
+    }
+
+    /// The building of wall_points() with one 10 m segment 5 km away.
+    fn with_stray_segment() -> Vec<[f64; 2]> {
+        let mut pts = wall_points();
+        for i in 0..=200 {
+            pts.push([-5000.0 + i as f64 * 0.05, -3000.0]);
+        }
+        pts
+    }
+
+    #[test]
+    fn a_stray_far_segment_keeps_the_resolution() {
+        let plain = MapIndex::new(wall_points(), None)
             .unwrap()
-            .cache_resolution()
-            .is_none());
+            .with_cache(Some(0.02))
+            .unwrap();
+        let pts = with_stray_segment();
+        let idx = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        assert_eq!(idx.cache_resolution(), Some(0.02));
+        assert_eq!(idx.cache_fallback(), None);
+        // the segment costs the tiles around itself only: (16 + 8) × 9 tiles of 0.64 m, 4 KB each
+        assert!(
+            idx.cache_bytes() < plain.cache_bytes() + 216 * 4096 + (1 << 16),
+            "{} vs {}",
+            idx.cache_bytes(),
+            plain.cache_bytes()
+        );
+        let mut rng = crate::testkit::Rng::new(9);
+        for _ in 0..3000 {
+            let q = [rng.range(-1.0, 6.0), rng.range(-1.0, 6.0)];
+            within_tolerance(&idx, &pts, q).unwrap();
+            // the building's answers are the same as without the segment
+            assert_eq!(idx.correspondence(q), plain.correspondence(q));
+            let q = [rng.range(-5001.0, -4989.0), rng.range(-3002.0, -2998.0)];
+            within_tolerance(&idx, &pts, q).unwrap();
+        }
+    }
+
+    #[test]
+    fn a_grid_too_big_falls_back_to_exact_answers_and_says_so() {
+        // 50 walls 30 m apart over 1.5 km × 1.5 km: far more than 2²³ cells at 2 cm
+        let mut pts = Vec::new();
+        for i in 0..50 {
+            for k in 0..3000 {
+                pts.push([i as f64 * 30.0, k as f64 * 0.5]);
+            }
+        }
+        let idx = MapIndex::new(pts, None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        assert_eq!(idx.cache_resolution(), None);
+        assert_eq!(idx.cache_bytes(), 0);
+        let why = idx.cache_fallback().unwrap();
+        assert!(
+            why.contains("cache_resolution=0.02") && why.contains("exact"),
+            "{why}"
+        );
+        let mut rng = crate::testkit::Rng::new(2);
+        for _ in 0..200 {
+            let q = [rng.range(0.0, 1500.0), rng.range(0.0, 1500.0)];
+            assert_eq!(idx.correspondence(q), idx.nearest(q));
+        }
+    }
+
+    #[test]
+    fn coordinates_beyond_the_bound_are_an_error_naming_the_row() {
+        let e = MapIndex::new(vec![[0.0, 0.0], [1.0, 1e154]], None).unwrap_err();
+        assert_eq!(
+            e,
+            IcpError::InvalidInput {
+                what: "map points".into(),
+                reason: "row 1 (1e0, 1e154) is farther than 1e9 m from the origin (map \
+                         coordinates are metres)"
+                    .into()
+            }
+        );
+        assert!(MapIndex::new(vec![[-1e9, 1e9]], None).is_ok());
+    }
+
+    #[test]
+    fn extreme_queries_through_the_grid_never_panic() {
+        let pts = vec![[1e9, -1e9], [1e9 - 1.0, -1e9]];
+        let idx = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        assert_eq!(idx.cache_resolution(), Some(0.02));
+        within_tolerance(&idx, &pts, [1e9 - 0.3, -1e9 + 0.2]).unwrap();
+        for q in [
+            [1e300, 1e300],
+            [-1e308, 5.0],
+            [f64::MAX, f64::MIN],
+            [1e9, f64::MAX],
+        ] {
+            let (d2, j) = idx.correspondence(q);
+            assert!(j < 2);
+            assert_eq!(d2, f64::INFINITY);
+        }
+        let (d2, _) = idx.correspondence([f64::NAN, 0.0]);
+        assert!(d2.is_nan());
     }
 
     #[test]

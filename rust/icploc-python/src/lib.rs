@@ -305,10 +305,23 @@ impl PyMapIndex {
         (b[0], b[1], b[2], b[3])
     }
 
-    /// Cell size of the nearest-point cache used by ICP (None: exact k-d tree answers).
+    /// Cell size of the closest-point grid used by ICP (None: exact k-d tree answers).
     #[getter]
     fn cache_resolution(&self) -> Option<f64> {
         self.inner.cache_resolution()
+    }
+
+    /// Why the requested closest-point grid was not built (None when it was, or when none
+    /// was asked for); ICP then gets exact, slower, k-d tree answers.
+    #[getter]
+    fn cache_fallback(&self) -> Option<String> {
+        self.inner.cache_fallback().map(str::to_owned)
+    }
+
+    /// Heap bytes held by the closest-point grid (0 without one).
+    #[getter]
+    fn cache_bytes(&self) -> usize {
+        self.inner.cache_bytes()
     }
 
     /// Median nearest-neighbour spacing of the map points (m).

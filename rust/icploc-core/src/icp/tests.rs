@@ -403,33 +403,67 @@ proptest! {
         }
     }
 
-    /// No input, finite or not, makes the core panic.
+    /// No input, finite or not, makes the core panic, through the closest-point grid ICP
+    /// uses by default (random resolutions included); a map is accepted exactly when it is
+    /// non-empty, finite and within ±MAX_MAP_COORDINATE.
     #[test]
     fn prop_no_panic(scan in proptest::collection::vec((any::<f64>(), any::<f64>()), 0..40),
                      pose in (any::<f64>(), any::<f64>(), any::<f64>()),
-                     thr in any::<f64>(), map in proptest::collection::vec((any::<f64>(), any::<f64>()), 0..30)) {
+                     thr in any::<f64>(),
+                     map in prop_oneof![
+                         proptest::collection::vec((any::<f64>(), any::<f64>()), 0..30),
+                         proptest::collection::vec((-1e9f64..1e9, -1e9f64..1e9), 1..30),
+                         proptest::collection::vec((-3.0f64..3.0, -3.0f64..3.0), 1..30),
+                         (any::<f64>(), any::<f64>(), 1usize..30).prop_map(|(a, b, n)| vec![(a, b); n]),
+                     ],
+                     res in prop_oneof![Just(crate::index::DEFAULT_CACHE_RESOLUTION), any::<f64>(), 1e-5f64..10.0]) {
+        use crate::index::MAX_MAP_COORDINATE;
         let scan: Vec<[f64; 2]> = scan.into_iter().map(|(a, b)| [a, b]).collect();
         let map: Vec<[f64; 2]> = map.into_iter().map(|(a, b)| [a, b]).collect();
+        let valid = !map.is_empty()
+            && map.iter().all(|p| p[0].abs() <= MAX_MAP_COORDINATE && p[1].abs() <= MAX_MAP_COORDINATE);
         let c = IcpConfig { max_correspondence_distance: thr, min_correspondence_distance: thr.abs().min(1.0), min_inliers: 3, ..IcpConfig::default() };
-        if let Ok(idx) = MapIndex::new(map, None) {
-            let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &c);
-            let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &IcpConfig::default());
-            let _ = idx.visible(Pose2::new(pose.0, pose.1, pose.2), thr, thr, None, 0.05, 0.01);
-            let _ = idx.within([pose.0, pose.1], thr);
+        let built = MapIndex::new(map, None);
+        prop_assert_eq!(built.is_ok(), valid);
+        if let Ok(idx) = built {
+            let cached = idx.with_cache(Some(res));
+            // exactly the positive finite resolutions (and 0: no grid) are accepted
+            prop_assert_eq!(cached.is_ok(), res == 0.0 || (res > 0.0 && res.is_finite()));
+            if let Ok(idx) = cached {
+                let (_, j) = idx.correspondence([pose.0, pose.1]);
+                prop_assert!(j < idx.len());
+                let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &c);
+                let _ = align(&scan, &idx, Pose2::new(pose.0, pose.1, pose.2), &IcpConfig::default());
+                let _ = idx.visible(Pose2::new(pose.0, pose.1, pose.2), thr, thr, None, 0.05, 0.01);
+                let _ = idx.within([pose.0, pose.1], thr);
+            }
         }
         let _ = crate::raycast::raycast(&[[pose.0, pose.1, pose.2, thr]], Pose2::new(pose.0, 0.0, 0.0), &[thr], 10.0);
     }
 
-    /// Finite but extreme scans far from the map still return, never panic, never NaN pose.
+    /// Finite but extreme scans against a map through the closest-point grid: every call
+    /// returns a finite pose. At scale 1 the scan is the map (identity recovered); at
+    /// 1e9 and beyond no scan point is within the 1e6 m correspondence distance, so the
+    /// start pose comes back with too few inliers.
     #[test]
-    fn prop_finite_extremes(scale in prop_oneof![Just(1e-300), Just(1e-9), Just(1.0), Just(1e9), Just(1e150)], seed in 0u64..100) {
+    fn prop_finite_extremes(scale in prop_oneof![Just(1e-300), Just(1e-9), Just(1.0), Just(1e9), Just(1e150), Just(1e300)], seed in 0u64..100) {
         let map = scattered_map(seed, 50);
-        let idx = MapIndex::new(map.clone(), None).unwrap();
+        let idx = MapIndex::new(map.clone(), None).unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION)).unwrap();
+        prop_assert_eq!(idx.cache_resolution(), Some(crate::index::DEFAULT_CACHE_RESOLUTION));
         let scan: Vec<[f64; 2]> = map.iter().map(|p| [p[0] * scale, p[1] * scale]).collect();
         for metric in [Metric::PointToPoint, Metric::PointToLine] {
             let c = IcpConfig { metric, max_correspondence_distance: 1e6, min_correspondence_distance: 1e6, ..IcpConfig::default() };
-            if let Ok(r) = align(&scan, &idx, Pose2::identity(), &c) {
-                prop_assert!(r.pose.x.is_finite() && r.pose.y.is_finite() && r.pose.theta.is_finite());
+            let r = align(&scan, &idx, Pose2::identity(), &c);
+            prop_assert!(r.is_ok(), "{:?}", r);
+            let r = r.unwrap();
+            prop_assert!(r.pose.x.is_finite() && r.pose.y.is_finite() && r.pose.theta.is_finite(), "{:?}", r.pose);
+            if scale == 1.0 {
+                prop_assert!(r.pose.x.abs() < 1e-9 && r.pose.y.abs() < 1e-9 && r.pose.theta.abs() < 1e-9, "{:?}", r.pose);
+            } else if scale >= 1e9 {
+                prop_assert_eq!(r.termination, Termination::TooFewInliers);
+                prop_assert_eq!(r.inliers, 0);
+                prop_assert_eq!(r.pose, Pose2::identity());
             }
         }
     }

@@ -1,0 +1,832 @@
+//! The closest-point grid behind [`MapIndex::correspondence`](super::MapIndex::correspondence):
+//! per cell, the map point closest to the cell's centre (a "closest point transform").
+//!
+//! The grid is sparse: square tiles of `TILE`² cells exist within `reach` (plus two cells)
+//! of a map point and in the gaps of up to `GAP_FILL` tiles between those along rows and
+//! columns (the free space of a building). When they cover at least half of their bounding
+//! box the whole box is taken (a query finds its tile by arithmetic); otherwise a directory
+//! maps tile coordinates to tiles (a dense array over the box up to 2²⁰ entries, else an
+//! open-addressing hash). A stray point kilometres from the building therefore costs a few
+//! tiles around itself, not a coarser grid everywhere. Cells are filled by seeding every point exactly into the
+//! 3 × 3 cells around its own and propagating seeds in two raster passes over the tiles
+//! (a vector distance transform).
+//!
+//! Tolerance (checked against brute force in the tests). A cell holds a point at most
+//! `CELL_ERROR·res` farther from its centre than the nearest one: the seeds are exact on
+//! the 3 × 3 cells around each point, and beyond them the two-pass 8-neighbour propagation
+//! misses the nearest point only where its Voronoi cell is not 8-connected on the grid, by
+//! a fraction of a cell: measured ≤ 0.09·res over 400 random point clusters and ≤ 0.144·res
+//! over 3,000 random maps of three walls (at 2–13 cm cells, 1–7 cm wall sampling); the
+//! bound used, and asserted by the property tests, is `CELL_ERROR` = 0.25. Hence, for a
+//! query `q` whose exact nearest point `p*` is within `reach`, the cell answer `a` has
+//! `|q − a| ≤ |q − p*| + (√2 + CELL_ERROR)·res` (√2·res from answering for the cell centre
+//! instead of `q`). Farther queries get a map point farther than `reach` (a real point, so
+//! at least as far as `p*`), or no answer where there is no tile (the index then asks the
+//! k-d tree).
+
+use std::collections::HashSet;
+
+/// Cells per tile side (a power of two).
+const TILE_SHIFT: u32 = 5;
+const TILE: usize = 1 << TILE_SHIFT;
+const TILE_CELLS: usize = TILE * TILE;
+const NONE: u32 = u32::MAX;
+/// A dense tile directory is used up to this many entries (4 MB).
+const DENSE_DIRECTORY: u64 = 1 << 20;
+/// Gaps of up to this many tiles between tiles of a row (or column) are filled.
+const GAP_FILL: u64 = 16;
+/// Bound of a cell's error, in cells: see the module documentation.
+pub(super) const CELL_ERROR: f64 = 0.25;
+/// Cell coordinates (from the grid origin) stay below this, so tile coordinates fit 31 bits.
+const MAX_CELL_COORD: u64 = 1 << 36;
+/// |q / res| must stay below this for the cell's integer coordinate to be computed.
+const MAX_CELL_QUOTIENT: f64 = (1u64 << 60) as f64;
+
+/// ⌊x⌋ for |x| < 2⁶⁰ (a truncation and a fix-up: cheaper than `f64::floor` on baseline x86-64).
+#[inline(always)]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - i64::from((t as f64) > x)
+}
+
+/// Why a grid was not built at the requested resolution.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) enum Unbuilt {
+    /// It would need more than `max_cells` cells (`needed` is a lower bound when the count
+    /// was stopped early).
+    TooManyCells { needed: usize, max_cells: usize },
+    /// The map spans more cells than the grid can address.
+    TooWide { span: f64 },
+}
+
+impl std::fmt::Display for Unbuilt {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Unbuilt::TooManyCells { needed, max_cells } => write!(
+                f,
+                "the grid would need at least {needed} cells ({} MB), more than the \
+                 {max_cells}-cell ({} MB) bound",
+                needed * 4 / (1 << 20),
+                max_cells * 4 / (1 << 20)
+            ),
+            Unbuilt::TooWide { span } => write!(
+                f,
+                "the map spans {span:.3e} m, more than the grid can address at this resolution"
+            ),
+        }
+    }
+}
+
+pub(super) struct ClosestGrid {
+    /// cell (i, j) of the grid is the square [(i + bx)·res, (i + bx + 1)·res) ×
+    /// [(j + by)·res, …): its lattice is anchored at the world origin and the tiles at
+    /// multiples of TILE cells, so the cells over one part of a map do not depend on where
+    /// its other parts are
+    bx: i64,
+    by: i64,
+    res: f64,
+    /// 1 / res (queries multiply: a cell off by one rounding at a border is as good)
+    inv_res: f64,
+    /// tile key → tile slot
+    dir: Directory,
+    /// with a full box: (first cell x, first cell y, width, height) in cells, and `cells`
+    /// is then row-major over the box (a query is one multiply-add, as in a plain grid)
+    full: Option<[u64; 4]>,
+    /// TILE_CELLS map indices per tile, tiles in row-major order of their coordinates
+    cells: Vec<u32>,
+}
+
+/// Tile coordinates → tile slot: a dense array over the tiles' bounding box when that has at
+/// most `DENSE_DIRECTORY` entries (one read per query), else an open-addressing hash (a map
+/// in far-apart parts).
+enum Directory {
+    /// every tile of the box [tx0, tx0 + w) × [ty0, ty0 + h) exists, in row-major slots
+    Full {
+        tx0: u64,
+        ty0: u64,
+        w: u64,
+        h: u64,
+    },
+    Dense {
+        w: u64,
+        h: u64,
+        slots: Vec<u32>,
+    },
+    /// (tile key, slot), slot NONE marks an empty entry; `shift` = 64 − log2(len)
+    Hash {
+        table: Vec<(u64, u32)>,
+        shift: u32,
+    },
+}
+
+impl Directory {
+    /// The directory of `keys` (sorted row-major); `full` when they are the whole box.
+    fn new(keys: &[u64], full: Option<[u64; 4]>) -> Self {
+        if let Some([tx0, ty0, w, h]) = full {
+            return Directory::Full { tx0, ty0, w, h };
+        }
+        let w = keys.iter().map(|&t| t & 0xFFFF_FFFF).max().unwrap_or(0) + 1;
+        let h = keys.last().map_or(0, |&t| t >> 32) + 1;
+        if w.saturating_mul(h) <= DENSE_DIRECTORY {
+            let mut slots = vec![NONE; (w * h) as usize];
+            for (slot, &t) in keys.iter().enumerate() {
+                slots[((t >> 32) * w + (t & 0xFFFF_FFFF)) as usize] = slot as u32;
+            }
+            return Directory::Dense { w, h, slots };
+        }
+        let cap = (2 * keys.len()).next_power_of_two().max(2);
+        let shift = 64 - cap.trailing_zeros();
+        let mut table = vec![(0u64, NONE); cap];
+        for (slot, &t) in keys.iter().enumerate() {
+            let mut i = hash_slot(t, shift);
+            while table[i].1 != NONE {
+                i = (i + 1) & (cap - 1);
+            }
+            table[i] = (t, slot as u32);
+        }
+        Directory::Hash { table, shift }
+    }
+
+    #[inline(always)]
+    fn get(&self, tx: u64, ty: u64) -> Option<usize> {
+        match self {
+            Directory::Full { tx0, ty0, w, h } => {
+                let (x, y) = (tx.wrapping_sub(*tx0), ty.wrapping_sub(*ty0));
+                (x < *w && y < *h).then_some((y * w + x) as usize)
+            }
+            Directory::Dense { w, h, slots } => {
+                if tx < *w && ty < *h {
+                    let s = slots[(ty * w + tx) as usize];
+                    (s != NONE).then_some(s as usize)
+                } else {
+                    None
+                }
+            }
+            Directory::Hash { table, shift } => {
+                let t = key(tx, ty);
+                let mask = table.len() - 1;
+                let mut i = hash_slot(t, *shift);
+                loop {
+                    let (k, s) = table[i];
+                    if s == NONE {
+                        return None;
+                    }
+                    if k == t {
+                        return Some(s as usize);
+                    }
+                    i = (i + 1) & mask;
+                }
+            }
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        match self {
+            Directory::Full { .. } => 0,
+            Directory::Dense { slots, .. } => slots.len() * std::mem::size_of::<u32>(),
+            Directory::Hash { table, .. } => table.len() * std::mem::size_of::<(u64, u32)>(),
+        }
+    }
+}
+
+/// Tile key: row in the high 32 bits, so sorting keys sorts tiles row-major.
+#[inline(always)]
+fn key(tx: u64, ty: u64) -> u64 {
+    (ty << 32) | tx
+}
+
+#[inline(always)]
+fn hash_slot(k: u64, shift: u32) -> usize {
+    (k.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> shift) as usize
+}
+
+impl ClosestGrid {
+    /// Build the grid of cell size `res` over `points` (finite, |coordinate| bounded by the
+    /// caller), covering every query within `reach` of a point, within `max_cells` cells.
+    pub(super) fn build(
+        points: &[[f64; 2]],
+        bounds: [f64; 4],
+        res: f64,
+        reach: f64,
+        max_cells: usize,
+    ) -> Result<Self, Unbuilt> {
+        let max_tiles = max_cells / TILE_CELLS;
+        let tile_w = TILE as f64 * res;
+        // every query within `margin` (per axis) of a point falls in a tile at most `k`
+        // tiles from the point's own
+        let margin = reach + 2.0 * res;
+        let kf = (margin / tile_w).ceil().max(1.0);
+        let per_point = (2.0 * kf + 1.0).powi(2);
+        if !(per_point <= max_tiles as f64) {
+            return Err(Unbuilt::TooManyCells {
+                needed: (per_point * TILE_CELLS as f64).min(usize::MAX as f64) as usize,
+                max_cells,
+            });
+        }
+        let k = kf as u64;
+        let span = (bounds[2] - bounds[0]).max(bounds[3] - bounds[1]);
+        let q = bounds.map(|b| b / res);
+        if !q.iter().all(|v| v.abs() < MAX_CELL_QUOTIENT) {
+            return Err(Unbuilt::TooWide { span });
+        }
+        let tile = TILE as i64;
+        let pad = (k as i64 + 1) * tile;
+        let bx = (floor_i64(q[0]).div_euclid(tile)) * tile - pad;
+        let by = (floor_i64(q[1]).div_euclid(tile)) * tile - pad;
+        if !((floor_i64(q[2]) - bx + pad) < MAX_CELL_COORD as i64
+            && (floor_i64(q[3]) - by + pad) < MAX_CELL_COORD as i64)
+        {
+            return Err(Unbuilt::TooWide { span });
+        }
+        let cell_of = |p: [f64; 2]| -> (u64, u64) {
+            (
+                (floor_i64(p[0] / res) - bx) as u64,
+                (floor_i64(p[1] / res) - by) as u64,
+            )
+        };
+
+        // the tiles holding points, then every tile within k of those
+        let mut own: HashSet<u64> = HashSet::new();
+        let mut last = u64::MAX;
+        for p in points {
+            let (gx, gy) = cell_of(*p);
+            let t = key(gx >> TILE_SHIFT, gy >> TILE_SHIFT);
+            if t != last && own.insert(t) && own.len() > max_tiles {
+                return Err(Unbuilt::TooManyCells {
+                    needed: own.len() * TILE_CELLS,
+                    max_cells,
+                });
+            }
+            last = t;
+        }
+        // own.len() ≤ max_tiles and (2k + 1)² ≤ max_tiles were checked: this stays small
+        let mut keys: Vec<u64> = Vec::with_capacity(own.len() * (2 * k as usize + 1).pow(2));
+        for &t in &own {
+            let (tx, ty) = (t & 0xFFFF_FFFF, t >> 32);
+            for dy in 0..=2 * k {
+                for dx in 0..=2 * k {
+                    keys.push(key(tx + dx - k, ty + dy - k));
+                }
+            }
+        }
+        drop(own);
+        keys.sort_unstable();
+        keys.dedup();
+        if keys.len() > max_tiles {
+            return Err(Unbuilt::TooManyCells {
+                needed: keys.len() * TILE_CELLS,
+                max_cells,
+            });
+        }
+        // fill gaps of up to GAP_FILL tiles along rows and columns: the free space inside a
+        // building is covered (queries there stay O(1); the tree is slow far from dense
+        // walls), far-apart parts stay apart
+        for transpose in [false, true] {
+            let flip = |t: u64| t.rotate_right(32);
+            let mut line: Vec<u64> = if transpose {
+                keys.iter().map(|&t| flip(t)).collect()
+            } else {
+                keys.clone()
+            };
+            line.sort_unstable();
+            let mut extra = Vec::new();
+            for w in line.windows(2) {
+                let gap = w[1].wrapping_sub(w[0]);
+                if w[0] >> 32 == w[1] >> 32 && gap > 1 && gap <= GAP_FILL + 1 {
+                    extra.extend((w[0] + 1..w[1]).map(|t| if transpose { flip(t) } else { t }));
+                }
+            }
+            keys.extend(extra);
+            if keys.len() > max_tiles {
+                return Err(Unbuilt::TooManyCells {
+                    needed: keys.len() * TILE_CELLS,
+                    max_cells,
+                });
+            }
+        }
+        keys.sort_unstable();
+        keys.dedup();
+        // when the tiles cover at least half of their bounding box, take the whole box: a
+        // query then finds its tile by arithmetic, as in a plain grid (at most 2× the cells)
+        let (tx0, tx1) = keys.iter().fold((u64::MAX, 0), |(a, b), &t| {
+            (a.min(t & 0xFFFF_FFFF), b.max(t & 0xFFFF_FFFF))
+        });
+        let (ty0, ty1) = (keys[0] >> 32, keys[keys.len() - 1] >> 32);
+        let (w, h) = (tx1 - tx0 + 1, ty1 - ty0 + 1);
+        let full = (w.saturating_mul(h) <= max_tiles as u64 && w * h <= 2 * keys.len() as u64)
+            .then_some([tx0, ty0, w, h]);
+        if full.is_some() {
+            keys = (ty0..=ty1)
+                .flat_map(|ty| (tx0..=tx1).map(move |tx| key(tx, ty)))
+                .collect();
+        }
+
+        let mut grid = Self {
+            bx,
+            by,
+            res,
+            inv_res: 1.0 / res,
+            dir: Directory::new(&keys, full),
+            full: None,
+            cells: vec![NONE; keys.len() * TILE_CELLS],
+        };
+        grid.fill(points, &keys);
+        if let Some([tx0, ty0, w, h]) = full {
+            // tile-major → row-major over the box
+            let (cw, ch) = (w as usize * TILE, h as usize * TILE);
+            let mut rm = vec![NONE; cw * ch];
+            for (s, tile) in grid.cells.chunks_exact(TILE_CELLS).enumerate() {
+                let (sx, sy) = (s % w as usize, s / w as usize);
+                for ly in 0..TILE {
+                    let dst = (sy * TILE + ly) * cw + sx * TILE;
+                    rm[dst..dst + TILE].copy_from_slice(&tile[ly * TILE..(ly + 1) * TILE]);
+                }
+            }
+            grid.cells = rm;
+            grid.full = Some([tx0 * TILE as u64, ty0 * TILE as u64, cw as u64, ch as u64]);
+        }
+        Ok(grid)
+    }
+
+    #[inline(always)]
+    fn slot_of(&self, t: u64) -> Option<usize> {
+        self.dir.get(t & 0xFFFF_FFFF, t >> 32)
+    }
+
+    /// The cell's map index for query `q`, if `q` falls in a filled cell.
+    #[inline(always)]
+    pub(super) fn lookup(&self, q: [f64; 2]) -> Option<usize> {
+        // x − bx (bx an integer below 2⁵³) is exact or rounded only right at a cell border
+        // (harmless: the neighbouring cell), so its truncation is ⌊x⌋ − bx
+        let fx = q[0] * self.inv_res - self.bx as f64;
+        let fy = q[1] * self.inv_res - self.by as f64;
+        // also false for NaN
+        if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD as f64 && fy < MAX_CELL_COORD as f64) {
+            return None;
+        }
+        let (gx, gy) = (fx as u64, fy as u64);
+        if let Some([x0, y0, w, h]) = self.full {
+            let (x, y) = (gx.wrapping_sub(x0), gy.wrapping_sub(y0));
+            if !(x < w && y < h) {
+                return None;
+            }
+            let j = self.cells[(y * w + x) as usize];
+            return (j != NONE).then_some(j as usize);
+        }
+        let s = self.slot_of(key(gx >> TILE_SHIFT, gy >> TILE_SHIFT))?;
+        let lx = (gx as usize) & (TILE - 1);
+        let ly = (gy as usize) & (TILE - 1);
+        let j = self.cells[s * TILE_CELLS + (ly << TILE_SHIFT) + lx];
+        (j != NONE).then_some(j as usize)
+    }
+
+    pub(super) fn resolution(&self) -> f64 {
+        self.res
+    }
+
+    /// The cell (lx, ly) of tile slot `s`, whichever the layout.
+    #[cfg(test)]
+    fn cell(&self, s: usize, lx: usize, ly: usize) -> u32 {
+        match self.full {
+            Some([_, _, w, _]) => {
+                let tw = w as usize / TILE;
+                let (sx, sy) = (s % tw, s / tw);
+                self.cells[(sy * TILE + ly) * w as usize + sx * TILE + lx]
+            }
+            None => self.cells[s * TILE_CELLS + ly * TILE + lx],
+        }
+    }
+
+    /// The tile keys in slot order.
+    #[cfg(test)]
+    fn keys(&self) -> Vec<u64> {
+        let mut k = Vec::new();
+        let t = self.tiles();
+        // slots are dense 0..t: find each slot's key by scanning the directory
+        match &self.dir {
+            Directory::Full { tx0, ty0, w, h } => {
+                for y in 0..*h {
+                    for x in 0..*w {
+                        k.push(key(tx0 + x, ty0 + y));
+                    }
+                }
+            }
+            Directory::Dense { w, slots, .. } => {
+                k.resize(t, 0);
+                for (i, &s) in slots.iter().enumerate() {
+                    if s != NONE {
+                        k[s as usize] = key(i as u64 % w, i as u64 / w);
+                    }
+                }
+            }
+            Directory::Hash { table, .. } => {
+                k.resize(t, 0);
+                for &(kk, s) in table {
+                    if s != NONE {
+                        k[s as usize] = kk;
+                    }
+                }
+            }
+        }
+        k
+    }
+
+    /// Number of tiles.
+    pub(super) fn tiles(&self) -> usize {
+        self.cells.len() / TILE_CELLS
+    }
+
+    /// Heap bytes held (cells and hash table).
+    pub(super) fn bytes(&self) -> usize {
+        self.cells.len() * std::mem::size_of::<u32>() + self.dir.bytes()
+    }
+
+    /// Seed and propagate. `keys` are the tile keys in slot order (sorted row-major).
+    // the slot index addresses cells and neighbours, not only `origin`
+    #[allow(clippy::needless_range_loop)]
+    fn fill(&mut self, points: &[[f64; 2]], keys: &[u64]) {
+        let nt = keys.len();
+        // neighbour slots of every tile: index (dy + 1) * 3 + (dx + 1), 4 = itself
+        let mut nbr = vec![[NONE; 9]; nt];
+        for (s, &t) in keys.iter().enumerate() {
+            let (tx, ty) = (t & 0xFFFF_FFFF, t >> 32);
+            for dy in 0..3u64 {
+                for dx in 0..3u64 {
+                    // tiles at coordinate 0 have no lower neighbours (padding keeps points away)
+                    if (tx == 0 && dx == 0) || (ty == 0 && dy == 0) {
+                        continue;
+                    }
+                    if let Some(n) = self.slot_of(key(tx + dx - 1, ty + dy - 1)) {
+                        nbr[s][(dy * 3 + dx) as usize] = n as u32;
+                    }
+                }
+            }
+        }
+        let (bx, by, res) = (self.bx, self.by, self.res);
+        let centre = |s: usize, lx: usize, ly: usize| -> [f64; 2] {
+            let t = keys[s];
+            let gx = (((t & 0xFFFF_FFFF) as usize) << TILE_SHIFT) + lx;
+            let gy = (((t >> 32) as usize) << TILE_SHIFT) + ly;
+            [
+                ((gx as i64 + bx) as f64 + 0.5) * res,
+                ((gy as i64 + by) as f64 + 0.5) * res,
+            ]
+        };
+        // flat index of the cell (lx + dx, ly + dy) of tile s, through the neighbour table
+        let at = |s: usize, lx: usize, ly: usize, dx: isize, dy: isize| -> Option<usize> {
+            let nx = lx as isize + dx;
+            let ny = ly as isize + dy;
+            let (tdx, cx) = if nx < 0 {
+                (0, TILE - 1)
+            } else if nx >= TILE as isize {
+                (2, 0)
+            } else {
+                (1, nx as usize)
+            };
+            let (tdy, cy) = if ny < 0 {
+                (0, TILE - 1)
+            } else if ny >= TILE as isize {
+                (2, 0)
+            } else {
+                (1, ny as usize)
+            };
+            let n = if tdx == 1 && tdy == 1 {
+                s
+            } else {
+                let n = nbr[s][tdy * 3 + tdx];
+                if n == NONE {
+                    return None;
+                }
+                n as usize
+            };
+            Some(n * TILE_CELLS + (cy << TILE_SHIFT) + cx)
+        };
+        let cells = &mut self.cells;
+        let mut best = vec![f64::INFINITY; cells.len()];
+
+        // centre of cell (0, 0) of every tile
+        let origin: Vec<[f64; 2]> = (0..nt).map(|s| centre(s, 0, 0)).collect();
+        // seeds: every point is tried exactly on the 3 × 3 cells around its own
+        let mut last = (u64::MAX, 0usize);
+        for (j, p) in points.iter().enumerate() {
+            let gx = (floor_i64(p[0] / res) - bx) as u64;
+            let gy = (floor_i64(p[1] / res) - by) as u64;
+            let t = key(gx >> TILE_SHIFT, gy >> TILE_SHIFT);
+            let s = if t == last.0 {
+                last.1
+            } else {
+                // every point's own tile exists (it was inserted above)
+                let Some(s) = self.dir.get(t & 0xFFFF_FFFF, t >> 32) else {
+                    continue;
+                };
+                last = (t, s);
+                s
+            };
+            let lx = (gx as usize) & (TILE - 1);
+            let ly = (gy as usize) & (TILE - 1);
+            if lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE {
+                let [ox, oy] = origin[s];
+                for dy in 0..3 {
+                    let cy = oy + (ly + dy - 1) as f64 * res;
+                    let row = s * TILE_CELLS + ((ly + dy - 1) << TILE_SHIFT);
+                    for dx in 0..3 {
+                        let c = row + lx + dx - 1;
+                        let cx = ox + (lx + dx - 1) as f64 * res;
+                        let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
+                        if d < best[c] {
+                            best[c] = d;
+                            cells[c] = j as u32;
+                        }
+                    }
+                }
+                continue;
+            }
+            for dy in -1..=1isize {
+                for dx in -1..=1isize {
+                    if let Some(c) = at(s, lx, ly, dx, dy) {
+                        let (cs, cl) = (c / TILE_CELLS, c % TILE_CELLS);
+                        let [ox, oy] = origin[cs];
+                        let q = [
+                            ox + (cl & (TILE - 1)) as f64 * res,
+                            oy + (cl >> TILE_SHIFT) as f64 * res,
+                        ];
+                        let d = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+                        if d < best[c] {
+                            best[c] = d;
+                            cells[c] = j as u32;
+                        }
+                    }
+                }
+            }
+        }
+
+        // propagate: each cell takes a neighbour's seed when that seed is closer
+        let mut relax = |c: usize, n: Option<usize>, q: [f64; 2]| {
+            let Some(n) = n else { return };
+            let s = cells[n];
+            if s == NONE || s == cells[c] {
+                return;
+            }
+            let p = points[s as usize];
+            let d = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+            if d < best[c] {
+                best[c] = d;
+                cells[c] = s;
+            }
+        };
+        // tile rows: runs of slots sharing a row coordinate
+        let mut rows: Vec<(usize, usize)> = Vec::new();
+        let mut a = 0;
+        for s in 1..=nt {
+            if s == nt || keys[s] >> 32 != keys[a] >> 32 {
+                rows.push((a, s));
+                a = s;
+            }
+        }
+        let inner = |lx: usize, ly: usize| lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE;
+        const T: usize = TILE;
+        // forward: rows upwards; left to right from the row below, then right to left
+        for &(a, b) in &rows {
+            for ly in 0..TILE {
+                for s in a..b {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                    for lx in 0..TILE {
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        if inner(lx, ly) {
+                            relax(c, Some(c - 1), q);
+                            relax(c, Some(c - T - 1), q);
+                            relax(c, Some(c - T), q);
+                            relax(c, Some(c - T + 1), q);
+                        } else {
+                            relax(c, at(s, lx, ly, -1, 0), q);
+                            relax(c, at(s, lx, ly, -1, -1), q);
+                            relax(c, at(s, lx, ly, 0, -1), q);
+                            relax(c, at(s, lx, ly, 1, -1), q);
+                        }
+                    }
+                }
+                for s in (a..b).rev() {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                    for lx in (0..TILE).rev() {
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        let n = if lx + 1 < TILE {
+                            Some(c + 1)
+                        } else {
+                            at(s, lx, ly, 1, 0)
+                        };
+                        relax(c, n, q);
+                    }
+                }
+            }
+        }
+        // backward: rows downwards; right to left from the row above, then left to right
+        for &(a, b) in rows.iter().rev() {
+            for ly in (0..TILE).rev() {
+                for s in (a..b).rev() {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                    for lx in (0..TILE).rev() {
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        if inner(lx, ly) {
+                            relax(c, Some(c + 1), q);
+                            relax(c, Some(c + T + 1), q);
+                            relax(c, Some(c + T), q);
+                            relax(c, Some(c + T - 1), q);
+                        } else {
+                            relax(c, at(s, lx, ly, 1, 0), q);
+                            relax(c, at(s, lx, ly, 1, 1), q);
+                            relax(c, at(s, lx, ly, 0, 1), q);
+                            relax(c, at(s, lx, ly, -1, 1), q);
+                        }
+                    }
+                }
+                for s in a..b {
+                    let [ox, oy] = origin[s];
+                    let cy = oy + ly as f64 * res;
+                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                    for lx in 0..TILE {
+                        let c = row + lx;
+                        let q = [ox + lx as f64 * res, cy];
+                        let n = if lx > 0 {
+                            Some(c - 1)
+                        } else {
+                            at(s, lx, ly, -1, 0)
+                        };
+                        relax(c, n, q);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn bounds(points: &[[f64; 2]]) -> [f64; 4] {
+        points.iter().fold(
+            [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            |b, p| {
+                [
+                    b[0].min(p[0]),
+                    b[1].min(p[1]),
+                    b[2].max(p[0]),
+                    b[3].max(p[1]),
+                ]
+            },
+        )
+    }
+
+    fn brute(points: &[[f64; 2]], q: [f64; 2]) -> f64 {
+        points
+            .iter()
+            .map(|p| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// Every filled cell whose nearest point is within reach holds a point at most
+    /// CELL_ERROR·res farther from its centre than the brute-force nearest one (and most
+    /// hold exactly that one). Returns (cells checked, cells holding exactly the nearest).
+    fn check_cells(points: &[[f64; 2]], res: f64, reach: f64) -> (usize, usize) {
+        let g = ClosestGrid::build(points, bounds(points), res, reach, 1 << 22).unwrap();
+        let keys = g.keys();
+        let (mut checked, mut exact_cells) = (0, 0);
+        for (s, &t) in keys.iter().enumerate() {
+            for ly in 0..TILE {
+                for lx in 0..TILE {
+                    let gx = (((t & 0xFFFF_FFFF) as usize) << TILE_SHIFT) + lx;
+                    let gy = (((t >> 32) as usize) << TILE_SHIFT) + ly;
+                    let c = [
+                        ((gx as i64 + g.bx) as f64 + 0.5) * res,
+                        ((gy as i64 + g.by) as f64 + 0.5) * res,
+                    ];
+                    let exact = brute(points, c);
+                    if exact > reach * reach {
+                        continue;
+                    }
+                    let j = g.cell(s, lx, ly);
+                    assert_ne!(j, NONE, "cell {gx},{gy} within reach has no point");
+                    let p = points[j as usize];
+                    let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
+                    assert!(
+                        d.sqrt() <= exact.sqrt() + CELL_ERROR * res,
+                        "cell centre {c:?}: holds a point at {} m, nearest is {} m",
+                        d.sqrt(),
+                        exact.sqrt()
+                    );
+                    checked += 1;
+                    exact_cells += usize::from(d <= exact);
+                }
+            }
+        }
+        (checked, exact_cells)
+    }
+
+    #[test]
+    fn cells_hold_the_exact_closest_point_of_their_centre() {
+        let mut rng = crate::testkit::Rng::new(11);
+        // random points and a few walls, with a point 5 km away
+        let mut pts: Vec<[f64; 2]> = (0..300)
+            .map(|_| [rng.range(0.0, 6.0), rng.range(0.0, 4.0)])
+            .collect();
+        for i in 0..200 {
+            let t = i as f64 * 0.03;
+            pts.push([t, 1.7]);
+            pts.push([2.2, t * 0.7]);
+        }
+        pts.push([5000.0, 3.0]);
+        let (checked, exact) = check_cells(&pts, 0.05, 1.0);
+        assert!(checked > 10_000);
+        assert!(exact as f64 > 0.99 * checked as f64, "{exact} of {checked}");
+    }
+
+    #[test]
+    fn far_apart_points_cost_tiles_not_resolution() {
+        let near: Vec<[f64; 2]> = (0..100).map(|i| [i as f64 * 0.1, 0.0]).collect();
+        let alone = ClosestGrid::build(&near, bounds(&near), 0.02, 2.0, 1 << 23).unwrap();
+        let mut far = near.clone();
+        far.push([5000.0, 5000.0]);
+        let both = ClosestGrid::build(&far, bounds(&far), 0.02, 2.0, 1 << 23).unwrap();
+        assert_eq!(both.resolution(), 0.02);
+        // the far point adds at most one (2k+1)² block of tiles: k = ceil(2.04 / 0.64) = 4
+        assert!(
+            both.tiles() <= alone.tiles() + 81,
+            "{} vs {}",
+            both.tiles(),
+            alone.tiles()
+        );
+    }
+
+    #[test]
+    fn too_many_cells_is_refused_not_coarsened() {
+        // the tiles around one point at 0.1 mm already exceed the bound
+        let e = ClosestGrid::build(&[[0.0, 0.0]], [0.0; 4], 1e-4, 2.0, 1 << 23)
+            .err()
+            .unwrap();
+        assert!(matches!(e, Unbuilt::TooManyCells { .. }));
+        // points scattered over 10 km: 81 tiles each
+        let mut rng = crate::testkit::Rng::new(3);
+        let pts: Vec<[f64; 2]> = (0..3000)
+            .map(|_| [rng.range(0.0, 1e4), rng.range(0.0, 1e4)])
+            .collect();
+        let e = ClosestGrid::build(&pts, bounds(&pts), 0.02, 2.0, 1 << 23)
+            .err()
+            .unwrap();
+        assert!(matches!(e, Unbuilt::TooManyCells { .. }), "{e}");
+        // a span the cell coordinates cannot address
+        let wide = [[-1e9, 0.0], [1e9, 0.0]];
+        let e = ClosestGrid::build(&wide, bounds(&wide), 0.02, 2.0, 1 << 23)
+            .err()
+            .unwrap();
+        assert_eq!(e, Unbuilt::TooWide { span: 2e9 });
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, .. ProptestConfig::default() })]
+
+        /// Cells hold the closest point (to the tolerance) for random clusters and walls,
+        /// at any offset, including single points, identical points and collinear ones.
+        #[test]
+        fn prop_cells_within_tolerance(seed in 0u64..10_000, n in 1usize..60, spread in 0.0f64..3.0,
+                            kind in 0usize..4,
+                            offset in prop_oneof![Just(0.0), Just(-7.3e3), Just(1e6), Just(-3e8)],
+                            res in prop_oneof![Just(0.02), Just(0.05), Just(0.13)]) {
+            let mut rng = crate::testkit::Rng::new(seed);
+            let base = [offset, offset * 0.5];
+            let pts: Vec<[f64; 2]> = match kind {
+                // a cluster
+                0 => (0..n).map(|_| [base[0] + rng.range(0.0, spread), base[1] + rng.range(0.0, spread)]).collect(),
+                // all points identical
+                1 => vec![[base[0] + spread, base[1]]; n],
+                // collinear, random direction
+                2 => {
+                    let a = rng.range(0.0, std::f64::consts::PI);
+                    (0..n).map(|_| { let t = rng.range(0.0, spread); [base[0] + t * a.cos(), base[1] + t * a.sin()] }).collect()
+                }
+                // walls: three random segments sampled at 3 cm
+                _ => (0..3).flat_map(|_| {
+                    let (x, y) = (base[0] + rng.range(0.0, spread), base[1] + rng.range(0.0, spread));
+                    let (u, v) = (base[0] + rng.range(0.0, spread), base[1] + rng.range(0.0, spread));
+                    let m = (((u - x).hypot(v - y) / 0.03) as usize).max(1);
+                    (0..=m).map(move |i| { let t = i as f64 / m as f64; [x + t * (u - x), y + t * (v - y)] })
+                }).collect(),
+            };
+            prop_assert!(check_cells(&pts, res, 0.6).0 > 0);
+        }
+    }
+}
