@@ -587,7 +587,13 @@ fn align_unchecked(
         return plain;
     };
     let mut best = plain.clone();
-    let mut best_score = if plain.converged { fit.score } else { -1.0 };
+    // the plain fit competes on its fit like the window's refinements (an iteration limit
+    // reached is still a pose); only one without enough inliers is out
+    let mut best_score = if plain.termination == Termination::TooFewInliers {
+        -1.0
+    } else {
+        fit.score
+    };
     let mut from_window = false;
     // rank the coarse seeds by how well they explain the scan (see-through included: the
     // pyramid's likelihood alone cannot tell a pose whose beams pass through walls), with
