@@ -131,3 +131,34 @@ def test_module_cli_prints_summaries(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert "missing.log" in err
     assert main(["--strict", str(bad)]) == 1
     assert "bad.log:1: FLASER: truncated" in capsys.readouterr().err
+
+
+def test_recorded_odometry_offset_re_anchors_a_power_cycled_base(tmp_path: Path) -> None:
+    """The PowerBot driver re-anchors a controller that restarted its odometry at 0, 0, 0
+    and records the offset as a META right after the SIP that revealed it: the replay
+    applies it from that SIP on, so the odometry does not jump back to the origin."""
+    from icploc.drivers import arcos_protocol as ap
+    from icploc.drivers.recording import Recorder
+
+    def sip(x_mm: int) -> bytes:
+        return ap.build_sip(ap.RawSip(type=0x33, xpos=x_mm, ypos=0, thpos=0, lvel=0, rvel=0,
+                                      battery=120, stall_bumpers=0, control=0, flags=0, compass=0,
+                                      sonar=(), grip_state=0, anport=0, analog=0, digin=0,
+                                      digout=0))  # fmt: skip
+
+    p = tmp_path / "cycled.icpraw"
+    with Recorder(p) as rec:
+        dev = rec.device("powerbot", {"driver": "powerbot", "subtype": "p3dx"}, 0.0)
+        for k in range(3):  # 0, 100, 200 mm
+            rec.rx(dev, 1.0 + 0.1 * k, sip(100 * k))
+        rec.rx(dev, 1.3, sip(0))  # power-cycled: the controller starts again at 0
+        rec.flush()
+        plain = [o.pose[0] for o in open_log(p).odometry]  # 0, d, 2d, then back to 0: a jump
+        step = plain[1]
+        # what the driver recorded: the last pose before the cycle
+        rec.meta(dev, 1.3, {"odometry_offset": [plain[2], 0.0, 0.0]})
+        rec.rx(dev, 1.4, sip(100))
+    xs = [o.pose[0] for o in open_log(p).odometry]
+    assert step > 0.0
+    assert plain == pytest.approx([0.0, step, 2 * step, 0.0], abs=1e-9)
+    assert xs == pytest.approx([0.0, step, 2 * step, 2 * step, 3 * step], abs=1e-9)

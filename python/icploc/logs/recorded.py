@@ -9,6 +9,7 @@ objects, merged in time order.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import os
 from collections.abc import Iterator
@@ -23,6 +24,7 @@ from icploc.drivers.recording import (
     is_recording,
     iter_records,
 )
+from icploc.se2 import compose
 from icploc.types import Odometry, Scan
 
 __all__ = ["RecordingFormatError", "is_recorded", "read_recorded"]
@@ -75,6 +77,18 @@ def _powerbot_stream(
     parser = ap.PacketParser(byte_time=10.0 / float(meta.get("baudrate", 9600)))
     decoder = ap.SipDecoder(ap.POWERBOT)
     forced = False
+    # the driver re-anchors a power-cycled controller's odometry (it restarts at 0, 0, 0) by
+    # a rigid offset and records it as a META right after the SIP that revealed it: that SIP
+    # and every later one are re-anchored the same way here (one SIP is held back for it)
+    offset: tuple[float, float, float] | None = None
+    held: Any = None
+
+    def anchored(sip: Any) -> Odometry:
+        odo = sip.to_odometry()
+        if offset is None:
+            return odo  # type: ignore[no-any-return]
+        return dataclasses.replace(odo, pose=compose(offset, odo.pose))
+
     for rec in iter_records(path):
         if rec.device != dev:
             continue
@@ -85,6 +99,9 @@ def _powerbot_stream(
             if "subtype" in m:
                 decoder.set_params(ap.params_for(str(m["subtype"])))
                 forced = True
+            if "odometry_offset" in m:
+                o = m["odometry_offset"]
+                offset = (float(o[0]), float(o[1]), float(o[2]))
             continue
         if rec.kind != KIND_RX:
             continue
@@ -97,7 +114,11 @@ def _powerbot_stream(
                 continue
             sip = decoder.decode(pkt)
             if sip is not None:
-                yield sip.to_odometry()
+                if held is not None:
+                    yield anchored(held)
+                held = sip
+    if held is not None:
+        yield anchored(held)
 
 
 def read_recorded(path: str | os.PathLike[str]) -> Iterator[Scan | Odometry]:
