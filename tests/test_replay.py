@@ -284,3 +284,13 @@ def test_plot_equal_to_a_png_map_image_is_refused_and_the_image_kept(
 def test_strict_replay_of_a_clean_log_keeps_every_scan(fmt: str, sim_run: dict) -> None:
     res = replay(_write(fmt, sim_run), sim_run["map"], truth=sim_run["truth"], strict=True)
     assert res.scans == len(sim_run["scans"])
+
+
+def test_summary_reports_the_learned_odometry_calibration(sim_run: dict) -> None:
+    res = replay(_write("carmen", sim_run), sim_run["map"], truth=sim_run["truth"])
+    s, t, d = res.estimates[-1].calibration
+    line = next(x for x in res.summary().splitlines() if x.startswith("odometry calibration"))
+    assert line == (
+        f"odometry calibration (learned): distance x{s:.4f}, turns x{t:.4f}, "
+        f"heading drift {math.degrees(d):+.2f} deg/m"
+    )

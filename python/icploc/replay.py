@@ -101,6 +101,13 @@ class ReplayResult:
             parts.extend("log: " + d.strip() for d in self.log_info.damage_lines())
         if self.dropped_stamps:
             parts.append(f"log: dropped {self.dropped_stamps} message(s) with a non-finite stamp")
+        cal = getattr(self.estimates[-1], "calibration", None) if self.estimates else None
+        if cal is not None:
+            s_, t_, d_ = cal
+            parts.append(
+                f"odometry calibration (learned): distance x{s_:.4f}, turns x{t_:.4f}, "
+                f"heading drift {math.degrees(d_):+.2f} deg/m"
+            )
         if self.metrics:
             parts.append(
                 "vs truth: "
