@@ -429,10 +429,21 @@ def plot_replay(
         ax.plot(odo[:, 0], odo[:, 1], color="tab:red", lw=0.8, label="odometry")
     if truth is not None:
         ax.plot(truth[1][:, 0], truth[1][:, 1], color="0.5", ls="--", lw=0.8, label="truth")
-    ax.plot(P[:, 0], P[:, 1], color="tab:blue", lw=1.0, label="localized")
-    lost = np.array([e.status.value == "lost" for e in ests])
+    # lost stretches are drawn as such (the dead-reckoned pose, dotted), never as part of
+    # the localized line
+    lost = np.array([e.status.value == "lost" for e in ests], dtype=bool)
+    ok_xy = P[:, :2].astype(float, copy=True)
+    ok_xy[lost] = np.nan
+    ax.plot(ok_xy[:, 0], ok_xy[:, 1], color="tab:blue", lw=1.0, label="localized")
     if lost.any():
-        ax.plot(P[lost, 0], P[lost, 1], ".", color="tab:orange", ms=2, label="lost")
+        lost_xy = P[:, :2].astype(float, copy=True)
+        keep = lost.copy()
+        keep[1:] |= lost[:-1]  # join each lost stretch to the scan before it
+        lost_xy[~keep] = np.nan
+        ax.plot(lost_xy[:, 0], lost_xy[:, 1], ":", color="tab:orange", lw=1.0,
+                label=f"lost, dead-reckoned ({int(lost.sum())} scans)")  # fmt: skip
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
     ax.legend(loc="best", fontsize=8)
     ax.set_title(Path(res.log).name)
