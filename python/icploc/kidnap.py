@@ -1,0 +1,104 @@
+"""Kidnap detection while tracking: a cheap per-scan trigger and a throttled global check.
+
+A robot carried somewhere else (a kidnapping, a bad restart, a wrong lock) usually makes
+the scan contradict the pose, and the localizer's lost detector sees it. But a place that
+looks a little like the true one (the same corridor further on, the next office) can keep
+fitting half well and pass verification. No global search runs on every tracking scan
+(real replays must stay fast); instead :class:`KidnapTrigger` watches what the localizer
+computes anyway and asks for one global check (one search over the whole map, on the
+worker thread with ``localizer.lost_check: background``) when
+
+* the verification's hit share stays below ``doubt`` x this run's usual share (the
+  median of its recent ordinary scans) for ``doubt_scans`` scans in a row;
+* the fit contradicted the odometry (the scans were taken against the prediction with a
+  chi-square statistic beyond the rejection quantile: a jump the odometry cannot have made);
+* the localizer has just locked after being lost (a stricter check of the lock).
+
+The check is :meth:`icploc.relocalize.GlobalRelocalization.check_pose` (any recovery with a
+``check_pose`` method): does a distinct pose elsewhere explain the scan much better than
+the tracked one? A check that finds nothing backs the trigger off (quiet for
+``doubt_scans`` x 2^k scans, at most ``backoff_max``); a tracked pose that explains the scan
+as well as anything re-bases the usual share. What the localizer does with a verdict is its
+own business (:meth:`icploc.localizer.Localizer._kidnap_step`).
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+
+from icploc.se2 import Pose
+
+__all__ = ["CheckVerdict", "KidnapTrigger"]
+
+
+@dataclass(frozen=True)
+class CheckVerdict:
+    """A global check of a tracked pose.
+
+    ``verdict``: ``""`` (the tracked pose explains the scan as well as any), ``"unsure"`` (no
+    convincing pose anywhere: a crowd, an unmapped place) or ``"elsewhere"`` (``pose``, a
+    distinct place, explains it much better); ``here`` / ``best``: the scores of the tracked
+    pose and of the search's best pose."""
+
+    verdict: str
+    pose: Pose | None = None
+    here: float = 0.0
+    best: float = 0.0
+
+
+@dataclass
+class KidnapTrigger:
+    """When to run a global check while tracking (see the module docstring)."""
+
+    doubt: float = 0.9
+    doubt_scans: int = 5
+    history: int = 25
+    backoff_max: int = 64
+    _good: deque[float] = field(default_factory=deque)
+    _doubtful: int = 0
+    _quiet: int = 0
+    _backoffs: int = 0
+    _calm: int = 0
+
+    def reset(self) -> None:
+        """Forget the usual share (a new place: after a lock, a reset)."""
+        self._good.clear()
+        self._doubtful = 0
+        self._quiet = 0
+
+    def reference(self) -> float | None:
+        return statistics.median(self._good) if len(self._good) >= 3 else None
+
+    def observe(self, hit: float, accepted: bool) -> bool:
+        """One tracking scan's verification hit share; True: run a check now."""
+        ref = self.reference()
+        doubtful = (not accepted) or (ref is not None and hit < self.doubt * ref)
+        self._doubtful = self._doubtful + 1 if doubtful else 0
+        self._calm = 0 if doubtful else self._calm + 1
+        if self._calm >= self.history:
+            self._backoffs = 0
+        if not doubtful:
+            self._good.append(hit)
+            while len(self._good) > self.history:
+                self._good.popleft()
+        if self._quiet > 0:
+            self._quiet -= 1
+            return False
+        if self._doubtful >= self.doubt_scans:
+            self._doubtful = 0
+            return True
+        return False
+
+    def confirmed(self) -> None:
+        """The check found the tracked pose as good as any: its share is the new usual."""
+        self._good.clear()
+        self._doubtful = 0
+        self._quiet = self._backoffs = 0
+
+    def backoff(self) -> None:
+        """The check could not tell: keep quiet a while (longer each time)."""
+        self._doubtful = 0
+        self._quiet = min(self.backoff_max, self.doubt_scans * 2**self._backoffs)
+        self._backoffs += 1
