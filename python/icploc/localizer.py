@@ -87,8 +87,11 @@ class Estimate:
     #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
     #: the prediction's covariance inflated),
     #: contradicted (the fused pose explains far less of the scan than usual), unverified,
-    #: uncertain (covariance too wide to promise the pose), relocalized, or while lost the
-    #: recovery's state (searching, confirming, ambiguous)
+    #: uncertain (covariance too wide to promise the pose), relocalized, suspect (a kidnap
+    #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
+    #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
+    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
+    #: while lost the recovery's state (searching, confirming, ambiguous)
     reason: str = ""
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
@@ -831,8 +834,13 @@ class Localizer:
                     self._trigger.confirmed()
             else:
                 elsewhere = self._apply_verdict(v, odom)
-        if self._lock_unconfirmed and status is Status.TRACKING:
-            status, reason = Status.DEGRADED, "unconfirmed"
+        if status is Status.TRACKING and not elsewhere:
+            # not promised while a check is out or a better pose elsewhere awaits its
+            # re-check
+            if self._lock_unconfirmed:
+                status, reason = Status.DEGRADED, "unconfirmed"
+            elif self._elsewhere is not None or self._check_inflight is not None:
+                status, reason = Status.DEGRADED, "suspect"
         return status, reason, elsewhere
 
     def _apply_verdict(self, v: CheckVerdict, odom: Pose | None) -> bool:
