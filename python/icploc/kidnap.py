@@ -52,8 +52,11 @@ class CheckVerdict:
 class KidnapTrigger:
     """When to run a global check while tracking (see the module docstring)."""
 
-    doubt: float = 0.9
-    doubt_scans: int = 5
+    doubt: float = 0.8
+    doubt_scans: int = 8
+    #: a fit taken far against the odometry is checked when its hit share is below this
+    #: fraction of the map's usual (verified fits') share
+    doubt_jump: float = 0.9
     history: int = 25
     backoff_max: int = 64
     _good: deque[float] = field(default_factory=deque)
@@ -71,10 +74,11 @@ class KidnapTrigger:
     def reference(self) -> float | None:
         return statistics.median(self._good) if len(self._good) >= 3 else None
 
-    def observe(self, hit: float, accepted: bool) -> bool:
-        """One tracking scan's verification hit share; True: run a check now."""
+    def observe(self, hit: float, accepted: bool, jumped: bool = False) -> bool:
+        """One tracking scan: its verification hit share, whether its fit was accepted,
+        whether it was taken far against the odometry. True: run a check now."""
         ref = self.reference()
-        doubtful = (not accepted) or (ref is not None and hit < self.doubt * ref)
+        doubtful = jumped or (not accepted) or (ref is not None and hit < self.doubt * ref)
         self._doubtful = self._doubtful + 1 if doubtful else 0
         self._calm = 0 if doubtful else self._calm + 1
         if self._calm >= self.history:
@@ -86,16 +90,17 @@ class KidnapTrigger:
         if self._quiet > 0:
             self._quiet -= 1
             return False
-        if self._doubtful >= self.doubt_scans:
+        if jumped or self._doubtful >= self.doubt_scans:
             self._doubtful = 0
             return True
         return False
 
     def confirmed(self) -> None:
-        """The check found the tracked pose as good as any: its share is the new usual."""
+        """The check found the tracked pose as good as any: its share is the new usual
+        (and the trigger keeps quiet a while, as after an unsure check: a place the map
+        shows poorly keeps looking doubtful)."""
         self._good.clear()
-        self._doubtful = 0
-        self._quiet = self._backoffs = 0
+        self.backoff()
 
     def backoff(self) -> None:
         """The check could not tell: keep quiet a while (longer each time)."""

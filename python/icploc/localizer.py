@@ -714,8 +714,14 @@ class Localizer:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = "uncertain"
-        # the fit contradicted the odometry: taken against a prediction it is far beyond
-        jumped = accepted and reason == "odometry_off" and nis > self._chi2_reject
+        # the fit contradicted the odometry (taken against a prediction it is far beyond)
+        # and explains less of the scan than usual: a place that half fits the old pose
+        jumped = (
+            accepted
+            and reason == "odometry_off"
+            and nis > self._chi2_reject
+            and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
+        )
         status, reason, elsewhere = self._kidnap_step(
             pts, pose, odom, check.hit, accepted, jumped, status, reason
         )
@@ -816,7 +822,7 @@ class Localizer:
         if getattr(self.recovery, "check_pose", None) is None:
             return status, reason, False
         got = self._collect_check(odom)
-        fired = self._trigger.observe(hit if math.isfinite(hit) else 0.0, accepted) or jumped
+        fired = self._trigger.observe(hit if math.isfinite(hit) else 0.0, accepted, jumped)
         pending = self._elsewhere
         due = pending is not None and self._counters.scans - pending[2] >= 3
         if got is None and self._check_inflight is None and (fired or due):
@@ -997,7 +1003,8 @@ class Localizer:
         if lock_pose is not None and res is not None:
             # a stricter check of the lock: no distinct pose anywhere explains the scan
             # clearly better (inline on this scan, or on the worker thread: then the
-            # pose is not promised until the verdict is back)
+            # pose is not promised until the verdict is back). Locks are rare; a wrong
+            # local one after a kidnapping is not (the dead reckoning led there)
             v = self._run_check(pts, lock_pose, odom, True)
             strict_pending = v is None and self._check_inflight is not None
             if v is not None and v.verdict == "elsewhere":
