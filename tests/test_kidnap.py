@@ -47,3 +47,10 @@ def test_a_confirmed_pose_makes_its_share_the_usual_one() -> None:
     t.confirmed()
     # 0.6 is now the usual share: never doubtful, long past the quiet period
     assert not any(t.observe(0.6, True) for _ in range(t.backoff_max + 3 * t.doubt_scans))
+
+
+def test_the_usual_share_is_the_median_of_the_recent_ordinary_scans() -> None:
+    t = KidnapTrigger(history=5)
+    for h in (0.9, 0.5, 0.7, 0.95, 0.8, 0.85, 0.75):  # the last 5: 0.7 .95 .8 .85 .75
+        t.observe(h, True)
+    assert t.reference() == 0.8

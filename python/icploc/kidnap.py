@@ -24,7 +24,7 @@ own business (:meth:`icploc.localizer.Localizer._kidnap_step`).
 
 from __future__ import annotations
 
-import statistics
+import bisect
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -57,9 +57,16 @@ class KidnapTrigger:
     #: a fit taken far against the odometry is checked when its hit share is below this
     #: fraction of the map's usual (verified fits') share
     doubt_jump: float = 0.9
+    #: a better pose elsewhere is re-checked this many scans later; it must be found
+    #: again within ``recheck_distance`` m and ``recheck_angle`` rad of where the odometry
+    #: carried it
+    recheck_scans: int = 3
+    recheck_distance: float = 0.5
+    recheck_angle: float = 0.175
     history: int = 25
     backoff_max: int = 64
     _good: deque[float] = field(default_factory=deque)
+    _sorted: list[float] = field(default_factory=list)  #: ``_good`` in order (the median)
     _doubtful: int = 0
     _quiet: int = 0
     _backoffs: int = 0
@@ -67,12 +74,21 @@ class KidnapTrigger:
 
     def reset(self) -> None:
         """Forget the usual share (a new place: after a lock, a reset)."""
-        self._good.clear()
+        self._forget()
         self._doubtful = 0
         self._quiet = 0
 
+    def _forget(self) -> None:
+        self._good.clear()
+        self._sorted.clear()
+
     def reference(self) -> float | None:
-        return statistics.median(self._good) if len(self._good) >= 3 else None
+        """The usual hit share: the median of the recent ordinary scans (None: too few)."""
+        s = self._sorted
+        n = len(s)
+        if n < 3:
+            return None
+        return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
     def observe(self, hit: float, accepted: bool, jumped: bool = False) -> bool:
         """One tracking scan: its verification hit share, whether its fit was accepted,
@@ -84,9 +100,12 @@ class KidnapTrigger:
         if self._calm >= self.history:
             self._backoffs = 0
         if not doubtful:
+            # a sorted copy beside the window: the median per scan without sorting
             self._good.append(hit)
+            bisect.insort(self._sorted, hit)
             while len(self._good) > self.history:
-                self._good.popleft()
+                old = self._good.popleft()
+                del self._sorted[bisect.bisect_left(self._sorted, old)]
         if self._quiet > 0:
             self._quiet -= 1
             return False
@@ -99,7 +118,7 @@ class KidnapTrigger:
         """The check found the tracked pose as good as any: its share is the new usual
         (and the trigger keeps quiet a while, as after an unsure check: a place the map
         shows poorly keeps looking doubtful)."""
-        self._good.clear()
+        self._forget()
         self.backoff()
 
     def backoff(self) -> None:

@@ -824,7 +824,10 @@ class Localizer:
         got = self._collect_check(odom)
         fired = self._trigger.observe(hit if math.isfinite(hit) else 0.0, accepted, jumped)
         pending = self._elsewhere
-        due = pending is not None and self._counters.scans - pending[2] >= 3
+        due = (
+            pending is not None
+            and self._counters.scans - pending[2] >= self._trigger.recheck_scans
+        )
         if got is None and self._check_inflight is None and (fired or due):
             v = self._run_check(pts, pose, odom, False)
             got = None if v is None else (v, False)
@@ -851,8 +854,8 @@ class Localizer:
 
     def _apply_verdict(self, v: CheckVerdict, odom: Pose | None) -> bool:
         """A tracking check's verdict; True: lost (a better pose elsewhere, found again
-        three scans later where odometry carried it: a crowd's chance fits do not stay
-        put)."""
+        ``recheck_scans`` later where odometry carried it: a crowd's chance fits do not
+        stay put)."""
         pending = self._elsewhere
         if v.verdict == "elsewhere" and v.pose is not None:
             if pending is not None:
@@ -862,9 +865,10 @@ class Localizer:
                     if odom_then is None or odom is None
                     else compose(then, self.calibration.apply(between(odom_then, odom)))
                 )
+                t = self._trigger
                 if (
-                    math.hypot(moved[0] - v.pose[0], moved[1] - v.pose[1]) <= 0.5
-                    and abs(wrap_angle(moved[2] - v.pose[2])) <= math.radians(10.0)
+                    math.hypot(moved[0] - v.pose[0], moved[1] - v.pose[1]) <= t.recheck_distance
+                    and abs(wrap_angle(moved[2] - v.pose[2])) <= t.recheck_angle
                 ):
                     self._note("elsewhere")
                     return True
