@@ -54,3 +54,9 @@ def test_the_usual_share_is_the_median_of_the_recent_ordinary_scans() -> None:
     for h in (0.9, 0.5, 0.7, 0.95, 0.8, 0.85, 0.75):  # the last 5: 0.7 .95 .8 .85 .75
         t.observe(h, True)
     assert t.reference() == 0.8
+
+
+def test_a_low_share_that_fits_tightly_is_a_crowd_not_a_doubt() -> None:
+    t = KidnapTrigger()
+    _settle(t)
+    assert not any(t.observe(0.5, True, tight=True) for _ in range(3 * t.doubt_scans))

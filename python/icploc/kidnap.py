@@ -9,7 +9,9 @@ computes anyway and asks for one global check (one search over the whole map, on
 worker thread with ``localizer.lost_check: background``) when
 
 * the verification's hit share stays below ``doubt`` x this run's usual share (the
-  median of its recent ordinary scans) for ``doubt_scans`` scans in a row;
+  median of its recent ordinary scans), the beams that hit not fitting tightly (a crowd
+  hides walls, the rest fit as usual), or the fit is rejected, for ``doubt_scans`` scans
+  in a row;
 * the fit contradicted the odometry (the scans were taken against the prediction with a
   chi-square statistic beyond the rejection quantile: a jump the odometry cannot have made);
 * the localizer has just locked after being lost (a stricter check of the lock).
@@ -90,11 +92,16 @@ class KidnapTrigger:
             return None
         return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
-    def observe(self, hit: float, accepted: bool, jumped: bool = False) -> bool:
+    def observe(
+        self, hit: float, accepted: bool, jumped: bool = False, tight: bool = False
+    ) -> bool:
         """One tracking scan: its verification hit share, whether its fit was accepted,
-        whether it was taken far against the odometry. True: run a check now."""
+        whether it was taken far against the odometry, whether the beams that hit fit as
+        tightly as usual (people hiding walls: a low share is no doubt then). True: run a
+        check now."""
         ref = self.reference()
-        doubtful = jumped or (not accepted) or (ref is not None and hit < self.doubt * ref)
+        low = ref is not None and hit < self.doubt * ref
+        doubtful = jumped or (not accepted) or (low and not tight)
         self._doubtful = self._doubtful + 1 if doubtful else 0
         self._calm = 0 if doubtful else self._calm + 1
         if self._calm >= self.history:

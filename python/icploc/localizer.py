@@ -722,8 +722,9 @@ class Localizer:
             and nis > self._chi2_reject
             and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
         )
+        tight = check.rms <= lc.crowd_residual * self.quality.sigma
         status, reason, elsewhere = self._kidnap_step(
-            pts, pose, odom, check.hit, accepted, jumped, status, reason
+            pts, pose, odom, check.hit, accepted, jumped, tight, status, reason
         )
         sig_xy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
         if elsewhere:
@@ -814,6 +815,7 @@ class Localizer:
         hit: float,
         accepted: bool,
         jumped: bool,
+        tight: bool,
         status: Status,
         reason: str,
     ) -> tuple[Status, str, bool]:
@@ -822,7 +824,9 @@ class Localizer:
         if getattr(self.recovery, "check_pose", None) is None:
             return status, reason, False
         got = self._collect_check(odom)
-        fired = self._trigger.observe(hit if math.isfinite(hit) else 0.0, accepted, jumped)
+        fired = self._trigger.observe(
+            hit if math.isfinite(hit) else 0.0, accepted, jumped, tight
+        )
         pending = self._elsewhere
         due = (
             pending is not None
