@@ -448,7 +448,8 @@ class GlobalRelocalization:
     dominating leader at once). Its hypotheses are reported every scan; a lock is returned
     only when the Relocalizer has locked **and** the localizer's own verification accepts
     the pose. It never moves the localizer's pose, and detects nothing: the localizer's
-    one lost detector decides when it runs."""
+    one lost detector decides when it runs. While tracking, :meth:`check_pose` is the
+    global kidnap check the localizer's trigger asks for (:mod:`icploc.kidnap`)."""
 
     #: a deferred build picks the finest resolution (>= 5 cm) with at most this many cells
     max_cells: float = 4e6
