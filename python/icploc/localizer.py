@@ -714,12 +714,13 @@ class Localizer:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = "uncertain"
-        # the fit contradicted the odometry (taken against a prediction it is far beyond)
-        # and explains less of the scan than usual: a place that half fits the old pose
+        # the fit contradicted the odometry (taken against a prediction it is beyond what
+        # the arbitration accepts: several rejected scans agreed) and explains less of the
+        # scan than usual: a place that half fits the old pose
         jumped = (
             accepted
             and reason == "odometry_off"
-            and nis > self._chi2_reject
+            and nis > lc.arbitration_max_inflation * self._chi2_accept
             and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
         )
         tight = check.rms <= lc.crowd_residual * self.quality.sigma
