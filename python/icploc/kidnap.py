@@ -9,7 +9,7 @@ computes anyway and asks for one global check (one search over the whole map, on
 worker thread with ``localizer.lost_check: background``) when
 
 * the verification's hit share stays below ``doubt`` x this run's usual share (the
-  median of its recent ordinary scans), the beams that hit not fitting tightly (a crowd
+  average of its recent ordinary scans), the beams that hit not fitting tightly (a crowd
   hides walls, the rest fit as usual), or the fit is rejected, for ``doubt_scans`` scans
   in a row;
 * the fit contradicted the odometry (the scans were taken against the prediction with a
@@ -26,9 +26,7 @@ own business (:meth:`icploc.localizer.Localizer._kidnap_step`).
 
 from __future__ import annotations
 
-import bisect
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from icploc.se2 import Pose
 
@@ -65,10 +63,12 @@ class KidnapTrigger:
     recheck_scans: int = 3
     recheck_distance: float = 0.5
     recheck_angle: float = 0.175
+    #: the usual share: the mean of the ordinary scans, over about this many recent ones
+    #: (an exponential average: O(1) per scan); ``history`` calm scans also end a backoff
     history: int = 25
     backoff_max: int = 64
-    _good: deque[float] = field(default_factory=deque)
-    _sorted: list[float] = field(default_factory=list)  #: ``_good`` in order (the median)
+    _ref: float = 0.0
+    _n: int = 0  #: ordinary scans in the usual share (none: no reference yet)
     _doubtful: int = 0
     _quiet: int = 0
     _backoffs: int = 0
@@ -76,21 +76,13 @@ class KidnapTrigger:
 
     def reset(self) -> None:
         """Forget the usual share (a new place: after a lock, a reset)."""
-        self._forget()
+        self._n = 0
         self._doubtful = 0
         self._quiet = 0
 
-    def _forget(self) -> None:
-        self._good.clear()
-        self._sorted.clear()
-
     def reference(self) -> float | None:
-        """The usual hit share: the median of the recent ordinary scans (None: too few)."""
-        s = self._sorted
-        n = len(s)
-        if n < 3:
-            return None
-        return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+        """The usual hit share of the recent ordinary scans (None: fewer than 3 so far)."""
+        return self._ref if self._n >= 3 else None
 
     def observe(
         self, hit: float, accepted: bool, jumped: bool = False, tight: bool = False
@@ -99,20 +91,17 @@ class KidnapTrigger:
         whether it was taken far against the odometry, whether the beams that hit fit as
         tightly as usual (people hiding walls: a low share is no doubt then). True: run a
         check now."""
-        ref = self.reference()
-        low = ref is not None and hit < self.doubt * ref
-        doubtful = jumped or (not accepted) or (low and not tight)
-        self._doubtful = self._doubtful + 1 if doubtful else 0
-        self._calm = 0 if doubtful else self._calm + 1
-        if self._calm >= self.history:
-            self._backoffs = 0
-        if not doubtful:
-            # a sorted copy beside the window: the median per scan without sorting
-            self._good.append(hit)
-            bisect.insort(self._sorted, hit)
-            while len(self._good) > self.history:
-                old = self._good.popleft()
-                del self._sorted[bisect.bisect_left(self._sorted, old)]
+        low = self._n >= 3 and hit < self.doubt * self._ref
+        if jumped or not accepted or (low and not tight):
+            self._doubtful += 1
+            self._calm = 0
+        else:
+            self._doubtful = 0
+            self._calm += 1
+            if self._calm >= self.history:
+                self._backoffs = 0
+            self._n += 1
+            self._ref += (hit - self._ref) / min(self._n, self.history)
         if self._quiet > 0:
             self._quiet -= 1
             return False
@@ -125,7 +114,7 @@ class KidnapTrigger:
         """The check found the tracked pose as good as any: its share is the new usual
         (and the trigger keeps quiet a while, as after an unsure check: a place the map
         shows poorly keeps looking doubtful)."""
-        self._forget()
+        self._n = 0
         self.backoff()
 
     def backoff(self) -> None:

@@ -822,13 +822,13 @@ class Localizer:
     ) -> tuple[Status, str, bool]:
         """Feed the kidnap trigger, run or collect a global check, act on its verdict.
         Returns (status, reason, elsewhere: declare lost)."""
+        fired = self._trigger.observe(hit if hit == hit else 0.0, accepted, jumped, tight)
+        pending = self._elsewhere
+        if not (fired or pending or self._check_inflight or self._lock_unconfirmed):
+            return status, reason, False  # the usual scan: nothing out, nothing to ask
         if getattr(self.recovery, "check_pose", None) is None:
             return status, reason, False
         got = self._collect_check(odom)
-        fired = self._trigger.observe(
-            hit if math.isfinite(hit) else 0.0, accepted, jumped, tight
-        )
-        pending = self._elsewhere
         due = (
             pending is not None
             and self._counters.scans - pending[2] >= self._trigger.recheck_scans
