@@ -42,6 +42,7 @@ from icploc.calibration import OdometryCalibration
 from icploc.config import LocalizerConfig
 from icploc.fitcheck import FitCheck, FitChecker, MapQuality
 from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
+from icploc.kidnap import CheckVerdict, KidnapTrigger
 from icploc.motion import MotionModel
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
@@ -86,8 +87,11 @@ class Estimate:
     #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
     #: the prediction's covariance inflated),
     #: contradicted (the fused pose explains far less of the scan than usual), unverified,
-    #: uncertain (covariance too wide to promise the pose), relocalized, or while lost the
-    #: recovery's state (searching, confirming, ambiguous)
+    #: uncertain (covariance too wide to promise the pose), relocalized, suspect (a kidnap
+    #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
+    #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
+    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
+    #: while lost the recovery's state (searching, confirming, ambiguous)
     reason: str = ""
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
@@ -319,6 +323,18 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: kidnap detection while tracking (:mod:`icploc.kidnap`): the trigger, a check
+        #: running on the worker thread (future, odometry then, strict), a better pose
+        #: elsewhere awaiting its re-check (pose, odometry then, scan count), and whether
+        #: the current pose is a lock whose strict check has not come back yet
+        self._trigger = KidnapTrigger()
+        self._check_inflight: tuple[Any, Pose | None, bool] | None = None
+        self._check_executor: Any = None
+        self._elsewhere: tuple[Pose, Pose | None, int] | None = None
+        self._lock_unconfirmed = False
+        #: the kidnap checks' verdicts so far (at most 100): "", "unsure", "suspect"
+        #: (elsewhere, to be re-checked), "elsewhere" (declared lost), "refuted" (a lock)
+        self.kidnap_verdicts: list[str] = []
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         self.pose: Pose
         self.covariance: NDArray[np.float64]
@@ -327,7 +343,7 @@ class Localizer:
             self.reset(pose)
         else:
             self.pose = (0.0, 0.0, 0.0)
-            self.covariance = np.diag([1e6, 1e6, math.pi**2])
+            self.covariance = _unknown_covariance()
             self.status = Status.LOST
 
     # -- state -----------------------------------------------------------------------------
@@ -354,7 +370,14 @@ class Localizer:
         self._lost_odom = None
         self._anchor = None
         self._rejected = None
+        self._forget_checks()
         self.recovery.reset()
+
+    def _forget_checks(self) -> None:
+        self._trigger.reset()
+        self._check_inflight = None  # a running check's verdict no longer applies
+        self._elsewhere = None
+        self._lock_unconfirmed = False
 
     def declare_lost(self) -> None:
         """Switch to ``lost`` now (e.g. a kidnapping known from outside): the pose is
@@ -363,6 +386,7 @@ class Localizer:
         self._lost_scans = 0
         self._lost_odom = None
         self._anchor = None
+        self._forget_checks()
         self.recovery.reset()
 
     @property
@@ -690,8 +714,27 @@ class Localizer:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = "uncertain"
+        # the fit contradicted the odometry (taken against a prediction it is beyond what
+        # the arbitration accepts: several rejected scans agreed) and explains less of the
+        # scan than usual: a place that half fits the old pose
+        jumped = (
+            accepted
+            and reason == "odometry_off"
+            and nis > lc.arbitration_max_inflation * self._chi2_accept
+            and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
+        )
+        tight = check.rms <= lc.crowd_residual * self.quality.sigma
+        status, reason, elsewhere = self._kidnap_step(
+            pts, pose, odom, check.hit, accepted, jumped, tight, status, reason
+        )
         sig_xy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
-        if (
+        if elsewhere:
+            # a distinct place explains the scans much better (checked twice): the pose
+            # says nothing any more, the recovery searches the whole map at once
+            status, reason = Status.LOST, "elsewhere"
+            self.declare_lost()
+            cov = _unknown_covariance()
+        elif (
             cnt.bad_in_row >= lc.lost_after_bad_scans
             or sig_xy > lc.lost_sigma_xy
         ):
@@ -722,6 +765,133 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    # -- kidnap detection (icploc.kidnap) --------------------------------------------------
+    def _run_check(
+        self, pts: NDArray[np.float64], pose: Pose, odom: Pose | None, strict: bool
+    ) -> CheckVerdict | None:
+        """Run the recovery's global check of ``pose``: inline (the verdict), or on the
+        worker thread with ``localizer.lost_check: background`` (None; collected by
+        :meth:`_collect_check` on a later scan)."""
+        fn = getattr(self.recovery, "check_pose", None)
+        if fn is None:
+            return None
+        if self.config.localizer.lost_check != "background":
+            try:
+                v: CheckVerdict = fn(self.index, pts, pose, strict)
+            except Exception:  # noqa: BLE001 - a failed check is no evidence
+                return CheckVerdict("unsure")
+            return v
+        if self._check_executor is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._check_executor = ThreadPoolExecutor(1, thread_name_prefix="icploc-kidnap")
+        fut = self._check_executor.submit(fn, self.index, np.array(pts), pose, strict)
+        self._check_inflight = (fut, odom, strict)
+        return None
+
+    def _collect_check(self, odom: Pose | None) -> tuple[CheckVerdict, bool] | None:
+        """A finished background check: (its verdict, its pose carried to now by
+        odometry; strict)."""
+        inflight = self._check_inflight
+        if inflight is None or not inflight[0].done():
+            return None
+        fut, odom_then, strict = inflight
+        self._check_inflight = None
+        try:
+            v: CheckVerdict = fut.result()
+        except Exception:  # noqa: BLE001 - a failed check is no evidence
+            return CheckVerdict("unsure"), strict
+        if v.pose is not None and odom_then is not None and odom is not None:
+            v = dataclasses.replace(
+                v, pose=compose(v.pose, self.calibration.apply(between(odom_then, odom)))
+            )
+        return v, strict
+
+    def _kidnap_step(
+        self,
+        pts: NDArray[np.float64],
+        pose: Pose,
+        odom: Pose | None,
+        hit: float,
+        accepted: bool,
+        jumped: bool,
+        tight: bool,
+        status: Status,
+        reason: str,
+    ) -> tuple[Status, str, bool]:
+        """Feed the kidnap trigger, run or collect a global check, act on its verdict.
+        Returns (status, reason, elsewhere: declare lost)."""
+        fired = self._trigger.observe(hit if hit == hit else 0.0, accepted, jumped, tight)
+        pending = self._elsewhere
+        if not (fired or pending or self._check_inflight or self._lock_unconfirmed):
+            return status, reason, False  # the usual scan: nothing out, nothing to ask
+        if getattr(self.recovery, "check_pose", None) is None:
+            return status, reason, False
+        got = self._collect_check(odom)
+        due = (
+            pending is not None
+            and self._counters.scans - pending[2] >= self._trigger.recheck_scans
+        )
+        if got is None and self._check_inflight is None and (fired or due):
+            v = self._run_check(pts, pose, odom, False)
+            got = None if v is None else (v, False)
+        elsewhere = False
+        if got is not None:
+            v, strict = got
+            if strict:
+                self._lock_unconfirmed = False
+                if v.verdict == "elsewhere":
+                    self._note("refuted")
+                    elsewhere = True
+                else:
+                    self._trigger.confirmed()
+            else:
+                elsewhere = self._apply_verdict(v, odom)
+        if status is Status.TRACKING and not elsewhere:
+            # not promised while a check is out or a better pose elsewhere awaits its
+            # re-check
+            if self._lock_unconfirmed:
+                status, reason = Status.DEGRADED, "unconfirmed"
+            elif self._elsewhere is not None or self._check_inflight is not None:
+                status, reason = Status.DEGRADED, "suspect"
+        return status, reason, elsewhere
+
+    def _apply_verdict(self, v: CheckVerdict, odom: Pose | None) -> bool:
+        """A tracking check's verdict; True: lost (a better pose elsewhere, found again
+        ``recheck_scans`` later where odometry carried it: a crowd's chance fits do not
+        stay put)."""
+        pending = self._elsewhere
+        if v.verdict == "elsewhere" and v.pose is not None:
+            if pending is not None:
+                then, odom_then, _ = pending
+                moved = (
+                    then
+                    if odom_then is None or odom is None
+                    else compose(then, self.calibration.apply(between(odom_then, odom)))
+                )
+                t = self._trigger
+                if (
+                    math.hypot(moved[0] - v.pose[0], moved[1] - v.pose[1]) <= t.recheck_distance
+                    and abs(wrap_angle(moved[2] - v.pose[2])) <= t.recheck_angle
+                ):
+                    self._note("elsewhere")
+                    return True
+            self._elsewhere = (v.pose, odom, self._counters.scans)
+            self._note("suspect")
+            return False
+        self._elsewhere = None
+        self._note(v.verdict)
+        if v.verdict == "":
+            self._trigger.confirmed()
+        else:
+            self._trigger.backoff()
+        return False
+
+    def _note(self, verdict: str) -> None:
+        self.kidnap_verdicts.append(verdict)
+        if len(self.kidnap_verdicts) > 100:
+            del self.kidnap_verdicts[:-100]
 
     def _check(
         self, pts: NDArray[np.float64], pose: Pose, z: Pose | None, res: Any
@@ -837,9 +1007,28 @@ class Localizer:
                 lock_pose, R = fuse(pred, pred_cov, step.lock, R)
             elif self._confident(R):
                 lock_pose = step.lock  # elsewhere, and the scan pins it down: jump there
+        refuted = False
+        strict_pending = False
         if lock_pose is not None and res is not None:
+            # a stricter check of the lock: no distinct pose anywhere explains the scan
+            # clearly better (inline on this scan, or on the worker thread: then the
+            # pose is not promised until the verdict is back). Locks are rare; a wrong
+            # local one after a kidnapping is not (the dead reckoning led there)
+            v = self._run_check(pts, lock_pose, odom, True)
+            strict_pending = v is None and self._check_inflight is not None
+            if v is not None and v.verdict == "elsewhere":
+                self._note("refuted")
+                refuted = True
+                lock_pose = None
+        if lock_pose is not None and res is not None:
+            inflight = self._check_inflight
             self.reset(lock_pose, R, Status.TRACKING)
+            if strict_pending:
+                self._check_inflight = inflight
+                self._lock_unconfirmed = True
             status = Status.TRACKING if self._confident(R) else Status.DEGRADED
+            if self._lock_unconfirmed:
+                status = Status.DEGRADED
             self.status = status
             return Estimate(
                 stamp=scan.stamp,
@@ -861,6 +1050,11 @@ class Localizer:
                 hypotheses=step.hypotheses,
             )
         # no lock: the dead-reckoned continuation of the last pose, its covariance growing
+        if refuted:
+            # a lock a distinct place beats: the dead reckoning that led there means
+            # nothing, search the whole map
+            pred_cov = _unknown_covariance()
+            self.recovery.reset()
         self.pose = pred
         self.covariance = pred_cov
         best = step.hypotheses[0] if step.hypotheses else None
@@ -873,7 +1067,7 @@ class Localizer:
             iterations=0,
             time=time.perf_counter() - t0,
             accepted=False,
-            reason=step.state or "lost",
+            reason="refuted" if refuted else (step.state or "lost"),
             prediction=pred,
             odometry=odom,
             num_points=pts.shape[0],
@@ -894,6 +1088,11 @@ class Localizer:
 
         return restore(self, os.fspath(path))
 
+
+
+def _unknown_covariance() -> NDArray[np.float64]:
+    """The covariance of a pose that says nothing (no initial pose, a place refuted)."""
+    return np.diag([1e6, 1e6, math.pi**2])
 
 
 def _chi2_3(p: float) -> float:

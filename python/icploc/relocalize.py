@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
+from icploc.kidnap import CheckVerdict
 from icploc.recovery import Candidate, LocalRecovery, RecoveryStep, RecoveryView
 from icploc.scanprep import prepare_scan
 from icploc.se2 import Pose, compose, wrap_angle
@@ -447,7 +448,8 @@ class GlobalRelocalization:
     dominating leader at once). Its hypotheses are reported every scan; a lock is returned
     only when the Relocalizer has locked **and** the localizer's own verification accepts
     the pose. It never moves the localizer's pose, and detects nothing: the localizer's
-    one lost detector decides when it runs."""
+    one lost detector decides when it runs. While tracking, :meth:`check_pose` is the
+    global kidnap check the localizer's trigger asks for (:mod:`icploc.kidnap`)."""
 
     #: a deferred build picks the finest resolution (>= 5 cm) with at most this many cells
     max_cells: float = 4e6
@@ -504,20 +506,23 @@ class GlobalRelocalization:
         self._hyps = ()
 
     def _ready(self, view: RecoveryView) -> bool:
-        """Build the deferred relocalizer from the map index (at 5 cm, coarser on a map
+        return self.ready(view.index)
+
+    def ready(self, index: Any) -> bool:
+        """Build the deferred relocalizer from the map ``index`` (at 5 cm, coarser on a map
         larger than :attr:`max_cells` cells at 5 cm). A map the global search cannot grid
-        leaves local recovery only, with a warning."""
+        leaves local recovery only (and no kidnap checks), with a warning."""
         if self._relocalizer is not None:
             return True
         if self._unavailable:
             return False
         try:
-            x0, y0, x1, y1 = view.index.bounds
+            x0, y0, x1, y1 = index.bounds
             area = max(float(x1 - x0), 1.0) * max(float(y1 - y0), 1.0)
             res0 = max(0.05, math.ceil(math.sqrt(area / self.max_cells) / 0.05) * 0.05)
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
-                    self._relocalizer = Relocalizer(view.index, RelocalizeConfig(resolution=res))
+                    self._relocalizer = Relocalizer(index, RelocalizeConfig(resolution=res))
                     break
                 except ValueError as e:
                     if res == 8 * res0 or "cells" not in str(e):
@@ -593,6 +598,65 @@ class GlobalRelocalization:
         self.reset()
         return RecoveryStep("locked", hyps, lock=pose, result=fit)
 
+
+    # -- while tracking: the kidnap check (icploc.kidnap) ---------------------------------
+    #: "elsewhere" needs the tracked pose's score below (1 - margin) x the best's ...
+    lost_margin: float = 0.3
+    #: ... or, for a clean best fit (this inlier ratio, few beams through walls), below
+    #: the best's minus this: a robot carried along a corridor fits its old place well
+    #: but not cleanly
+    clean_inlier_ratio: float = 0.95
+    clean_margin: float = 0.1
+
+    def check_pose(
+        self, index: Any, points: NDArray[np.float64], tracked: Pose, strict: bool = False
+    ) -> CheckVerdict:
+        """One global search: does a distinct pose elsewhere explain ``points`` (robot
+        frame) much better than ``tracked``? ``strict`` (checking a fresh lock): any
+        distinct pose clearly better than ``tracked`` (by the tracker's dominance margin)
+        counts. Touches no localizer state (it may run on a worker thread)."""
+        if not self.ready(index):
+            return CheckVerdict("unsure")
+        rel = self.relocalizer
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if pts.shape[0] < 10:
+            return CheckVerdict("unsure")
+        sub = np.ascontiguousarray(_subsample(pts, rel.config.max_points))
+        here = rel.glob.refine(sub, np.array([tracked], dtype=np.float64))[0]
+        s_here = rel._score(here)
+        cands = [
+            c for c in rel.glob.search(pts, rel.region, rel.heading).candidates
+            if rel.glob.distinct(here.pose, c.pose)
+        ]
+        if not cands:
+            return CheckVerdict("", here=s_here, best=s_here)
+        best = max(cands, key=rel._score)
+        s_best = rel._score(best)
+        pose = (best.pose[0], best.pose[1], wrap_angle(best.pose[2]))
+        if not rel._good(s_best, best.inlier_ratio, best.see_through):
+            return CheckVerdict("unsure", here=s_here, best=s_best)
+        if strict:
+            better = s_here < (1.0 - rel._margin(s_best)) * s_best or (
+                best.inlier_ratio > here.inlier_ratio + rel.config.inlier_margin
+                and s_here < s_best
+            )
+            return CheckVerdict("elsewhere" if better else "", pose, s_here, s_best)
+        # the better pose must be a convincing fit itself (a crowd's outlines fit walls
+        # elsewhere somewhat, never well), or the tracked pose contradicted by beams
+        # through its walls where the better pose is not
+        convincing = best.inlier_ratio >= 0.85 and best.see_through <= 0.25
+        contradicted = here.see_through >= 0.15 and best.see_through <= min(
+            0.3, 0.5 * here.see_through
+        )
+        clean = best.inlier_ratio >= self.clean_inlier_ratio and best.see_through <= 0.1
+        if not (convincing or contradicted):
+            return CheckVerdict("unsure", here=s_here, best=s_best)
+        if s_here < (1.0 - self.lost_margin) * s_best or (
+            clean and s_here < s_best - self.clean_margin
+        ):
+            return CheckVerdict("elsewhere", pose, s_here, s_best)
+        return CheckVerdict("", here=s_here, best=s_best)
 
     def _background_update(
         self, rel: Relocalizer, points: NDArray[np.float64], search: bool
