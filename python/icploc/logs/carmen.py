@@ -33,6 +33,7 @@ import gzip
 import io
 import math
 import os
+import re
 import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -146,6 +147,11 @@ def is_carmen(path: str | os.PathLike[str]) -> bool:
             return False
     name = os.fspath(path).lower()
     return name.endswith((".log", ".log.gz", ".clf", ".clf.gz"))
+
+
+#: a character no CARMEN text line holds (anything but tab, CR and printable ASCII): binary
+#: garbage that happens to start with an upper-case word is still garbage
+_BINARY = re.compile(r"[^\t\r\x20-\x7e]")
 
 
 def _is_type_word(tok: str) -> bool:
@@ -701,7 +707,7 @@ def read_carmen(
             robot.append(i)
         elif kind == "RAWLASER1":
             raw.append(i)
-        elif "\x00" in line or not _is_type_word(kind):
+        elif not _is_type_word(kind) or _BINARY.search(line):
             damage.drop(LogFormatError(spath, "not a CARMEN message (unreadable line)", i + 1))
         else:
             if kind == "PARAM" and len(t) == 3:
