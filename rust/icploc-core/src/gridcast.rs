@@ -118,49 +118,24 @@ fn trace(g: &GridGeometry, o: [f64; 2], e: [f64; 2], is_hit: bool, out: &mut Ray
         return;
     }
     let p = [a[0] + d[0] * t0, a[1] + d[1] * t0];
-    let mut cx = (p[0].floor() as i64).clamp(0, w - 1);
-    let mut cy = (p[1].floor() as i64).clamp(0, h - 1);
-    let step = [d[0].signum() as i64, d[1].signum() as i64];
-    let next_t = |c: i64, s: i64, ai: f64, di: f64| -> f64 {
-        if s == 0 {
-            f64::INFINITY
-        } else {
-            let boundary = if s > 0 { c + 1 } else { c } as f64;
-            (boundary - ai) / di
-        }
-    };
-    let delta = [
-        if step[0] == 0 {
-            f64::INFINITY
-        } else {
-            1.0 / d[0].abs()
-        },
-        if step[1] == 0 {
-            f64::INFINITY
-        } else {
-            1.0 / d[1].abs()
-        },
+    let start = [
+        (p[0].floor() as i64).clamp(0, w - 1),
+        (p[1].floor() as i64).clamp(0, h - 1),
     ];
-    let mut tx = next_t(cx, step[0], a[0], d[0]);
-    let mut ty = next_t(cy, step[1], a[1], d[1]);
+    let mut walk = CellWalk::new(start, a, d);
     let max_steps = (w + h + 4) as usize * 2;
     for _ in 0..max_steps {
+        let [cx, cy] = walk.cell;
         if (cx, cy) == end_cell {
             break;
         }
         let idx = cy as usize * g.width + cx as usize;
         out.passes[idx] = out.passes[idx].saturating_add(1);
-        let t = tx.min(ty);
-        if t >= t1 {
+        if walk.exit_t() >= t1 {
             break;
         }
-        if tx < ty {
-            cx += step[0];
-            tx += delta[0];
-        } else {
-            cy += step[1];
-            ty += delta[1];
-        }
+        walk.advance();
+        let [cx, cy] = walk.cell;
         if cx < 0 || cy < 0 || cx >= w || cy >= h {
             break;
         }
@@ -168,6 +143,47 @@ fn trace(g: &GridGeometry, o: [f64; 2], e: [f64; 2], is_hit: bool, out: &mut Ray
     if is_hit && end_inside {
         let idx = end_cell.1 as usize * g.width + end_cell.0 as usize;
         out.hits[idx] = out.hits[idx].saturating_add(1);
+    }
+}
+
+/// The cells a segment `a + t d` (grid units) crosses, one after the other from `cell`
+/// (Amanatides–Woo): `exit_t` is the parameter where it leaves the current cell,
+/// `advance` steps into the next one (x on a tie goes to y, as both walks always did).
+struct CellWalk {
+    cell: [i64; 2],
+    step: [i64; 2],
+    next: [f64; 2],
+    delta: [f64; 2],
+}
+
+impl CellWalk {
+    fn new(cell: [i64; 2], a: [f64; 2], d: [f64; 2]) -> Self {
+        let step = [d[0].signum() as i64, d[1].signum() as i64];
+        let mut next = [f64::INFINITY; 2];
+        let mut delta = [f64::INFINITY; 2];
+        for k in 0..2 {
+            if step[k] != 0 {
+                let boundary = if step[k] > 0 { cell[k] + 1 } else { cell[k] } as f64;
+                next[k] = (boundary - a[k]) / d[k];
+                delta[k] = 1.0 / d[k].abs();
+            }
+        }
+        Self {
+            cell,
+            step,
+            next,
+            delta,
+        }
+    }
+
+    fn exit_t(&self) -> f64 {
+        self.next[0].min(self.next[1])
+    }
+
+    fn advance(&mut self) {
+        let k = if self.next[0] < self.next[1] { 0 } else { 1 };
+        self.cell[k] += self.step[k];
+        self.next[k] += self.delta[k];
     }
 }
 
@@ -220,45 +236,16 @@ pub fn grid_visible(
                 return true;
             }
             let t_end = 1.0 - tol / len; // stop this far before the target
-            let (mut cx, mut cy) = (a[0].floor() as i64, a[1].floor() as i64);
-            let step = [d[0].signum() as i64, d[1].signum() as i64];
-            let next = |c: i64, s: i64, ai: f64, di: f64| -> f64 {
-                if s == 0 {
-                    f64::INFINITY
-                } else {
-                    ((if s > 0 { c + 1 } else { c }) as f64 - ai) / di
-                }
-            };
-            let delta = [
-                if step[0] == 0 {
-                    f64::INFINITY
-                } else {
-                    1.0 / d[0].abs()
-                },
-                if step[1] == 0 {
-                    f64::INFINITY
-                } else {
-                    1.0 / d[1].abs()
-                },
-            ];
-            let mut tx = next(cx, step[0], a[0], d[0]);
-            let mut ty = next(cy, step[1], a[1], d[1]);
+            let mut walk = CellWalk::new([a[0].floor() as i64, a[1].floor() as i64], a, d);
             let max_steps = (len.ceil() as usize + 2) * 2;
             for _ in 0..max_steps {
-                if blocked(cx, cy) {
+                if blocked(walk.cell[0], walk.cell[1]) {
                     return false;
                 }
-                let tn = tx.min(ty);
-                if tn >= t_end {
+                if walk.exit_t() >= t_end {
                     return true;
                 }
-                if tx < ty {
-                    cx += step[0];
-                    tx += delta[0];
-                } else {
-                    cy += step[1];
-                    ty += delta[1];
-                }
+                walk.advance();
             }
             true
         })
