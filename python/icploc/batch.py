@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from icploc.config import LocalizerConfig
+from icploc.errors import IcplocError
 
 __all__ = [
     "BatchError",
@@ -62,7 +63,7 @@ SUMMARY_HEADER = (
 _LOG_SUFFIXES = (".log", ".clf", ".bag", ".db3", ".mcap", ".raw", ".txt")
 
 
-class BatchError(RuntimeError):
+class BatchError(IcplocError, RuntimeError):
     """The batch cannot start (Dask missing, no scheduler at the address, bad arguments)."""
 
 

@@ -10,6 +10,7 @@ import typer
 from typer.core import TyperGroup
 
 from icploc.batch_cli import batch as _batch_command
+from icploc.errors import UsageError
 
 #: exit codes (also in ``icploc --help``)
 EXIT_OK = 0  #: done
@@ -30,7 +31,7 @@ Exit codes:
 """
 
 
-class UserError(ValueError):
+class UserError(UsageError):
     """An error the user can fix: printed as one ``error: ...`` line (exit 1), no traceback."""
 
 

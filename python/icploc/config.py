@@ -29,12 +29,12 @@ from typing import TYPE_CHECKING, Any, Literal, get_args, get_type_hints
 
 import yaml
 
+from icploc.errors import ConfigError
+
 if TYPE_CHECKING:
     from icploc._core import IcpConfig
 
 
-class ConfigError(ValueError):
-    """A configuration file or value is invalid (unknown key, wrong type, out of range)."""
 
 
 class _Section:

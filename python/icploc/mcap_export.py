@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from icploc import foxglove_pb as pb
+from icploc.errors import IcplocError
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.se2 import Pose, compose, inverse
 from icploc.types import Scan
@@ -84,7 +85,7 @@ _COVARIANCE_SCHEMA = {
 }
 
 
-class McapError(RuntimeError):
+class McapError(IcplocError, RuntimeError):
     """The MCAP file cannot be written (package missing, bad path)."""
 
 

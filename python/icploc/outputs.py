@@ -12,10 +12,12 @@ import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
+from icploc.errors import UsageError
+
 __all__ = ["OutputClashError", "OutputError", "check_outputs", "map_inputs"]
 
 
-class OutputError(ValueError):
+class OutputError(UsageError):
     """An output path is unusable: it is an input, a duplicate, or cannot be written."""
 
 

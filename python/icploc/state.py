@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.errors import FileFormatError
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.recovery import Candidate, RecoveryStep, RecoveryView
 from icploc.se2 import Pose, wrap_angle
@@ -56,8 +57,11 @@ MAX_CORRECTION_XY = 0.5
 MAX_CORRECTION_THETA = 0.35
 
 
-class StateError(ValueError):
-    """A state file that cannot be read (names the file and the field)."""
+class StateError(FileFormatError):
+    """A state file that cannot be read (the message names the file and the field)."""
+
+    def __init__(self, message: str, path: str | os.PathLike[str] | None = None) -> None:
+        self._where(path, None, message)
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, field
 
 from icploc.drivers.byteclock import ByteClock
+from icploc.errors import DeviceError
 from icploc.types import Odometry
 
 HEADER = b"\xfa\xfb"
@@ -61,7 +62,7 @@ POSE_MOD = 1 << 15  # XPOS / YPOS are 15-bit counters
 HEADING_MOD = 4096  # THPOS units per turn
 
 
-class ArcosProtocolError(ValueError):
+class ArcosProtocolError(DeviceError, ValueError):
     """A packet could not be built or decoded. The stream parser never raises."""
 
 

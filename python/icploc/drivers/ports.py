@@ -13,10 +13,12 @@ import os
 import stat
 from pathlib import Path
 
+from icploc.errors import DeviceError
+
 __all__ = ["PortError", "check_port", "is_url"]
 
 
-class PortError(OSError):
+class PortError(DeviceError, OSError):
     """A serial port is missing, not a serial device, not accessible, or busy."""
 
 

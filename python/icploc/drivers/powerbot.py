@@ -39,13 +39,14 @@ from icploc.drivers import arcos_protocol as ap
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
+from icploc.errors import DeviceError
 from icploc.se2 import between, compose, inverse
 from icploc.types import Odometry
 
 __all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
 
 
-class PowerBotError(RuntimeError):
+class PowerBotError(DeviceError, RuntimeError):
     """The robot could not be reached, or the line failed."""
 
 

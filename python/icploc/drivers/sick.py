@@ -34,12 +34,13 @@ from icploc import clock
 from icploc.drivers import sick_protocol as sp
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.recording import Recorder
+from icploc.errors import DeviceError
 from icploc.types import Scan
 
 ScanCallback = Callable[[Scan], None]
 
 
-class SickError(RuntimeError):
+class SickError(DeviceError, RuntimeError):
     """The laser could not be reached or configured, or the line failed."""
 
 

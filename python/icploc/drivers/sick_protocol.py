@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icploc.drivers.byteclock import ByteClock
+from icploc.errors import DeviceError
 from icploc.types import (
     BEAM_DAZZLE,
     BEAM_FIELD_A,
@@ -75,7 +76,7 @@ CODE_NO_ECHO = 0x1FFF
 UNIT_METRES = {0: 0.01, 1: 0.001, 2: 0.1}  # count-word bits 14..15 (2 = 10 cm per ARIA)
 
 
-class SickProtocolError(ValueError):
+class SickProtocolError(DeviceError, ValueError):
     """A telegram could not be built or decoded (bad length, wrong reply, bad CRC).
 
     The stream parser never raises: it counts and skips bad input. Only the explicit

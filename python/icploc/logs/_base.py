@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.errors import FileFormatError
 from icploc.trajectory import Trajectory
 from icploc.types import Odometry, Scan
 
@@ -28,15 +29,10 @@ __all__ = [
 ]
 
 
-class LogFormatError(ValueError):
+class LogFormatError(FileFormatError):
     """A log file is malformed. ``path`` and (for text logs) ``line`` say where."""
 
-    def __init__(self, path: str | os.PathLike[str], message: str, line: int | None = None) -> None:
-        self.path = os.fspath(path)
-        self.line = line
-        self.reason = message
-        where = f"{self.path}:{line}" if line is not None else self.path
-        super().__init__(f"{where}: {message}")
+    path: str
 
 
 @dataclass

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.errors import UsageError
 from icploc.logs._base import Damage, LogData, LogFormatError, LogInfo, log, repair_stamps
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
@@ -103,7 +104,7 @@ def _records(
         i = j + 4 + dl
 
 
-class TopicError(ValueError):
+class TopicError(UsageError):
     """The requested topic is missing or has the wrong type."""
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from icploc.errors import FileFormatError
 
-class MapError(ValueError):
+
+class MapError(FileFormatError):
     """A map file (or map data) is invalid.
 
     The message names the file (when there is one) and the offending field, e.g.
@@ -14,9 +16,9 @@ class MapError(ValueError):
     """
 
     def __init__(self, path: str | Path | None, field: str | None, problem: str) -> None:
-        self.path = None if path is None else str(path)
         self.field = field
         self.problem = problem
-        where = self.path if self.path is not None else "<map>"
         what = f"field '{field}': " if field else ""
-        super().__init__(f"{where}: {what}{problem}")
+        self._where("<map>" if path is None else path, None, f"{what}{problem}")
+        if path is None:
+            self.path = None
