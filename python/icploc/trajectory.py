@@ -19,6 +19,8 @@ from typing import IO, Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icploc.errors import FileFormatError
+
 __all__ = [
     "ESTIMATE_COLUMNS",
     "AteResult",
@@ -41,14 +43,10 @@ __all__ = [
 F64 = NDArray[np.float64]
 
 
-class TrajectoryFormatError(ValueError):
+class TrajectoryFormatError(FileFormatError):
     """A malformed trajectory file; says which file and line."""
 
-    def __init__(self, path: str | os.PathLike[str], message: str, line: int | None = None) -> None:
-        self.path = os.fspath(path)
-        self.line = line
-        where = f"{self.path}:{line}" if line is not None else self.path
-        super().__init__(f"{where}: {message}")
+    path: str
 
 
 def wrap(a: ArrayLike) -> F64:
