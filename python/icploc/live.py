@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc import clock
+from icploc.errors import IcplocError
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse, wrap_angle
@@ -57,7 +58,7 @@ BOTH_MISSING = "laser_and_base_missing"
 MISSING_REASONS = (LASER_MISSING, BASE_MISSING, BOTH_MISSING)
 
 
-class RunError(RuntimeError):
+class RunError(IcplocError, RuntimeError):
     """``icploc run`` cannot start or go on; the message says why and what to check.
     ``exit_code``: 1 (an error: a port, a device, a file), 2 (a usage error)."""
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
+from icploc.errors import FileFormatError
+
 MAGIC = b"ICPLRAW1"
 VERSION = 1
 RECORD = struct.Struct("<dBBI")  # stamp, device, kind, length
@@ -29,8 +31,15 @@ KIND_TX = 2  #: bytes sent to the device; stamp = just before the write
 MAX_RECORD = 1 << 24
 
 
-class RecordingFormatError(ValueError):
-    """The file is not a raw-byte recording, or it is corrupt."""
+class RecordingFormatError(FileFormatError):
+    """The file is not a raw-byte recording, or it is corrupt. Raised with the message
+    alone (``RecordingFormatError(message)``, which names the file) or as
+    ``RecordingFormatError(message, path=..., line=...)``."""
+
+    def __init__(
+        self, message: str, path: str | os.PathLike[str] | None = None, line: int | None = None
+    ) -> None:
+        self._where(path, line, message)
 
 
 @dataclass(frozen=True)
