@@ -57,6 +57,10 @@ class _Section:
     def validate(self) -> None:  # pragma: no cover - every section overrides it
         pass
 
+    def replace(self, **changes: Any) -> Any:
+        """A validated copy with some values changed."""
+        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+
 
 _HINTS: dict[type, dict[str, Any]] = {}
 
