@@ -44,9 +44,12 @@ def test_partial_file_overrides_only_given_keys(tmp_path: Path) -> None:
         ("scan:\n  min_range: fast\n", "expected a number"),
         ("map:\n  visibility_culling: 1\n", "expected true/false"),
         ("localizer:\n  initial_pose: [1, 2]\n", "list of 3"),
-        ("scan:\n  decimation: 0\n", "scan.decimation must be >= 1"),
+        ("scan:\n  decimation: 0\n", "scan.decimation: must be >= 1, got 0"),
         ("gating:\n  min_inlier_ratio: 1.5\n", "gating.min_inlier_ratio"),
-        ("icp:\n  max_correspondence_distance: 0.05\n", "must not exceed"),
+        (
+            "icp:\n  max_correspondence_distance: 0.05\n",
+            "icp.min_correspondence_distance: must not exceed",
+        ),
         ("- just\n- a list\n", "top level must be a mapping"),
         ("icp: [1, 2]\n", "must be a mapping"),
         ("icp: {metric: \n", "invalid YAML"),
@@ -92,7 +95,7 @@ def test_replace_updates_a_section() -> None:
         ("scan", {"decimation": "2"}, "scan.decimation: expected an integer"),
         ("localizer", {"recover_after": True}, "localizer.recover_after: expected an integer"),
         ("gating", {"max_translation_jump": float("nan")}, "gating.max_translation_jump"),
-        ("map", {"spacing": 1e-6}, "map.spacing must be at least"),
+        ("map", {"spacing": 1e-6}, "map.spacing: must be >= 0.001"),
     ],
 )
 def test_sections_are_validated_at_construction_naming_the_field(
@@ -112,10 +115,14 @@ def test_sections_are_validated_at_construction_naming_the_field(
 
 
 def test_replace_validates_too() -> None:
-    import dataclasses
-
     with pytest.raises(ConfigError, match="icp.robust_scale"):
-        dataclasses.replace(LocalizerConfig().icp, robust_scale=-1.0)
+        LocalizerConfig().icp.replace(robust_scale=-1.0)
+
+
+def test_assignment_validates_too() -> None:
+    cfg = LocalizerConfig()
+    with pytest.raises(ConfigError, match=r"scan\.decimation: must be >= 1, got 0"):
+        cfg.scan.decimation = 0
 
 
 def test_wrong_section_type_is_an_error() -> None:
@@ -133,14 +140,16 @@ def test_icp_section_checked_by_the_core(monkeypatch: pytest.MonkeyPatch) -> Non
             raise _core.InvalidConfigError("invalid config: mse_change = 7: refused by the core")
 
     monkeypatch.setattr(_core, "IcpConfig", Refusing)
-    with pytest.raises(ConfigError, match="icp.mse_change = 7: refused by the core"):
+    with pytest.raises(ConfigError, match="icp.mse_change: refused by the core, got 7"):
         IcpSection()
 
 
 def test_duplicated_yaml_key_is_an_error(tmp_path: Path) -> None:
     p = tmp_path / "d.yaml"
     p.write_text("scan:\n  laser_x: 0.1\n  laser_x: 0.2\n")
-    with pytest.raises(ConfigError, match=r"d\.yaml:3: duplicate key 'laser_x' \(first at line 2\)"):
+    with pytest.raises(
+        ConfigError, match=r"d\.yaml:3: duplicate key 'laser_x' \(first at line 2\)"
+    ):
         LocalizerConfig.from_yaml(p)
 
 
@@ -163,3 +172,68 @@ def test_huge_file_is_not_parsed_as_a_config(tmp_path: Path) -> None:
     p.write_bytes(b"#" * (2 << 20))
     with pytest.raises(ConfigError, match="not a config file"):
         LocalizerConfig.from_yaml(p)
+
+
+# ----------------------------------------------------------------------------- issue 15
+
+
+def test_error_names_the_file_and_the_field(tmp_path: Path) -> None:
+    p = tmp_path / "config.yaml"
+    p.write_text("localizer:\n  lost_sigma_xy: -1\n")
+    with pytest.raises(ConfigError) as ei:
+        LocalizerConfig.from_yaml(p)
+    assert (str(ei.value), ei.value.path, ei.value.field) == (
+        f"{p}: localizer.lost_sigma_xy: must be > 0, got -1",
+        str(p),
+        "localizer.lost_sigma_xy",
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "section", "key", "value"),
+    [
+        ("relocalize:\n  confirm_scans: 5\n", "relocalize", "confirm_scans", 5),
+        ("recovery:\n  headings: [-0.2, 0.2]\n", "recovery", "headings", (-0.2, 0.2)),
+        ("kidnap:\n  doubt_scans: 12\n", "kidnap", "doubt_scans", 12),
+    ],
+)
+def test_relocalization_and_lost_detection_settings_come_from_the_file(
+    tmp_path: Path, text: str, section: str, key: str, value: object
+) -> None:
+    p = tmp_path / "c.yaml"
+    p.write_text(text)
+    assert getattr(getattr(LocalizerConfig.from_yaml(p), section), key) == value
+
+
+@pytest.mark.parametrize(
+    ("section", "kw", "needle"),
+    [
+        ("relocalize", {"confirm_scans": 0}, "relocalize.confirm_scans: must be >= 1, got 0"),
+        ("relocalize", {"dominance": 1.0}, "relocalize.dominance: must be < 1"),
+        ("recovery", {"min_radius": 3.0}, "recovery.min_radius: must not exceed max_radius"),
+        ("kidnap", {"doubt": 1.5}, "kidnap.doubt: must be <= 1"),
+    ],
+)
+def test_new_sections_are_validated(section: str, kw: dict, needle: str) -> None:
+    with pytest.raises(ConfigError, match=needle):
+        LocalizerConfig().replace(**{section: kw})
+
+
+def test_defaults_yaml_carries_descriptions_units_and_ranges() -> None:
+    lines = default_yaml().splitlines()
+    i = lines.index("  max_translation_jump: 1.5")
+    assert lines[i - 1] == "  # hard cap on one correction's translation [m, > 0]"
+
+
+def test_every_numeric_key_in_the_defaults_has_a_comment() -> None:
+    lines = default_yaml().splitlines()
+    keys = [i for i, ln in enumerate(lines) if ln.startswith("  ") and not ln.startswith("  #")]
+    assert [lines[i] for i in keys if not lines[i - 1].startswith("  #")] == []
+
+
+def test_icp_defaults_are_the_cores() -> None:
+    from icploc._core import IcpConfig
+
+    core = IcpConfig().to_dict()
+    ours = LocalizerConfig().icp.to_dict()
+    assert {k: ours[k] for k in ours if k in core} == {k: core[k] for k in ours if k in core}

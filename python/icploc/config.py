@@ -1,87 +1,76 @@
-"""Typed configuration of the localizer, loadable from and dumpable to YAML.
+"""Typed configuration of the localizer: one pydantic model per section, the one source of
+every setting's type, range, default, unit and description.
 
-One dataclass per section::
+Sections (the keys of a YAML config file)::
 
-    icp:       the ICP core's settings (metric, thresholds, iterations, robust weights)
-    scan:      scan preparation (range limits, decimation, laser mounting offset)
-    gating:    how a correction is checked against the odometry prediction (chi-square)
-    localizer: the outer loop (motion model, calibration, verification, lost, recovery)
-    map:       how the map is sampled for the ICP index (spacing, visibility culling)
+    icp:        the ICP core's settings (metric, thresholds, iterations, robust weights)
+    scan:       scan preparation (range limits, decimation, laser mounting offset)
+    gating:     how a correction is checked against the odometry prediction (chi-square)
+    localizer:  the outer loop (motion model, calibration, verification, lost, recovery)
+    map:        how the map is sampled for the ICP index (spacing, visibility culling)
+    relocalize: the global relocalization's hypothesis tracker and kidnap check
+    recovery:   the local recovery around the dead-reckoned pose
+    kidnap:     when a global kidnap check runs while tracking
 
-``LocalizerConfig.from_yaml(path)`` reads a (possibly partial) YAML file over the
-defaults; an unknown or duplicated section or key, or a value of the wrong type, raises
-:class:`ConfigError` naming the file, the section and the key.
-
-Validation lives here, in one place, and runs when a section is constructed (also by
-``dataclasses.replace``): every value is type-checked (ints are ints, floats finite) and
-range-checked with its field named; the ``icp`` section is also checked by the Rust core's
-own ``IcpConfig``. ``icploc config check``, ``replay`` and ``run`` all go through it.
-``icploc config defaults`` prints :meth:`LocalizerConfig.to_yaml` of the defaults.
+``LocalizerConfig.from_yaml(path)`` reads a (possibly partial) YAML file over the defaults.
+Every section validates at construction (and on assignment, and in :meth:`Section.replace`):
+an unknown or duplicated section or key, a value of the wrong type, a non-finite number or
+one out of range raises :class:`icploc.errors.ConfigError` naming the file and the field,
+e.g. ``config.yaml: localizer.lost_sigma_xy: must be > 0, got -1``. The ICP defaults are
+the Rust core's own (``IcpConfig::default()``) and the ``icp`` section is also checked by
+the core's ``IcpConfig``. ``icploc config defaults`` prints :meth:`LocalizerConfig.to_yaml`
+of the defaults (every key with its description and unit), ``icploc config check`` the
+configuration a file gives.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
-from dataclasses import dataclass, field
+import textwrap
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, get_args, get_type_hints
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args
 
 import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from icploc.errors import ConfigError
 
 if TYPE_CHECKING:
+    from typing_extensions import Self
+
     from icploc._core import IcpConfig
 
-
-
-
-class _Section:
-    """Base of the config sections: type-check and validate at construction."""
-
-    def __post_init__(self) -> None:
-        sec = _section_name(self)
-        d = self.__dict__
-        for name, hint in _hints(type(self)).items():
-            v = d[name]
-            t = type(v)
-            # the common cases inline (a section is built often), the rest by _coerce
-            if hint is float and t is float and math.isfinite(v):
-                continue
-            if (hint is int and t is int) or (hint is bool and t is bool) or (hint is str and t is str):
-                continue
-            d[name] = _coerce(v, hint, f"{sec}.{name}")
-        self.validate()
-
-    def validate(self) -> None:  # pragma: no cover - every section overrides it
-        pass
-
-    def replace(self, **changes: Any) -> Any:
-        """A validated copy with some values changed."""
-        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
-
-
-_HINTS: dict[type, dict[str, Any]] = {}
-
-
-def _hints(cls: type) -> dict[str, Any]:
-    """The field types of a section class (cached: sections are built often)."""
-    got = _HINTS.get(cls)
-    if got is None:
-        h = get_type_hints(cls)
-        got = _HINTS[cls] = {f.name: h[f.name] for f in dataclasses.fields(cls)}
-    return got
-
-
-def _section_name(obj: Any) -> str:
-    return type(obj).__name__.replace("Section", "").lower()
-
+__all__ = [
+    "ConfigError",
+    "GatingSection",
+    "IcpSection",
+    "KidnapSection",
+    "LocalizerConfig",
+    "LocalizerSection",
+    "MapSection",
+    "RecoverySection",
+    "RelocalizeSection",
+    "ScanSection",
+    "Section",
+    "default_yaml",
+]
 
 Metric = Literal["point_to_point", "point_to_line"]
 Robust = Literal["none", "huber", "cauchy"]
 Relocalization = Literal["global", "local"]
 LostCheck = Literal["inline", "background"]
+
+#: the finest map sampling accepted (m): finer multiplies the index size for no accuracy
+MIN_MAP_SPACING = 0.001
+#: a config file larger than this is not one (a wrong path): refused before parsing
+MAX_CONFIG_BYTES = 1 << 20
 
 
 def _core_default(name: str) -> Any:
@@ -91,461 +80,748 @@ def _core_default(name: str) -> Any:
     return getattr(IcpConfig(), name)
 
 
-@dataclass
-class IcpSection(_Section):
+def _f(default: Any, doc: str, unit: str = "", **limits: Any) -> Any:
+    """A field: its default, its description, its unit (m, rad, deg, s, Hz, scans, ...)
+    and its range (``gt`` / ``ge`` / ``lt`` / ``le``)."""
+    return Field(
+        default, description=doc, json_schema_extra={"unit": unit} if unit else None, **limits
+    )
+
+
+class Section(BaseModel):
+    """Base of the config sections: strict types (an int is an int, a bool is no number),
+    finite floats, no unknown keys, validated at construction, on assignment and in
+    :meth:`replace`; a :class:`ConfigError` names the section and the field."""
+
+    model_config = ConfigDict(
+        extra="forbid", strict=True, allow_inf_nan=False, validate_assignment=True
+    )
+    #: the section's key in a config file
+    section: ClassVar[str] = ""
+
+    def __init__(self, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as e:
+            raise _config_error(e, type(self)) from None
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        try:
+            super().__setattr__(name, value)
+        except ValidationError as e:
+            raise _config_error(e, type(self)) from None
+
+    def replace(self, **changes: Any) -> Self:
+        """A validated copy with some values changed (``dataclasses.replace`` for a section)."""
+        return type(self)(**{**self.__dict__, **changes})
+
+    def validate(self) -> Self:  # type: ignore[override]
+        """Every section is valid from construction on: returns self (kept for callers)."""
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
+
+
+def _tuple(v: Any) -> Any:
+    return tuple(v) if isinstance(v, list) else v
+
+
+class IcpSection(Section):
     """Settings passed to the Rust ICP core (see ``icploc.IcpConfig``); every default is
-    the core's own (``IcpConfig::default()`` in Rust), so an unset key means the same as
-    in ``icploc.icp()``.
+    the core's own (``IcpConfig::default()`` in Rust), so an unset key means the same as in
+    ``icploc.icp()``. The paper uses point-to-point ICP with a fixed rejection threshold;
+    point-to-line converges in fewer iterations on wall maps and is the core's default."""
 
-    The paper uses point-to-point ICP with a fixed rejection threshold; point-to-line
-    converges in fewer iterations on wall maps and is the core's default.
-    """
+    section: ClassVar[str] = "icp"
 
-    metric: Metric = _core_default("metric")
-    max_iterations: int = _core_default("max_iterations")
-    #: correspondence threshold at the first iteration (m); shrinks by ``threshold_decay``
-    max_correspondence_distance: float = _core_default("max_correspondence_distance")
-    #: ... down to this floor (m): the paper's "fixed level" that rejects occluding objects
-    min_correspondence_distance: float = _core_default("min_correspondence_distance")
-    threshold_decay: float = _core_default("threshold_decay")
-    trim_fraction: float = _core_default("trim_fraction")
-    robust: Robust = _core_default("robust")
-    robust_scale: float = _core_default("robust_scale")
-    mse_threshold: float = _core_default("mse_threshold")
-    mse_change: float = _core_default("mse_change")
-    step_tolerance: float = _core_default("step_tolerance")
-    min_inliers: int = _core_default("min_inliers")
-    min_inlier_ratio: float = _core_default("min_inlier_ratio")
-    #: the verified start: a fit that does not explain the scan triggers a local
-    #: branch-and-bound search (+-window_position m, +-window_heading rad) around the start
-    window_search: bool = _core_default("window_search")
-    window_position: float = _core_default("window_position")
-    window_heading: float = _core_default("window_heading")
-    window_angle_step: float = _core_default("window_angle_step")
-    expected_noise: float = _core_default("expected_noise")
-    accept_inlier_ratio: float = _core_default("accept_inlier_ratio")
-    accept_see_through: float = _core_default("accept_see_through")
+    metric: Metric = _f(_core_default("metric"), "error metric: point_to_point or point_to_line")
+    max_iterations: int = _f(_core_default("max_iterations"), "ICP iterations at most", gt=0)
+    max_correspondence_distance: float = _f(
+        _core_default("max_correspondence_distance"),
+        "correspondence threshold at the first iteration; shrinks by threshold_decay",
+        "m",
+        gt=0,
+    )
+    min_correspondence_distance: float = _f(
+        _core_default("min_correspondence_distance"),
+        "... down to this floor: the paper's fixed level that rejects occluding objects",
+        "m",
+        gt=0,
+    )
+    threshold_decay: float = _f(
+        _core_default("threshold_decay"), "factor on the threshold per iteration", gt=0, le=1
+    )
+    trim_fraction: float = _f(
+        _core_default("trim_fraction"), "share of the best pairs kept (trimmed ICP)", gt=0, le=1
+    )
+    robust: Robust = _f(_core_default("robust"), "robust weight: none, huber or cauchy")
+    robust_scale: float = _f(_core_default("robust_scale"), "scale of the robust weight", "m")
+    mse_threshold: float = _f(
+        _core_default("mse_threshold"), "converged below this mean squared error", "m^2"
+    )
+    mse_change: float = _f(
+        _core_default("mse_change"), "converged when the MSE changes by less than this", "m^2"
+    )
+    step_tolerance: float = _f(
+        _core_default("step_tolerance"), "converged when a step moves less than this", "m, rad"
+    )
+    min_inliers: int = _f(
+        _core_default("min_inliers"), "a fit needs at least this many pairs", ge=0
+    )
+    min_inlier_ratio: float = _f(
+        _core_default("min_inlier_ratio"), "a fit needs at least this share of pairs", ge=0, le=1
+    )
+    window_search: bool = _f(
+        _core_default("window_search"),
+        "the verified start: a fit that does not explain the scan triggers a local "
+        "branch-and-bound search around the start",
+    )
+    window_position: float = _f(
+        _core_default("window_position"), "the window search's half width in x and y", "m"
+    )
+    window_heading: float = _f(
+        _core_default("window_heading"), "the window search's half width in heading", "rad"
+    )
+    window_angle_step: float = _f(
+        _core_default("window_angle_step"), "the window search's heading step", "rad"
+    )
+    expected_noise: float = _f(
+        _core_default("expected_noise"),
+        "range noise a good fit shows (for the verified start)",
+        "m",
+    )
+    accept_inlier_ratio: float = _f(
+        _core_default("accept_inlier_ratio"),
+        "the verified start accepts a fit with at least this inlier ratio",
+    )
+    accept_see_through: float = _f(
+        _core_default("accept_see_through"),
+        "... and at most this share of beams through mapped walls",
+    )
+    adaptive_correspondence: bool = _f(
+        True,
+        "open the first correspondence threshold to cover the odometry prediction's "
+        "uncertainty (correspondence_sigmas), up to max_correspondence_cap: sparse logs",
+    )
+    correspondence_sigmas: float = _f(3.0, "sigmas of the prediction covered", "sigma", gt=0)
+    max_correspondence_cap: float = _f(2.0, "cap of the opened threshold", "m", gt=0)
 
-    #: open the first correspondence threshold to cover the odometry prediction's
-    #: uncertainty (this many sigmas), up to the cap (m); for sparse logs with big steps
-    adaptive_correspondence: bool = True
-    correspondence_sigmas: float = 3.0
-    max_correspondence_cap: float = 2.0
+    #: this section's keys that are the Python outer loop's, not the core's
+    _OUTER: ClassVar[tuple[str, ...]] = (
+        "adaptive_correspondence",
+        "correspondence_sigmas",
+        "max_correspondence_cap",
+    )
 
-    def validate(self) -> None:
-        _positive(
-            self, "max_iterations", "max_correspondence_distance", "min_correspondence_distance"
-        )
+    @model_validator(mode="after")
+    def _check(self) -> IcpSection:
         if self.min_correspondence_distance > self.max_correspondence_distance:
-            raise ConfigError(
-                "icp.min_correspondence_distance must not exceed icp.max_correspondence_distance"
+            raise ValueError(
+                "min_correspondence_distance: must not exceed max_correspondence_distance "
+                f"({self.min_correspondence_distance} > {self.max_correspondence_distance})"
             )
-        if not 0.0 < self.threshold_decay <= 1.0:
-            raise ConfigError("icp.threshold_decay must be in (0, 1]")
-        if not 0.0 < self.trim_fraction <= 1.0:
-            raise ConfigError("icp.trim_fraction must be in (0, 1]")
-        if not 0.0 <= self.min_inlier_ratio <= 1.0:
-            raise ConfigError("icp.min_inlier_ratio must be in [0, 1]")
-        _positive(self, "correspondence_sigmas", "max_correspondence_cap")
-        _at_least(self, 0, "min_inliers")
         # everything the core checks, checked by the core itself
         try:
             self.to_icp_config()
         except (ValueError, OverflowError, TypeError) as e:
-            msg = str(e).removeprefix("invalid config: ")
-            raise ConfigError(f"icp.{msg}" if " = " in msg else f"icp: {msg}") from None
+            raise ValueError(_core_message(str(e))) from None
+        return self
 
     def to_icp_config(self) -> IcpConfig:
         """The ``icploc.IcpConfig`` for the Rust core."""
         from icploc._core import IcpConfig
 
-        kw = dataclasses.asdict(self)
-        for k in ("adaptive_correspondence", "correspondence_sigmas", "max_correspondence_cap"):
-            del kw[k]
+        kw = {k: v for k, v in self.__dict__.items() if k not in self._OUTER}
         return IcpConfig(**kw)
 
 
-@dataclass
-class ScanSection(_Section):
+def _core_message(msg: str) -> str:
+    """``invalid config: robust_scale = 0: must be positive`` -> ``robust_scale: must be
+    positive, got 0`` (the core's InvalidConfigError, worded as the other fields' errors)."""
+    msg = msg.removeprefix("invalid config: ")
+    head, sep, reason = msg.partition(": ")
+    name, eq, value = head.partition(" = ")
+    if sep and eq and name.isidentifier():
+        return f"{name}: {reason}, got {value}"
+    return msg
+
+
+class ScanSection(Section):
     """Which beams are used and where the laser sits on the robot."""
 
-    #: beams nearer than this are dropped (m): the robot's own body, dust
-    min_range: float = 0.05
-    #: beams at or beyond this are dropped (m); 0 = use the scanner's own maximum range
-    max_range: float = 0.0
-    #: fraction of the scanner's max range treated as "max-range / no return"
-    max_range_margin: float = 0.999
-    #: keep every n-th beam (1 = all)
-    decimation: int = 1
-    #: laser mounting offset in the robot base frame: x, y (m) and yaw (rad)
-    laser_x: float = 0.0
-    laser_y: float = 0.0
-    laser_theta: float = 0.0
-    #: fewer usable beams than this and the scan is not matched at all
-    min_points: int = 20
+    section: ClassVar[str] = "scan"
 
-    def validate(self) -> None:
-        if self.min_range < 0.0 or self.max_range < 0.0:
-            raise ConfigError("scan.min_range and scan.max_range must be >= 0")
+    min_range: float = _f(0.05, "beams nearer than this are dropped (the robot, dust)", "m", ge=0)
+    max_range: float = _f(
+        0.0, "beams at or beyond this are dropped; 0: the scanner's own maximum", "m", ge=0
+    )
+    max_range_margin: float = _f(
+        0.999, "share of the scanner's max range read as max-range / no return", gt=0, le=1
+    )
+    decimation: int = _f(1, "keep every n-th beam (1: all)", ge=1)
+    laser_x: float = _f(0.0, "laser mounting in the robot base frame: x", "m")
+    laser_y: float = _f(0.0, "laser mounting in the robot base frame: y", "m")
+    laser_theta: float = _f(0.0, "laser mounting in the robot base frame: yaw", "rad")
+    min_points: int = _f(20, "fewer usable beams than this and the scan is not matched", ge=3)
+
+    @model_validator(mode="after")
+    def _check(self) -> ScanSection:
         if self.max_range and self.max_range <= self.min_range:
-            raise ConfigError("scan.max_range must exceed scan.min_range (or be 0)")
-        if self.decimation < 1:
-            raise ConfigError("scan.decimation must be >= 1")
-        if not 0.0 < self.max_range_margin <= 1.0:
-            raise ConfigError("scan.max_range_margin must be in (0, 1]")
-        if self.min_points < 3:
-            raise ConfigError("scan.min_points must be >= 3")
+            raise ValueError(
+                f"max_range: must exceed min_range (or be 0), got {self.max_range} "
+                f"<= {self.min_range}"
+            )
+        return self
 
     @property
     def mounting(self) -> tuple[float, float, float]:
         return (self.laser_x, self.laser_y, self.laser_theta)
 
 
-@dataclass
-class GatingSection(_Section):
-    """How a scan match is checked against the odometry prediction before it is fused.
+class GatingSection(Section):
+    """How a scan match is checked against the odometry prediction before it is fused: the
+    chi-square test of prediction against scan pose (v' (P + R)^-1 v, 3 degrees of freedom)
+    fuses it below the chi2_accept quantile, inflates its covariance up to chi2_reject and
+    rejects it beyond (the paper's "referring to the past value")."""
 
-    The chi-square test of prediction against scan pose (``v' (P + R)^-1 v``, 3 degrees of
-    freedom) decides: below the ``chi2_accept`` quantile the match is fused as it is, up to
-    the ``chi2_reject`` quantile its covariance is inflated until consistent, beyond it is
-    rejected and the prediction kept (the paper's "referring to the past value")."""
+    section: ClassVar[str] = "gating"
 
-    #: chi-square probabilities (3 dof) of the accept and reject quantiles
-    chi2_accept: float = 0.99
-    chi2_reject: float = 0.9999
-    #: hard caps on one correction, whatever the covariances say (m, degrees)
-    max_translation_jump: float = 1.5
-    max_rotation_jump_deg: float = 45.0
-    #: a fit with a smaller inlier ratio is rejected
-    min_inlier_ratio: float = 0.12
-    #: reject a fit that did not converge (hit the iteration limit / too few inliers)
-    require_convergence: bool = False
+    chi2_accept: float = _f(
+        0.99, "chi-square probability (3 dof) of the accept quantile", ge=0.5, lt=1
+    )
+    chi2_reject: float = _f(0.9999, "... of the reject quantile (>= chi2_accept)", ge=0.5, lt=1)
+    max_translation_jump: float = _f(1.5, "hard cap on one correction's translation", "m", gt=0)
+    max_rotation_jump_deg: float = _f(45.0, "hard cap on one correction's rotation", "deg", gt=0)
+    min_inlier_ratio: float = _f(0.12, "a fit with a smaller inlier ratio is rejected", ge=0, le=1)
+    require_convergence: bool = _f(
+        False, "reject a fit that did not converge (iteration limit, too few inliers)"
+    )
 
-    def validate(self) -> None:
-        _positive(self, "max_translation_jump", "max_rotation_jump_deg")
-        if not 0.5 <= self.chi2_accept <= self.chi2_reject < 1.0:
-            raise ConfigError(
-                "gating: need 0.5 <= chi2_accept <= chi2_reject < 1, got "
-                f"{self.chi2_accept}, {self.chi2_reject}"
+    @model_validator(mode="after")
+    def _check(self) -> GatingSection:
+        if self.chi2_accept > self.chi2_reject:
+            raise ValueError(
+                f"chi2_accept: must not exceed chi2_reject ({self.chi2_accept} > {self.chi2_reject})"
             )
-        if not 0.0 <= self.min_inlier_ratio <= 1.0:
-            raise ConfigError("gating.min_inlier_ratio must be in [0, 1]")
+        return self
 
 
-@dataclass
-class LocalizerSection(_Section):
+class LocalizerSection(Section):
     """The outer loop: odometry noise model and calibration, the scan covariance,
     verification and status, lost detection and recovery, start pose."""
 
-    #: start pose (x, y, theta) of the robot in the map frame; null = must be given in code
-    initial_pose: tuple[float, float, float] | None = None
-    #: initial standard deviations (m, m, rad)
-    initial_sigma_xy: float = 0.1
-    initial_sigma_theta: float = 0.05
-    #: odometry motion model (:mod:`icploc.motion`), AMCL-style variances:
-    #: heading alpha1 turn^2 + alpha2 dist^2; along alpha3 dist^2 + alpha4 turn^2;
-    #: sideways alpha5 dist^2 + alpha4 turn^2. Defaults fitted (maximum likelihood) to the
-    #: 2,000 real motions of the Freiburg course data in 0.5 m steps (benches/loc_check.py
-    #: --fit-motion): 1.3 % of a turn, 0.36 deg/m, 3.2 % of the distance along and across
-    alpha1: float = 1.6e-4
-    alpha2: float = 3.9e-5
-    alpha3: float = 1.0e-3
-    alpha4: float = 1.0e-4
-    alpha5: float = 1.0e-3
-    #: learn the odometry noise online: the alphas are scaled up (up to ``noise_gain_max``
-    #: times) while the accepted fits' chi-square statistic averages above 3
-    learn_noise: bool = True
-    noise_gain_max: float = 10.0
-    #: process noise added at every scan even without motion (slip, a push): keeps the
-    #: filter responsive while standing still
-    process_sigma_xy: float = 0.002
-    process_sigma_theta: float = 0.002
-    #: online odometry calibration (:mod:`icploc.calibration`): distance scale, turn scale
-    #: and heading drift learned from verified scan matches ``calibration_baseline`` m apart
-    #: whose position is known to ``calibration_max_sigma`` m; memory in metres driven;
-    #: the factors stay within the bounds
-    calibrate_odometry: bool = True
-    calibration_memory: float = 50.0
-    calibration_baseline: float = 2.0
-    calibration_max_sigma: float = 0.05
-    calibration_max_scale: float = 0.05
-    calibration_max_turn_scale: float = 0.1
-    calibration_max_drift_deg: float = 2.0
-    #: the scan match's covariance (:func:`icploc.fusion.scan_covariance`): the information
-    #: of this many independent beams on a 10 cm map, inversely proportional to the map's
-    #: resolution (a scan's beams share their walls' quantisation); 6 makes the NEES
-    #: against the reference ~3 on real logs at 10 cm (benches/loc_check.py)
-    scan_independent_beams: float = 6.0
-    #: verification of a pose (:mod:`icploc.fitcheck`): at least this share of beams end on
-    #: walls, and at least this fraction of the share this map's verified fits show; the
-    #: RMS residual of those at most this many expected residuals (the map's resolution and
-    #: measured fit quality); optionally few beams through mapped walls
-    verify_min_hit_ratio: float = 0.5
-    verify_hit_fraction: float = 0.8
-    verify_max_residual: float = 2.0
-    verify_see_through: bool = False
-    verify_max_see_through: float = 0.15
-    #: when prediction and scan pose fail the chi-square test, the scan pose is taken (the
-    #: prediction's covariance inflated) if it verifies and its hit share beats the
-    #: prediction's by at least this
-    arbitration_margin: float = 0.1
-    #: ... and the disagreement is at most this many times the accept quantile (a jump the
-    #: odometry cannot have made stays rejected: the paper's "referring to the past value")
-    arbitration_max_inflation: float = 16.0
-    #: ... or when this many rejected scan poses in a row agree with each other (moved on by
-    #: odometry, within their covariances): the prediction is what is off
-    consistent_rejections: int = 3
-    #: ``tracking`` promises the pose: verified, and its standard deviation at most this
-    #: (m along its worst axis, degrees)
-    tracking_max_sigma: float = 0.15
-    tracking_max_sigma_theta_deg: float = 3.0
-    #: lost when this many scans in a row contradict the pose (no usable fit, a rejected
-    #: one, or one no better than the prediction while fewer than ``lost_hit_fraction`` x
-    #: the usual share of beams end on walls), or when the position is this uncertain (m)
-    lost_after_bad_scans: int = 5
-    lost_hit_fraction: float = 0.35
-    #: ... unless the beams that do end on walls fit within this many expected residuals
-    #: (a crowd hides walls; at a wrong place chance hits scatter)
-    crowd_residual: float = 1.2
-    lost_sigma_xy: float = 2.0
-    #: a recovery candidate needs at least this inlier ratio (then verification)
-    recover_inlier_ratio: float = 0.6
-    #: consecutive verified, consistent scans before a recovery locks
-    recover_after: int = 3
-    #: the recovery strategy while lost: "global" (:class:`icploc.relocalize.GlobalRelocalization`:
-    #: around the dead-reckoned pose first, then anywhere on the map, its grids built the
-    #: first time they are needed) or "local" (:class:`icploc.recovery.LocalRecovery`: only
-    #: around the dead-reckoned pose). A ``recovery=`` given to the Localizer takes precedence.
-    relocalization: Relocalization = "global"
-    #: the global recovery's searches (5 ms - 1 s with the map's size): "inline" inside
-    #: ``update`` (deterministic: replays, benchmarks) or "background" on a worker thread,
-    #: used a scan or more later (``icploc run``: a live loop must not stall)
-    lost_check: LostCheck = "inline"
-    #: while lost, scans spent searching only around the dead-reckoned pose before the
-    #: global search joins in
-    local_recovery_scans: int = 3
-    #: while lost and searching globally: at most one global search per this many scans and
-    #: per this many seconds of scan time (between searches the hypotheses are carried by
-    #: odometry and re-scored on every scan)
-    global_search_every: int = 10
-    global_search_interval: float = 1.0
-    #: a scan newer than the newest odometry sample is predicted by extrapolating at the last
-    #: odometry velocity for at most min(0.25 s, this) seconds, then the pose is held
-    max_odometry_gap: float = 1.0
+    section: ClassVar[str] = "localizer"
 
-    def validate(self) -> None:
-        if self.initial_pose is not None:
-            if len(self.initial_pose) != 3 or not all(math.isfinite(v) for v in self.initial_pose):
-                raise ConfigError(
-                    "localizer.initial_pose must be three finite numbers [x, y, theta]"
-                )
-        _positive(
-            self,
-            "initial_sigma_xy",
-            "initial_sigma_theta",
-            "calibration_memory",
-            "calibration_baseline",
-            "calibration_max_sigma",
-            "scan_independent_beams",
-            "verify_max_residual",
-            "crowd_residual",
-            "tracking_max_sigma",
-            "tracking_max_sigma_theta_deg",
-            "lost_sigma_xy",
-            "arbitration_max_inflation",
-            "noise_gain_max",
-        )
-        for name in (
-            "process_sigma_xy",
-            "process_sigma_theta",
-            "alpha1",
-            "alpha2",
-            "alpha3",
-            "alpha4",
-            "alpha5",
-            "calibration_max_scale",
-            "calibration_max_turn_scale",
-            "calibration_max_drift_deg",
-            "verify_max_see_through",
-        ):
-            v = getattr(self, name)
-            if not (v >= 0.0 and math.isfinite(v)):
-                raise ConfigError(f"localizer.{name} must be a finite number >= 0, got {v!r}")
-        for name in (
-            "recover_inlier_ratio",
-            "verify_min_hit_ratio",
-            "verify_hit_fraction",
-            "arbitration_margin",
-            "lost_hit_fraction",
-        ):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"localizer.{name} must be in [0, 1]")
-        _positive(
-            self,
-            "lost_after_bad_scans",
-            "consistent_rejections",
-            "recover_after",
-            "local_recovery_scans",
-            "global_search_every",
-            "max_odometry_gap",
-        )
-        if not (self.global_search_interval >= 0.0 and math.isfinite(self.global_search_interval)):
-            raise ConfigError("localizer.global_search_interval must be a finite number >= 0")
-        if self.relocalization not in ("global", "local"):
-            raise ConfigError(
-                f"localizer.relocalization must be 'global' or 'local', got {self.relocalization!r}"
-            )
+    initial_pose: tuple[float, float, float] | None = _f(
+        None, "start pose [x, y, theta] in the map frame; null: given in code", "m, m, rad"
+    )
+    initial_sigma_xy: float = _f(0.1, "initial standard deviation of x and y", "m", gt=0)
+    initial_sigma_theta: float = _f(0.05, "initial standard deviation of the heading", "rad", gt=0)
+    # the odometry motion model (icploc.motion), AMCL-style variances; defaults fitted
+    # (maximum likelihood) to the 2,000 real motions of the Freiburg course data in 0.5 m
+    # steps (benches/loc_check.py --fit-motion): 1.3 % of a turn, 0.36 deg/m, 3.2 % of the
+    # distance along and across
+    alpha1: float = _f(1.6e-4, "heading variance per squared turn", "rad^2/rad^2", ge=0)
+    alpha2: float = _f(3.9e-5, "heading variance per squared distance", "rad^2/m^2", ge=0)
+    alpha3: float = _f(1.0e-3, "along-track variance per squared distance", "m^2/m^2", ge=0)
+    alpha4: float = _f(
+        1.0e-4, "along- and cross-track variance per squared turn", "m^2/rad^2", ge=0
+    )
+    alpha5: float = _f(1.0e-3, "cross-track variance per squared distance", "m^2/m^2", ge=0)
+    learn_noise: bool = _f(
+        True,
+        "learn the odometry noise online: the alphas scale up (to noise_gain_max) while "
+        "the accepted fits' chi-square statistic averages above 3",
+    )
+    noise_gain_max: float = _f(10.0, "largest factor on the alphas", gt=0)
+    process_sigma_xy: float = _f(
+        0.002, "process noise per scan even without motion (slip, a push)", "m", ge=0
+    )
+    process_sigma_theta: float = _f(0.002, "... in heading", "rad", ge=0)
+    calibrate_odometry: bool = _f(
+        True,
+        "online odometry calibration (icploc.calibration): distance scale, turn scale and "
+        "heading drift from verified scan matches",
+    )
+    calibration_memory: float = _f(50.0, "the calibration's memory, in distance driven", "m", gt=0)
+    calibration_baseline: float = _f(2.0, "verified matches this far apart are compared", "m", gt=0)
+    calibration_max_sigma: float = _f(
+        0.05, "... whose position is known to this standard deviation", "m", gt=0
+    )
+    calibration_max_scale: float = _f(0.05, "bound of the distance scale error (0.05: 5 %)", ge=0)
+    calibration_max_turn_scale: float = _f(0.1, "bound of the turn scale error", ge=0)
+    calibration_max_drift_deg: float = _f(2.0, "bound of the heading drift", "deg/m", ge=0)
+    scan_independent_beams: float = _f(
+        6.0,
+        "the scan match's covariance: the information of this many independent beams on "
+        "a 10 cm map, inversely proportional to the map's resolution (6: NEES ~3 on real logs)",
+        "beams",
+        gt=0,
+    )
+    verify_min_hit_ratio: float = _f(
+        0.5, "verification: at least this share of beams end on walls", ge=0, le=1
+    )
+    verify_hit_fraction: float = _f(
+        0.8, "... and at least this fraction of the share this map's verified fits show", ge=0, le=1
+    )
+    verify_max_residual: float = _f(
+        2.0,
+        "... their RMS residual at most this many expected residuals",
+        "expected residuals",
+        gt=0,
+    )
+    verify_see_through: bool = _f(False, "verification also counts beams through mapped walls")
+    verify_max_see_through: float = _f(0.15, "... at most this share of beams", ge=0)
+    arbitration_margin: float = _f(
+        0.1,
+        "a scan pose failing the chi-square test is taken when it verifies and its hit share "
+        "beats the prediction's by this",
+        ge=0,
+        le=1,
+    )
+    arbitration_max_inflation: float = _f(
+        16.0,
+        "... and the disagreement is at most this many times the accept quantile",
+        "x quantile",
+        gt=0,
+    )
+    consistent_rejections: int = _f(
+        3, "... or when this many rejected scan poses in a row agree with each other", "scans", gt=0
+    )
+    tracking_max_sigma: float = _f(
+        0.15, "tracking promises the pose: verified, and its sigma at most this", "m", gt=0
+    )
+    tracking_max_sigma_theta_deg: float = _f(
+        3.0, "... and its heading sigma at most this", "deg", gt=0
+    )
+    lost_after_bad_scans: int = _f(
+        5,
+        "lost when this many scans in a row contradict the pose (no usable fit, a rejected "
+        "one, or one no better than the prediction with few hits)",
+        "scans",
+        gt=0,
+    )
+    lost_hit_fraction: float = _f(
+        0.35, "few hits: fewer than this x the usual share of beams end on walls", ge=0, le=1
+    )
+    crowd_residual: float = _f(
+        1.2,
+        "... unless the hits fit within this many expected residuals (a crowd hides walls)",
+        "expected residuals",
+        gt=0,
+    )
+    lost_sigma_xy: float = _f(2.0, "lost when the position is this uncertain", "m", gt=0)
+    recover_inlier_ratio: float = _f(
+        0.6, "a recovery candidate needs this inlier ratio (then verification)", ge=0, le=1
+    )
+    recover_after: int = _f(
+        3, "consecutive verified, consistent scans before a recovery locks", "scans", gt=0
+    )
+    relocalization: Relocalization = _f(
+        "global",
+        "recovery while lost: global (icploc.relocalize.GlobalRelocalization: near the "
+        "dead-reckoned pose, then the whole map) or local (icploc.recovery.LocalRecovery: "
+        "near it only); a recovery= given to the Localizer takes precedence",
+    )
+    lost_check: LostCheck = _f(
+        "inline",
+        "the global searches: inline in update (deterministic: replays, benchmarks) or "
+        "background on a worker thread (icploc run: a live loop must not stall)",
+    )
+    local_recovery_scans: int = _f(
+        3,
+        "while lost, scans searching near the dead-reckoned pose before the global search",
+        "scans",
+        gt=0,
+    )
+    global_search_every: int = _f(
+        10, "while lost: at most one global search per this many scans ...", "scans", gt=0
+    )
+    global_search_interval: float = _f(1.0, "... and per this much scan time", "s", ge=0)
+    max_odometry_gap: float = _f(
+        1.0,
+        "a scan newer than the newest odometry is extrapolated at the last velocity for at "
+        "most min(0.25 s, this), then the pose is held",
+        "s",
+        gt=0,
+    )
+
+    _pose = field_validator("initial_pose", mode="before")(_tuple)
 
 
-@dataclass
-class MapSection(_Section):
+class MapSection(Section):
     """How the map is turned into the ICP index."""
 
-    #: uniform sampling interval along the fitted wall lines (m), the paper's §2.2
-    spacing: float = 0.05
-    #: the map's resolution (m) the thresholds scale with; 0: a grid's cell size, else the
-    #: median spacing of the map's sample points
-    resolution: float = 0.0
-    #: match each scan only against map points the laser could see from the predicted pose
-    visibility_culling: bool = False
-    #: field of view (degrees) and range (m) used for the culling
-    visibility_fov_deg: float = 360.0
-    visibility_max_range: float = 30.0
+    section: ClassVar[str] = "map"
 
-    def validate(self) -> None:
-        _positive(self, "spacing", "visibility_fov_deg", "visibility_max_range")
-        if self.spacing < MIN_MAP_SPACING:
-            raise ConfigError(
-                f"map.spacing must be at least {MIN_MAP_SPACING} m (1 mm), got {self.spacing!r}"
+    spacing: float = _f(
+        0.05,
+        "sampling interval along the fitted wall lines (the paper's 2.2)",
+        "m",
+        ge=MIN_MAP_SPACING,
+    )
+    resolution: float = _f(
+        0.0,
+        "the map's resolution the thresholds scale with; 0: a grid's cell size, else the "
+        "median spacing of the map's points",
+        "m",
+        ge=0,
+    )
+    visibility_culling: bool = _f(
+        False, "match each scan only against map points visible from the predicted pose"
+    )
+    visibility_fov_deg: float = _f(360.0, "field of view of the culling", "deg", gt=0)
+    visibility_max_range: float = _f(30.0, "range of the culling", "m", gt=0)
+
+
+class RelocalizeSection(Section):
+    """The global relocalization (icploc.relocalize): the multi-hypothesis tracker over
+    the global search's candidates, the grid it builds, and the kidnap check while
+    tracking. Scores are the global search's (a likelihood in [0, 1])."""
+
+    section: ClassVar[str] = "relocalize"
+
+    resolution: float = _f(0.05, "grid resolution of the global search", "m", gt=0)
+    max_cells: float = _f(
+        4e6,
+        "the localizer's deferred build picks the finest resolution (>= 5 cm) with at most "
+        "this many cells",
+        "cells",
+        gt=0,
+    )
+    max_hypotheses: int = _f(12, "hypotheses kept at most", ge=1)
+    keep_ratio: float = _f(
+        0.6, "hypotheses scoring below this fraction of the best are dropped", ge=0, lt=1
+    )
+    min_score: float = _f(0.45, "a confirming scan needs at least this score", ge=0, lt=1)
+    min_inlier_ratio: float = _f(0.6, "... and this inlier ratio", ge=0, lt=1)
+    dominance: float = _f(
+        0.03, "every other distinct hypothesis must score below (1 - this) x the best", ge=0, lt=1
+    )
+    dominance_slope: float = _f(
+        0.5, "the margin grows by this x (clean_score - the leader's score)", ge=0, lt=1
+    )
+    clean_score: float = _f(
+        0.9, "a leader scoring this needs only the dominance margin", ge=0, lt=1
+    )
+    confirm_scans: int = _f(
+        3,
+        "consecutive dominating, good scans (the search scan included) before a lock",
+        "scans",
+        ge=1,
+    )
+    search_every: int = _f(
+        1, "a fresh global search every n-th scan while not locked (1: every scan)", "scans", ge=1
+    )
+    max_points: int = _f(360, "scan points per hypothesis refinement (0: all)", "points", ge=0)
+    see_through_weight: float = _f(
+        0.5,
+        "weight of the see-through penalty in the tracker's score (glass and map errors let "
+        "real beams through mapped lines)",
+        ge=0,
+        le=1,
+    )
+    inlier_margin: float = _f(
+        0.02, "a rival beating the best's inlier ratio by more than this blocks a lock", ge=0, lt=1
+    )
+    max_see_through: float = _f(
+        0.6, "a confirming scan sees through mapped walls with at most this share of beams", ge=0
+    )
+    min_clearance: float = _f(
+        0.1, "hypotheses nearer than this to the map (inside a wall) are dropped", "m", ge=0
+    )
+    lost_margin: float = _f(
+        0.3,
+        "kidnap check: elsewhere when the tracked pose scores below (1 - this) x the best",
+        ge=0,
+        le=1,
+    )
+    clean_inlier_ratio: float = _f(
+        0.95, "... or, for a best fit this clean (inlier ratio) ...", ge=0, le=1
+    )
+    clean_margin: float = _f(0.1, "... below the best's score minus this", ge=0, le=1)
+
+
+class RecoverySection(Section):
+    """The local recovery (icploc.recovery.LocalRecovery): multi-start ICP around the
+    dead-reckoned pose within its uncertainty (3 sigma, min_radius .. max_radius); the
+    scans it needs to lock are localizer.recover_after."""
+
+    section: ClassVar[str] = "recovery"
+
+    min_radius: float = _f(0.25, "smallest search radius", "m", gt=0)
+    max_radius: float = _f(2.0, "largest search radius (and: beyond it no local search)", "m", gt=0)
+    headings: tuple[float, ...] = _f((-0.3, 0.0, 0.3), "heading offsets tried at each start", "rad")
+    keep: int = _f(5, "candidates kept as hypotheses", ge=1)
+
+    _headings = field_validator("headings", mode="before")(_tuple)
+
+    @model_validator(mode="after")
+    def _check(self) -> RecoverySection:
+        if self.min_radius > self.max_radius:
+            raise ValueError(
+                f"min_radius: must not exceed max_radius ({self.min_radius} > {self.max_radius})"
             )
-        if not (self.resolution >= 0.0 and math.isfinite(self.resolution)):
-            raise ConfigError(f"map.resolution must be a finite number >= 0, got {self.resolution!r}")
+        if not self.headings:
+            raise ValueError("headings: need at least one heading")
+        return self
 
 
-#: the finest map sampling accepted (m): finer multiplies the index size for no accuracy
-MIN_MAP_SPACING = 0.001
+class KidnapSection(Section):
+    """When a global kidnap check runs while tracking (icploc.kidnap.KidnapTrigger)."""
+
+    section: ClassVar[str] = "kidnap"
+
+    doubt: float = _f(0.8, "doubtful: a hit share below this x the usual share", ge=0, le=1)
+    doubt_scans: int = _f(8, "... for this many scans in a row: check", "scans", ge=1)
+    doubt_jump: float = _f(
+        0.9,
+        "a fit taken far against the odometry is checked when its hit share is below this "
+        "fraction of the map's usual share",
+        ge=0,
+        le=1,
+    )
+    recheck_scans: int = _f(
+        3, "a better pose elsewhere is re-checked this many scans later", "scans", ge=1
+    )
+    recheck_distance: float = _f(
+        0.5, "... and must be found again this near where the odometry carried it", "m", gt=0
+    )
+    recheck_angle: float = _f(0.175, "... and within this heading", "rad", gt=0)
+    history: int = _f(
+        25, "the usual share averages about this many recent ordinary scans", "scans", ge=1
+    )
+    backoff_max: int = _f(
+        64, "after a check the trigger keeps quiet at most this long", "scans", ge=1
+    )
 
 
-@dataclass
-class LocalizerConfig:
-    """Every setting of the localizer, by section."""
+_SECTIONS: tuple[type[Section], ...] = (
+    IcpSection,
+    ScanSection,
+    GatingSection,
+    LocalizerSection,
+    MapSection,
+    RelocalizeSection,
+    RecoverySection,
+    KidnapSection,
+)
 
-    icp: IcpSection = field(default_factory=IcpSection)
-    scan: ScanSection = field(default_factory=ScanSection)
-    gating: GatingSection = field(default_factory=GatingSection)
-    localizer: LocalizerSection = field(default_factory=LocalizerSection)
-    map: MapSection = field(default_factory=MapSection)
 
-    def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            want = f.default_factory  # type: ignore[misc]
-            got = getattr(self, f.name)
-            if not isinstance(got, want):  # type: ignore[arg-type]
-                raise ConfigError(
-                    f"{f.name}: expected a {want.__name__}, got {type(got).__name__}"  # type: ignore[union-attr]
-                )
+class LocalizerConfig(BaseModel):
+    """Every setting of the localizer, by section (see the module docstring)."""
 
-    # -- validation ----------------------------------------------------------------------
-    def validate(self) -> LocalizerConfig:
-        """Raise :class:`ConfigError` when a value is out of range; return self."""
-        for f in dataclasses.fields(self):
-            getattr(self, f.name).validate()
+    model_config = ConfigDict(extra="forbid", strict=True, validate_assignment=True)
+
+    icp: IcpSection = Field(default_factory=IcpSection)
+    scan: ScanSection = Field(default_factory=ScanSection)
+    gating: GatingSection = Field(default_factory=GatingSection)
+    localizer: LocalizerSection = Field(default_factory=LocalizerSection)
+    map: MapSection = Field(default_factory=MapSection)
+    relocalize: RelocalizeSection = Field(default_factory=RelocalizeSection)
+    recovery: RecoverySection = Field(default_factory=RecoverySection)
+    kidnap: KidnapSection = Field(default_factory=KidnapSection)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _a_section(cls, v: Any, info: ValidationInfo) -> Any:
+        want = cls.model_fields[str(info.field_name)].annotation
+        if isinstance(want, type) and not isinstance(v, want):
+            raise ValueError(f"expected a {want.__name__}, got {type(v).__name__}")
+        return v
+
+    def __init__(self, **sections: Any) -> None:
+        try:
+            super().__init__(**sections)
+        except ValidationError as e:
+            raise _config_error(e, None) from None
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        try:
+            super().__setattr__(name, value)
+        except ValidationError as e:
+            raise _config_error(e, None) from None
+
+    def validate(self) -> LocalizerConfig:  # type: ignore[override]
+        """Every section is valid from construction on: returns self (kept for callers)."""
         return self
 
     # -- dict / YAML -----------------------------------------------------------------------
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        out: dict[str, dict[str, Any]] = {}
-        for f in dataclasses.fields(self):
-            sec = getattr(self, f.name)
-            d: dict[str, Any] = {}
-            for sf in dataclasses.fields(sec):
-                v = getattr(sec, sf.name)
-                d[sf.name] = list(v) if isinstance(v, tuple) else v
-            out[f.name] = d
-        return out
+        return {name: sec.to_dict() for name, sec in self.__dict__.items()}
 
     def to_yaml(self) -> str:
-        header = "# icploc localizer configuration (every key optional; unknown keys are errors)\n"
-        return header + yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=False)
+        """The configuration as YAML, every section and key with its description, unit and
+        range as comments (what ``icploc config defaults`` / ``config check`` print)."""
+        out = ["# icploc localizer configuration (every key optional; unknown keys are errors)"]
+        for name, sec in self.__dict__.items():
+            doc = " ".join((type(sec).__doc__ or "").split())
+            out.append("")
+            out.extend("# " + ln for ln in textwrap.wrap(f"{name}: {doc}", 88))
+            out.append(f"{name}:")
+            for key, value in sec.to_dict().items():
+                out.extend("  # " + ln for ln in textwrap.wrap(_describe(type(sec), key), 86))
+                dumped = yaml.safe_dump({key: value}, default_flow_style=True, width=1000)
+                out.append("  " + dumped.strip().removeprefix("{").removesuffix("}"))
+        return "\n".join(out) + "\n"
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(self.to_yaml())
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "<dict>") -> LocalizerConfig:
-        """Build a config from nested mappings over the defaults (partial input is fine)."""
+        """Build a config from nested mappings over the defaults (partial input is fine);
+        errors name ``source`` and the field."""
         if data is None:
             data = {}
         if not isinstance(data, dict):
             raise ConfigError(
-                f"{source}: the top level must be a mapping of sections, got {type(data).__name__}"
+                f"{source}: the top level must be a mapping of sections, got {type(data).__name__}",
+                path=source,
             )
-        cfg = cls()
-        sections = {f.name: f for f in dataclasses.fields(cls)}
+        sections = {s.section: s for s in _SECTIONS}
+        built: dict[str, Section] = {}
         for key, value in data.items():
             if key not in sections:
                 raise ConfigError(
-                    f"{source}: unknown section {key!r}; valid sections: {', '.join(sections)}"
+                    f"{source}: unknown section {key!r}; valid sections: {', '.join(sections)}",
+                    path=source,
+                    field=str(key),
                 )
             if value is None:
                 continue
             if not isinstance(value, dict):
                 raise ConfigError(
-                    f"{source}: section {key!r} must be a mapping, got {type(value).__name__}"
+                    f"{source}: section {key!r} must be a mapping, got {type(value).__name__}",
+                    path=source,
+                    field=key,
                 )
-            sec = getattr(cfg, key)
             try:
-                setattr(cfg, key, _update_section(sec, value, key))
+                built[key] = sections[key](**{str(k): v for k, v in value.items()})
             except ConfigError as e:
-                raise ConfigError(f"{source}: {e}") from None
-        try:
-            return cfg.validate()
-        except ConfigError as e:
-            raise ConfigError(f"{source}: {e}") from None
+                raise ConfigError(f"{source}: {e}", path=source, field=e.field) from None
+        return cls(**built)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> LocalizerConfig:
         p = Path(path)
         try:
             if p.stat().st_size > MAX_CONFIG_BYTES:
-                raise ConfigError(f"{p}: not a config file (more than {MAX_CONFIG_BYTES:,} bytes)")
+                raise ConfigError(
+                    f"{p}: not a config file (more than {MAX_CONFIG_BYTES:,} bytes)", path=str(p)
+                )
             raw = p.read_bytes()
         except OSError as e:
-            raise ConfigError(f"{p}: cannot read config file: {e.strerror or e}") from None
+            raise ConfigError(
+                f"{p}: cannot read config file: {e.strerror or e}", path=str(p)
+            ) from None
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as e:
             line = raw[: e.start].count(b"\n") + 1
             raise ConfigError(
                 f"{p}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); "
-                "save the config file as UTF-8"
+                "save the config file as UTF-8",
+                path=str(p),
             ) from None
         try:
             data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
         except _DuplicateKey as e:
-            raise ConfigError(f"{p}:{e.line}: {e}") from None
+            raise ConfigError(f"{p}:{e.line}: {e}", path=str(p), field=str(e.key)) from None
         except yaml.YAMLError as e:
-            raise ConfigError(f"{p}: invalid YAML: {e}") from None
+            raise ConfigError(f"{p}: invalid YAML: {e}", path=str(p)) from None
         return cls.from_dict(data, str(p))
 
     def replace(self, **sections: Any) -> LocalizerConfig:
         """A copy with some sections replaced (or updated from mappings)."""
-        new = dataclasses.replace(self)
+        new = dict(self.__dict__)
         for name, value in sections.items():
-            cur = getattr(new, name)
-            if isinstance(value, dict):
-                value = _update_section(cur, value, name)
-            setattr(new, name, value)
-        return new.validate()
+            cur = new.get(name)
+            if isinstance(value, dict) and isinstance(cur, Section):
+                value = cur.replace(**value)
+            new[name] = value
+        return LocalizerConfig(**new)
 
 
-#: a config file larger than this is not one (a wrong path): refused before parsing
-MAX_CONFIG_BYTES = 1 << 20
+def _describe(cls: type[Section], key: str) -> str:
+    """A key's comment in the YAML: description, unit and range from the model."""
+    info = cls.model_fields[key]
+    extra = info.json_schema_extra
+    unit = extra.get("unit", "") if isinstance(extra, dict) else ""
+    limits = []
+    for m in info.metadata:
+        for attr, op in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            v = getattr(m, attr, None)
+            if v is not None:
+                limits.append(f"{op} {v:g}")
+    args = get_args(info.annotation)
+    if args and all(isinstance(a, str) for a in args):
+        limits.append(" | ".join(args))
+    tail = ", ".join([str(unit), *limits] if unit else limits)
+    return f"{info.description or key}" + (f" [{tail}]" if tail else "")
+
+
+def _num(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)
+
+
+def _config_error(e: ValidationError, cls: type[Section] | None) -> ConfigError:
+    """The first problem of a pydantic ValidationError as a ConfigError naming the field
+    (``section.key: what is wrong, got value``)."""
+    err = e.errors(include_url=False)[0]
+    loc = [str(x) for x in err["loc"]]
+    if cls is not None:
+        loc.insert(0, cls.section)
+    section_cls = cls
+    if cls is None and loc:
+        section_cls = next((s for s in _SECTIONS if s.section == loc[0]), None)
+    t, v, ctx = err["type"], err.get("input"), err.get("ctx") or {}
+    where = ".".join(loc[:2])
+    if t == "extra_forbidden":
+        valid = ", ".join(section_cls.model_fields) if section_cls else ""
+        return ConfigError(
+            f"{loc[0]}: unknown key {loc[-1]!r}; valid keys: {valid}", field=".".join(loc)
+        )
+    if t == "value_error":  # a model validator's "key: problem"
+        msg = str(ctx.get("error", err["msg"]))
+        key, sep, problem = msg.partition(": ")
+        if sep and key.isidentifier():
+            return ConfigError(f"{loc[0]}.{key}: {problem}", field=f"{loc[0]}.{key}")
+        return ConfigError(f"{where}: {msg}", field=where)
+    what = {
+        "int_type": "expected an integer",
+        "float_type": "expected a number",
+        "bool_type": "expected true/false",
+        "string_type": "expected a string",
+        "finite_number": "must be a finite number",
+        "tuple_type": "expected a list of numbers",
+        "too_short": "expected a list of 3 numbers",
+        "too_long": "expected a list of 3 numbers",
+        "missing": "expected a list of 3 numbers",
+        "greater_than": f"must be > {_num(ctx.get('gt'))}",
+        "greater_than_equal": f"must be >= {_num(ctx.get('ge'))}",
+        "less_than": f"must be < {_num(ctx.get('lt'))}",
+        "less_than_equal": f"must be <= {_num(ctx.get('le'))}",
+        "is_instance_of": f"expected a {ctx.get('class')}",
+        "model_type": f"expected a {ctx.get('class_name')}",
+    }.get(t)
+    if t == "literal_error" and section_cls is not None and len(loc) >= 2:
+        choices = get_args(section_cls.model_fields[loc[1]].annotation)
+        what = f"expected one of {', '.join(map(repr, choices))}"
+    if what is None:
+        what = err["msg"]
+    if t == "model_type" and isinstance(v, dict):
+        return ConfigError(f"{where}: {what}, got a dict", field=where)
+    if t in ("too_short", "too_long", "missing") and isinstance(v, tuple):
+        v = list(v)
+    return ConfigError(f"{where}: {what}, got {v!r}", field=where)
 
 
 class _DuplicateKey(yaml.YAMLError):
     def __init__(self, key: Any, first: int, line: int) -> None:
         super().__init__(f"duplicate key {key!r} (first at line {first})")
+        self.key = key
         self.line = line
 
 
@@ -566,69 +842,6 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _positive(obj: Any, *names: str) -> None:
-    sec = _section_name(obj)
-    for n in names:
-        v = getattr(obj, n)
-        if not (v > 0) or (isinstance(v, float) and not math.isfinite(v)):
-            raise ConfigError(f"{sec}.{n} must be a finite positive number, got {v!r}")
-
-
-def _at_least(obj: Any, low: int, *names: str) -> None:
-    sec = _section_name(obj)
-    for n in names:
-        v = getattr(obj, n)
-        if v < low:
-            raise ConfigError(f"{sec}.{n} must be >= {low}, got {v!r}")
-
-
-def _update_section(sec: Any, values: dict[str, Any], where: str) -> Any:
-    hints = _hints(type(sec))
-    names = list(hints)
-    changes: dict[str, Any] = {}
-    for key, raw in values.items():
-        if key not in names:
-            raise ConfigError(f"{where}: unknown key {key!r}; valid keys: {', '.join(names)}")
-        changes[key] = _coerce(raw, hints[key], f"{where}.{key}")
-    return dataclasses.replace(sec, **changes)
-
-
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    args = get_args(hint)
-    origin = getattr(hint, "__origin__", None)
-    if hint is bool:
-        if isinstance(value, bool):
-            return value
-        raise ConfigError(f"{where}: expected true/false, got {value!r}")
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        v = float(value)
-        if not math.isfinite(v):
-            raise ConfigError(f"{where}: must be a finite number, got {v!r}")
-        return v
-    if origin is Literal:
-        if value not in args:
-            raise ConfigError(
-                f"{where}: expected one of {', '.join(map(repr, args))}, got {value!r}"
-            )
-        return value
-    if args and type(None) in args:  # Optional[...]
-        if value is None:
-            return None
-        inner = [a for a in args if a is not type(None)]
-        return _coerce(value, inner[0], where)
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)) or len(value) != len(args):
-            raise ConfigError(f"{where}: expected a list of {len(args)} numbers, got {value!r}")
-        return tuple(_coerce(v, a, where) for v, a in zip(value, args, strict=True))
-    return value  # a type this checker does not know: the section's validate() checks it
-
-
 def default_yaml() -> str:
-    """The defaults as YAML (what ``icploc config defaults`` prints)."""
+    """The defaults as YAML with comments (what ``icploc config defaults`` prints)."""
     return LocalizerConfig().to_yaml()
