@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from icploc.config import KidnapSection
 from icploc.se2 import Pose
 
 __all__ = ["CheckVerdict", "KidnapTrigger"]
@@ -48,31 +49,41 @@ class CheckVerdict:
     best: float = 0.0
 
 
+#: the defaults (one source: the config model, ``kidnap:`` in a config file)
+_K = KidnapSection()
+
+
 @dataclass
 class KidnapTrigger:
-    """When to run a global check while tracking (see the module docstring)."""
+    """When to run a global check while tracking (see the module docstring); the settings
+    are the ``kidnap:`` section's (:class:`icploc.config.KidnapSection`)."""
 
-    doubt: float = 0.8
-    doubt_scans: int = 8
+    doubt: float = _K.doubt
+    doubt_scans: int = _K.doubt_scans
     #: a fit taken far against the odometry is checked when its hit share is below this
     #: fraction of the map's usual (verified fits') share
-    doubt_jump: float = 0.9
+    doubt_jump: float = _K.doubt_jump
     #: a better pose elsewhere is re-checked this many scans later; it must be found
     #: again within ``recheck_distance`` m and ``recheck_angle`` rad of where the odometry
     #: carried it
-    recheck_scans: int = 3
-    recheck_distance: float = 0.5
-    recheck_angle: float = 0.175
+    recheck_scans: int = _K.recheck_scans
+    recheck_distance: float = _K.recheck_distance
+    recheck_angle: float = _K.recheck_angle
     #: the usual share: the mean of the ordinary scans, over about this many recent ones
     #: (an exponential average: O(1) per scan); ``history`` calm scans also end a backoff
-    history: int = 25
-    backoff_max: int = 64
+    history: int = _K.history
+    backoff_max: int = _K.backoff_max
     _ref: float = 0.0
     _n: int = 0  #: ordinary scans in the usual share (none: no reference yet)
     _doubtful: int = 0
     _quiet: int = 0
     _backoffs: int = 0
     _calm: int = 0
+
+    @classmethod
+    def from_config(cls, settings: KidnapSection) -> KidnapTrigger:
+        """A trigger with a config's ``kidnap:`` settings."""
+        return cls(**settings.__dict__)
 
     def reset(self) -> None:
         """Forget the usual share (a new place: after a lock, a reset)."""

@@ -25,6 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.config import LocalizerConfig, LocalizerSection, RecoverySection
 from icploc.se2 import Pose, compose, wrap_angle
 
 __all__ = ["Candidate", "LocalRecovery", "Recovery", "RecoveryStep", "RecoveryView"]
@@ -78,21 +79,34 @@ class Recovery(Protocol):
         ...
 
 
+#: the defaults (one source: the config models, ``recovery:`` in a config file)
+_R = RecoverySection()
+
+
 @dataclass
 class LocalRecovery:
     """Multi-start ICP around the dead-reckoned pose, within its uncertainty (3 sigma,
     ``min_radius`` .. ``max_radius``); a candidate that the localizer verifies and that
-    stays put (by odometry) for ``confirm`` consecutive scans locks."""
+    stays put (by odometry) for ``confirm`` consecutive scans locks. The settings are the
+    ``recovery:`` section's (:class:`icploc.config.RecoverySection`), ``confirm`` is
+    ``localizer.recover_after``."""
 
-    confirm: int = 3
-    min_radius: float = 0.25
-    max_radius: float = 2.0
-    headings: tuple[float, ...] = (-0.3, 0.0, 0.3)
+    confirm: int = LocalizerSection().recover_after
+    min_radius: float = _R.min_radius
+    max_radius: float = _R.max_radius
+    headings: tuple[float, ...] = _R.headings
     #: candidates kept as hypotheses
-    keep: int = 5
+    keep: int = _R.keep
     _leader: Pose | None = None
     _streak: int = 0
     _hyps: list[Candidate] = field(default_factory=list)
+
+    @classmethod
+    def from_config(cls, config: LocalizerConfig | None) -> LocalRecovery:
+        """A local recovery with a config's ``recovery:`` settings (the defaults: None)."""
+        if config is None:
+            return cls()
+        return cls(confirm=config.localizer.recover_after, **config.recovery.__dict__)
 
     def reset(self) -> None:
         self._leader, self._streak, self._hyps = None, 0, []
