@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.config import LocalizerConfig
+from icploc.config import LocalizerConfig, RelocalizeSection
 from icploc.kidnap import CheckVerdict
 from icploc.recovery import Candidate, LocalRecovery, RecoveryStep, RecoveryView
 from icploc.scanprep import prepare_scan
@@ -49,66 +49,9 @@ __all__ = [
 ]
 
 
-@dataclass(frozen=True)
-class RelocalizeConfig:
-    """Settings of the hypothesis tracker (scores are :class:`GlobalCandidate` scores)."""
-
-    #: grid resolution of the global search (m)
-    resolution: float = 0.05
-    #: hypotheses kept at most
-    max_hypotheses: int = 12
-    #: hypotheses (and new candidates) scoring below this fraction of the best are dropped
-    keep_ratio: float = 0.6
-    #: a confirming scan needs at least this score and inlier ratio
-    min_score: float = 0.45
-    min_inlier_ratio: float = 0.6
-    #: every other distinct hypothesis must score below (1 - dominance) x the best
-    dominance: float = 0.03
-    #: the margin grows for a mediocre leader: + ``dominance_slope`` x (``clean_score`` -
-    #: its score) — the part of the scan it does not explain could hold the evidence for
-    #: a rival (a scan from somewhere the map does not show fits several places half well)
-    dominance_slope: float = 0.5
-    clean_score: float = 0.9
-    #: consecutive dominating, good scans (the search scan included) before a lock
-    confirm_scans: int = 3
-    #: run a fresh global search every n-th scan while not locked (1: every scan)
-    search_every: int = 1
-    #: scan points used per hypothesis refinement (evenly subsampled; 0: all)
-    max_points: int = 360
-    #: weight of the see-through penalty (beams crossing mapped walls) in the tracker's
-    #: score, in [0, 1]: glass and map errors let real beams through mapped lines, so it
-    #: is softened (the search itself applies it in full)
-    see_through_weight: float = 0.5
-    #: a rival whose inlier ratio beats the best's by more than this also blocks a lock
-    inlier_margin: float = 0.02
-    #: a confirming scan sees through mapped walls with at most this fraction of beams
-    max_see_through: float = 0.6
-    #: hypotheses closer than this to the map (inside a wall) or off the grid are dropped
-    min_clearance: float = 0.1
-
-    def validate(self) -> RelocalizeConfig:
-        if not (self.resolution > 0 and math.isfinite(self.resolution)):
-            raise ValueError(f"resolution must be positive, got {self.resolution}")
-        for name in ("max_hypotheses", "confirm_scans", "search_every"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
-        if not 0.0 <= self.see_through_weight <= 1.0:
-            raise ValueError(f"see_through_weight must be in [0, 1], got {self.see_through_weight}")
-        for name in (
-            "keep_ratio",
-            "min_score",
-            "min_inlier_ratio",
-            "dominance",
-            "inlier_margin",
-            "dominance_slope",
-            "clean_score",
-        ):
-            v = float(getattr(self, name))
-            if not 0.0 <= v < 1.0:
-                raise ValueError(f"{name} must be in [0, 1), got {v}")
-        if self.max_points < 0:
-            raise ValueError(f"max_points must be >= 0, got {self.max_points}")
-        return self
+#: the hypothesis tracker's settings: the ``relocalize:`` section of the config
+#: (:class:`icploc.config.RelocalizeSection`, the one source of their defaults and checks)
+RelocalizeConfig = RelocalizeSection
 
 
 @dataclass
@@ -451,19 +394,19 @@ class GlobalRelocalization:
     one lost detector decides when it runs. While tracking, :meth:`check_pose` is the
     global kidnap check the localizer's trigger asks for (:mod:`icploc.kidnap`)."""
 
-    #: a deferred build picks the finest resolution (>= 5 cm) with at most this many cells
-    max_cells: float = 4e6
-
     def __init__(
         self,
         relocalizer: Relocalizer | None,
         *,
         local: LocalRecovery | None = None,
         background: bool = False,
+        config: LocalizerConfig | None = None,
     ) -> None:
         #: None: built from the localizer's map index when first needed (:meth:`deferred`)
         self._relocalizer = relocalizer
-        self.local = local or LocalRecovery()
+        #: the ``relocalize:`` settings (the deferred build, the kidnap check)
+        self.settings: RelocalizeSection = (config or LocalizerConfig()).relocalize
+        self.local = local or LocalRecovery.from_config(config)
         #: run the global searches on a worker thread (``localizer.lost_check: background``):
         #: ``recover`` never waits for one; a search's candidates join the hypotheses when
         #: ready, carried there by odometry
@@ -481,10 +424,13 @@ class GlobalRelocalization:
         self._hyps: tuple[Candidate, ...] = ()
 
     @classmethod
-    def deferred(cls, *, background: bool = False) -> GlobalRelocalization:
+    def deferred(
+        cls, *, background: bool = False, config: LocalizerConfig | None = None
+    ) -> GlobalRelocalization:
         """The Localizer's default: a :class:`Relocalizer` over the localizer's own map
-        index, built the first time a global search is needed."""
-        return cls(None, background=background)
+        index, built the first time a global search is needed, with ``config``'s
+        ``relocalize:`` and ``recovery:`` settings."""
+        return cls(None, background=background, config=config)
 
     @property
     def relocalizer(self) -> Relocalizer:
@@ -510,7 +456,7 @@ class GlobalRelocalization:
 
     def ready(self, index: Any) -> bool:
         """Build the deferred relocalizer from the map ``index`` (at 5 cm, coarser on a map
-        larger than :attr:`max_cells` cells at 5 cm). A map the global search cannot grid
+        larger than ``relocalize.max_cells`` cells at 5 cm). A map the global search cannot grid
         leaves local recovery only (and no kidnap checks), with a warning."""
         if self._relocalizer is not None:
             return True
@@ -519,10 +465,10 @@ class GlobalRelocalization:
         try:
             x0, y0, x1, y1 = index.bounds
             area = max(float(x1 - x0), 1.0) * max(float(y1 - y0), 1.0)
-            res0 = max(0.05, math.ceil(math.sqrt(area / self.max_cells) / 0.05) * 0.05)
+            res0 = max(0.05, math.ceil(math.sqrt(area / self.settings.max_cells) / 0.05) * 0.05)
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
-                    self._relocalizer = Relocalizer(index, RelocalizeConfig(resolution=res))
+                    self._relocalizer = Relocalizer(index, self.settings.replace(resolution=res))
                     break
                 except ValueError as e:
                     if res == 8 * res0 or "cells" not in str(e):
@@ -600,13 +546,10 @@ class GlobalRelocalization:
 
 
     # -- while tracking: the kidnap check (icploc.kidnap) ---------------------------------
-    #: "elsewhere" needs the tracked pose's score below (1 - margin) x the best's ...
-    lost_margin: float = 0.3
-    #: ... or, for a clean best fit (this inlier ratio, few beams through walls), below
-    #: the best's minus this: a robot carried along a corridor fits its old place well
-    #: but not cleanly
-    clean_inlier_ratio: float = 0.95
-    clean_margin: float = 0.1
+    # "elsewhere" needs the tracked pose's score below (1 - relocalize.lost_margin) x the
+    # best's, or, for a clean best fit (relocalize.clean_inlier_ratio, few beams through
+    # walls), below the best's minus relocalize.clean_margin: a robot carried along a
+    # corridor fits its old place well but not cleanly
 
     def check_pose(
         self, index: Any, points: NDArray[np.float64], tracked: Pose, strict: bool = False
@@ -649,11 +592,11 @@ class GlobalRelocalization:
         contradicted = here.see_through >= 0.15 and best.see_through <= min(
             0.3, 0.5 * here.see_through
         )
-        clean = best.inlier_ratio >= self.clean_inlier_ratio and best.see_through <= 0.1
+        clean = best.inlier_ratio >= self.settings.clean_inlier_ratio and best.see_through <= 0.1
         if not (convincing or contradicted):
             return CheckVerdict("unsure", here=s_here, best=s_best)
-        if s_here < (1.0 - self.lost_margin) * s_best or (
-            clean and s_here < s_best - self.clean_margin
+        if s_here < (1.0 - self.settings.lost_margin) * s_best or (
+            clean and s_here < s_best - self.settings.clean_margin
         ):
             return CheckVerdict("elsewhere", pose, s_here, s_best)
         return CheckVerdict("", here=s_here, best=s_best)
@@ -703,5 +646,8 @@ def attach(
     if background is None:
         lc = getattr(getattr(localizer, "config", None), "localizer", None)
         background = getattr(lc, "lost_check", "inline") == "background"
-    localizer.recovery = GlobalRelocalization(rel, background=background)
+    cfg = getattr(localizer, "config", None)
+    localizer.recovery = GlobalRelocalization(
+        rel, background=background, config=cfg if isinstance(cfg, LocalizerConfig) else None
+    )
     return rel
