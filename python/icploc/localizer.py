@@ -278,9 +278,9 @@ class Localizer:
             if lc.relocalization == "global":
                 from icploc.relocalize import GlobalRelocalization
 
-                recovery = GlobalRelocalization.deferred()
+                recovery = GlobalRelocalization.deferred(config=self.config)
             else:
-                recovery = LocalRecovery(confirm=lc.recover_after)
+                recovery = LocalRecovery.from_config(self.config)
         #: the strategy used while lost (see :mod:`icploc.recovery`)
         self.recovery: Recovery = recovery
         self.quality = MapQuality(_map_resolution(map, self.index, self.config.map.resolution))
@@ -327,7 +327,7 @@ class Localizer:
         #: running on the worker thread (future, odometry then, strict), a better pose
         #: elsewhere awaiting its re-check (pose, odometry then, scan count), and whether
         #: the current pose is a lock whose strict check has not come back yet
-        self._trigger = KidnapTrigger()
+        self._trigger = KidnapTrigger.from_config(self.config.kidnap)
         self._check_inflight: tuple[Any, Pose | None, bool] | None = None
         self._check_executor: Any = None
         self._elsewhere: tuple[Pose, Pose | None, int] | None = None
