@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import MapError
+from .formats import MapFormat, format_for, register
 from .linefit import fit_lines
 from .sampling import estimate_normals, sample_lines, thin_points
 
@@ -22,19 +23,6 @@ if TYPE_CHECKING:
     from icploc._core import MapIndex
 
 FloatArray = NDArray[np.float64]
-
-#: file suffix -> format name used by :meth:`Map.load`
-FORMATS = {
-    ".yaml": "ros",
-    ".yml": "ros",
-    ".geojson": "geojson",
-    ".json": "geojson",
-    ".dxf": "dxf",
-    ".npy": "points",
-    ".csv": "points",
-    ".txt": "points",
-    ".npz": "prepared",
-}
 
 #: line-fit settings of grid maps (lengths in metres; see :mod:`icploc.maps.linefit`):
 #: shortest line, share of surface cells lines must explain (else points only), largest
@@ -142,7 +130,8 @@ class Map:
     # ------------------------------------------------------------------ construction
     @classmethod
     def load(cls, path: str | Path, *, cache: bool | None = None, **options: Any) -> Map:
-        """Load a map, choosing the reader by suffix: ``.yaml``/``.yml`` (ROS map_server),
+        """Load a map, choosing the reader by suffix (:mod:`icploc.maps.formats`):
+        ``.yaml``/``.yml`` (ROS map_server),
         ``.geojson``/``.json``, ``.dxf``, ``.npy``/``.csv``/``.txt`` (points), ``.npz``
         (prepared, see :meth:`save`). ``options`` go to the reader / line fit (e.g.
         ``units="mm"`` for DXF, ``min_length=0.3`` for grids).
@@ -151,35 +140,10 @@ class Map:
         :mod:`icploc.maps.cache`); ``cache=False`` neither reads nor writes it (``None``, the
         default, uses it unless ``ICPLOC_NO_CACHE`` is set in the environment)."""
         path = Path(path)
-        fmt = FORMATS.get(path.suffix.lower())
-        if fmt is None:
-            raise MapError(
-                path,
-                None,
-                f"unknown map format {path.suffix!r} (expected one of {', '.join(sorted(FORMATS))})",
-            )
+        fmt = format_for(path)
         if not path.exists():
             raise MapError(path, None, "file not found")
-        if fmt == "ros":
-            return cls._load_ros(path, cache, options)
-        if fmt == "geojson":
-            from .geojson import load_geojson
-
-            lines, meta = load_geojson(path)
-            return cls(lines, source=str(path), meta={"format": "geojson", **meta})
-        if fmt == "dxf":
-            from .dxf import load_dxf
-
-            lines, meta = load_dxf(path, **options)
-            return cls(lines, source=str(path), meta={"format": "dxf", **meta})
-        if fmt == "points":
-            from .points import load_csv, load_npy
-
-            pts, nrm = load_npy(path) if path.suffix.lower() == ".npy" else load_csv(path)
-            return cls(points=pts, point_normals=nrm, source=str(path), meta={"format": "points"})
-        from .prepared import load_prepared
-
-        return load_prepared(path)
+        return fmt.load(path, cache, options)
 
     @classmethod
     def _load_ros(cls, path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
@@ -697,3 +661,62 @@ class Map:
         if self.source:
             parts.append(f"source={self.source!r}")
         return f"Map({', '.join(parts)})"
+
+
+# -- the built-in map formats (icploc.maps.formats) ----------------------------------------
+
+
+def _load_geojson(path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
+    from .geojson import load_geojson
+
+    lines, meta = load_geojson(path)
+    return Map(lines, source=str(path), meta={"format": "geojson", **meta})
+
+
+def _save_geojson(m: Map, path: Path, options: dict[str, Any]) -> Path:
+    return m.to_geojson(path)
+
+
+def _load_dxf(path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
+    from .dxf import load_dxf
+
+    lines, meta = load_dxf(path, **options)
+    return Map(lines, source=str(path), meta={"format": "dxf", **meta})
+
+
+def _load_points(path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
+    from .points import load_csv, load_npy
+
+    pts, nrm = load_npy(path) if path.suffix.lower() == ".npy" else load_csv(path)
+    return Map(points=pts, point_normals=nrm, source=str(path), meta={"format": "points"})
+
+
+def _load_prepared(path: Path, cache: bool | None, options: dict[str, Any]) -> Map:
+    from .prepared import load_prepared
+
+    return load_prepared(path)
+
+
+def _save_prepared(m: Map, path: Path, options: dict[str, Any]) -> Path:
+    return m.save(path, options.get("spacing"))
+
+
+def _save_ros(m: Map, path: Path, options: dict[str, Any]) -> Path:
+    return m.to_ros(path, options.get("resolution", 0.05))
+
+
+register(
+    MapFormat(
+        "ros",
+        (".yaml", ".yml"),
+        lambda p, cache, opts: Map._load_ros(p, cache, opts),
+        _save_ros,
+        "ROS map_server grid (YAML + PGM/PNG); saved by rasterising the lines",
+    )
+)
+register(MapFormat("geojson", (".geojson", ".json"), _load_geojson, _save_geojson, "wall lines"))
+register(MapFormat("dxf", (".dxf",), _load_dxf, None, "CAD drawing (lines, polylines, arcs)"))
+register(MapFormat("points", (".npy", ".csv", ".txt"), _load_points, None, "map points"))
+register(
+    MapFormat("prepared", (".npz",), _load_prepared, _save_prepared, "a prepared map (Map.save)")
+)
