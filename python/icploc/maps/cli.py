@@ -146,21 +146,25 @@ def prepare(
 @map_app.command()
 def convert(
     map_path: Path = typer.Argument(..., help="map file"),
-    out: Path = typer.Option(..., "--out", "-o", help=".geojson (lines) or .yaml (ROS grid)"),
+    out: Path = typer.Option(
+        ..., "--out", "-o", help=".geojson (lines), .yaml (ROS grid) or .npz (prepared map)"
+    ),
     resolution: float = typer.Option(0.05, help="cell size for .yaml output [m]"),
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
-    """Write the map's lines as GeoJSON, or rasterise them into a ROS map_server map."""
-    suffix = out.suffix.lower()
-    if suffix not in (".geojson", ".json", ".yaml", ".yml"):
-        raise typer.BadParameter("--out must end in .geojson or .yaml")
+    """Write the map in the format of the --out suffix (icploc.maps.formats): its lines as
+    GeoJSON, rasterised into a ROS map_server map, or prepared (.npz)."""
+    from .formats import format_for
+
+    try:
+        fmt = format_for(out, writing=True)
+    except MapError as e:
+        raise typer.BadParameter(e.reason, param_hint="--out") from None
     _check_out(out, _map_inputs(map_path))
     m = _load(map_path, no_cache=no_cache)
     try:
-        if suffix in (".geojson", ".json"):
-            m.to_geojson(out)
-        else:
-            m.to_ros(out, resolution)
+        assert fmt.save is not None
+        fmt.save(m, out, {"resolution": resolution})
     except MapError as e:
         raise _fail(e) from e
     typer.echo(f"wrote {out}")
