@@ -237,3 +237,26 @@ def test_icp_defaults_are_the_cores() -> None:
     core = IcpConfig().to_dict()
     ours = LocalizerConfig().icp.to_dict()
     assert {k: ours[k] for k in ours if k in core} == {k: core[k] for k in ours if k in core}
+
+
+def test_the_relocalization_components_read_their_settings_from_the_config() -> None:
+    from icploc.kidnap import KidnapTrigger
+    from icploc.recovery import LocalRecovery
+    from icploc.relocalize import GlobalRelocalization
+
+    cfg = LocalizerConfig().replace(
+        kidnap={"doubt_scans": 12},
+        recovery={"max_radius": 1.5},
+        localizer={"recover_after": 4},
+        relocalize={"lost_margin": 0.2},
+    )
+    got = GlobalRelocalization.deferred(config=cfg)
+    trigger = KidnapTrigger.from_config(cfg.kidnap)
+    local = LocalRecovery.from_config(cfg)
+    assert (trigger.doubt_scans, local.max_radius, local.confirm, got.settings.lost_margin) == (
+        12,
+        1.5,
+        4,
+        0.2,
+    )
+    assert got.local.max_radius == 1.5
