@@ -162,3 +162,32 @@ def test_recorded_odometry_offset_re_anchors_a_power_cycled_base(tmp_path: Path)
     assert step > 0.0
     assert plain == pytest.approx([0.0, step, 2 * step, 0.0], abs=1e-9)
     assert xs == pytest.approx([0.0, step, 2 * step, 2 * step, 3 * step], abs=1e-9)
+
+
+def test_readers_register_themselves_without_importing_rosbags() -> None:
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, icploc.logs as L; names = list(L.FORMATS); "
+        "print(names, any(m.split('.')[0] == 'rosbags' for m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "['rosbag', 'carmen', 'recorded'] False"
+
+
+def test_a_registered_reader_is_used_by_open_log(tmp_path: Path) -> None:
+    from icploc.logs import LogData, LogInfo, register_format
+    from icploc.logs._base import FORMATS as registry
+
+    def load(path: str, **opts: object) -> LogData:
+        return LogData(info=LogInfo(path=path, format="toy"), scans=[_scan(1.0)], odometry=[])
+
+    p = tmp_path / "a.toy"
+    p.write_text("toy log\n")
+    register_format("toy", lambda path: path.endswith(".toy"), load, (".toy",), order=5)
+    try:
+        log = open_log(p)
+    finally:
+        del registry["toy"]
+    assert (log.info.format, len(log.scans)) == ("toy", 1)

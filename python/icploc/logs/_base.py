@@ -7,7 +7,7 @@ import logging
 import math
 import os
 from bisect import bisect_right
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -20,7 +20,9 @@ from icploc.types import Odometry, Scan
 log = logging.getLogger("icploc.logs")
 
 __all__ = [
+    "FORMATS",
     "Damage",
+    "LogFormat",
     "LogData",
     "LogFormatError",
     "LogInfo",
@@ -347,3 +349,39 @@ def repair_stamps(
     note = f"{reason}; synthetic stamps: scan index × {period:g} s"
     log.info("timestamps unusable: %s", note)
     return StampRepair(out, "synthetic", note, n)
+
+
+# -- the reader registry: every reader module registers itself (icploc.logs finds them) ----
+
+
+@dataclass(frozen=True)
+class LogFormat:
+    """One log format: ``sniff(path) -> bool`` claims a file by content, ``load(path,
+    **opts) -> LogData`` reads it; ``extensions`` are the fallback when no sniffer claims a
+    file; formats are sniffed by ``order`` (cheap, dependency-free checks first)."""
+
+    name: str
+    sniff: Callable[[str], bool]
+    load: Callable[..., LogData]
+    extensions: tuple[str, ...] = ()
+    order: int = 50
+
+
+#: format name -> format (filled by the reader modules as they are imported)
+FORMATS: dict[str, LogFormat] = {}
+
+
+def register_format(
+    name: str,
+    sniff: Callable[[str], bool],
+    load: Callable[..., LogData],
+    extensions: Iterable[str] = (),
+    order: int = 50,
+) -> LogFormat:
+    """Add (or replace) a format (a reader module calls this at import)."""
+    f = LogFormat(name, sniff, load, tuple(e.lower() for e in extensions), order)
+    FORMATS[name] = f
+    items = sorted(FORMATS.values(), key=lambda x: x.order)
+    FORMATS.clear()
+    FORMATS.update((x.name, x) for x in items)
+    return f

@@ -42,7 +42,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icploc.logs._base import Damage, LogData, LogFormatError, LogInfo, log, repair_stamps
+from icploc.logs._base import (
+    Damage,
+    LogData,
+    LogFormatError,
+    LogInfo,
+    log,
+    register_format,
+    repair_stamps,
+)
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = [
@@ -1060,3 +1068,6 @@ def write_carmen(
         data = gzip.compress(data, mtime=0)
     with open(path, "wb") as fh:
         fh.write(data)
+
+
+register_format("carmen", is_carmen, read_carmen, (".log", ".log.gz", ".clf", ".clf.gz", ".gz"), 20)

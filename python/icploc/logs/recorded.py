@@ -24,10 +24,11 @@ from icploc.drivers.recording import (
     is_recording,
     iter_records,
 )
+from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format
 from icploc.se2 import compose
 from icploc.types import Odometry, Scan
 
-__all__ = ["RecordingFormatError", "is_recorded", "read_recorded"]
+__all__ = ["RecordingFormatError", "is_recorded", "load_recorded", "read_recorded"]
 
 
 def is_recorded(path: str | os.PathLike[str]) -> bool:
@@ -137,3 +138,46 @@ def read_recorded(path: str | os.PathLike[str]) -> Iterator[Scan | Odometry]:
         else:
             raise RecordingFormatError(f"device {dev} has unknown driver {driver!r}")
     yield from heapq.merge(*streams, key=lambda item: item.stamp)
+
+
+def load_recorded(path: str | os.PathLike[str], **opts: Any) -> LogData:
+    """A recording as :class:`~icploc.logs.LogData` (the log registry's reader)."""
+    p = os.fspath(path)
+    opts.pop("strict", None)  # the recording reader checks every frame's checksum itself
+    if opts:
+        raise TypeError(f"load_recorded: unexpected option(s) {sorted(opts)}")
+    scans: list[Scan] = []
+    odoms: list[Odometry] = []
+    try:
+        for msg in read_recorded(p):
+            if isinstance(msg, Scan):
+                scans.append(msg)
+            else:
+                odoms.append(msg)
+    except LogFormatError:
+        raise
+    except ValueError as exc:  # RecordingFormatError and the protocol errors are ValueErrors
+        raise LogFormatError(p, f"bad recording: {exc}") from exc
+    scans.sort(key=lambda s: s.stamp)
+    odoms.sort(key=lambda o: o.stamp)
+    return LogData(info=_info_from(p, scans, odoms), scans=scans, odometry=odoms)
+
+
+def _info_from(path: str, scans: list[Scan], odoms: list[Odometry]) -> LogInfo:
+    import math
+
+    return LogInfo(
+        path=path,
+        format="recorded",
+        n_scans=len(scans),
+        n_odometry=len(odoms),
+        beams=tuple(sorted({len(s) for s in scans})),
+        angle_min=min((float(s.angles[0]) for s in scans if len(s)), default=math.nan),
+        angle_max=max((float(s.angles[-1]) for s in scans if len(s)), default=math.nan),
+        max_range=min((s.max_range for s in scans), default=math.inf),
+        start=scans[0].stamp if scans else math.nan,
+        end=scans[-1].stamp if scans else math.nan,
+    )
+
+
+register_format("recorded", is_recorded, load_recorded, (".icpraw",), order=30)

@@ -29,7 +29,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.errors import UsageError
-from icploc.logs._base import Damage, LogData, LogFormatError, LogInfo, log, repair_stamps
+from icploc.logs._base import (
+    Damage,
+    LogData,
+    LogFormatError,
+    LogInfo,
+    log,
+    register_format,
+    repair_stamps,
+)
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = ["TopicError", "is_rosbag", "iter_ros1_raw", "read_rosbag", "write_rosbag"]
@@ -518,3 +526,8 @@ def write_rosbag(
                 c2[odom_topic] = w2.add_connection(odom_topic, ODOM_TYPE, typestore=ts)
             for t, _, topic, m in msgs:
                 w2.write(c2[topic], t, ts.serialize_cdr(m, m.__msgtype__))
+
+
+# sniffed first: a magic line or a metadata.yaml, no parsing (rosbags itself is imported
+# only when a bag is read or written)
+register_format("rosbag", is_rosbag, read_rosbag, (".bag", ".db3", ".mcap"), order=10)
