@@ -3,9 +3,9 @@
     .venv/bin/python benches/read_throughput.py [--scans 5000] [--repeat 5] [--json]
 
 * a generated CARMEN log: ``--scans`` FLASER lines × 361 beams (3 decimals, like real
-  logs, 10 % max-range readings) with one ODOM line per scan, plain and gzipped; parsed
-  with the default matrix engine (pandas' C parser when installed) and with the
-  numpy-only fallback (``numpy.fromstring``);
+  logs, 10 % max-range readings) with one ODOM line per scan, plain and gzipped; and its
+  float fields alone through the reader's one float parser (the core's ``parse_floats``)
+  and through ``numpy.fromstring`` (the pure-numpy engine it replaced);
 * the time to iterate the merged Scan/Odometry stream (``for msg in log``);
 * every log in ``../shared/data`` when present (parse only, best of ``--repeat``).
 
@@ -21,11 +21,11 @@ import json
 import sys
 import tempfile
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from icploc.logs import carmen as carmen_mod
 from icploc.logs import open_log
 from icploc.logs.carmen import flaser_angles, read_carmen, write_carmen
 from icploc.types import Odometry, Scan
@@ -92,13 +92,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:42s} {n:6d} scans  wall {best * 1e3:7.1f} ms {n / best:8.0f}/s  "
                   f"cpu {cpu * 1e3:7.1f} ms {n / cpu:8.0f}/s  {extra}", flush=True)  # fmt: skip
 
-    try:
-        import pandas  # noqa: F401
-
-        have_pd = True
-    except ImportError:
-        have_pd = False
-
     with tempfile.TemporaryDirectory() as td:
         plain = Path(td) / "gen361.log"
         gz = Path(td) / "gen361.log.gz"
@@ -107,16 +100,23 @@ def main(argv: list[str] | None = None) -> int:
         size_mb = plain.stat().st_size / 1e6
         if not args.json:
             print(f"generated: {args.scans} FLASER × 361 + {args.scans} ODOM, {size_mb:.1f} MB "
-                  f"({gz.stat().st_size / 1e6:.1f} MB gz); pandas {'yes' if have_pd else 'no'}")  # fmt: skip
-        engines = ["auto", "numpy"] if have_pd else ["numpy"]
-        for eng in engines:
-            carmen_mod._ENGINE["name"] = eng
-            label = "pandas" if eng == "auto" else "numpy"
-            b, m = best_of(lambda: read_carmen(plain), args.repeat)
-            record(f"generated 361-beam, {label}", args.scans, b, m)
-            b, m = best_of(lambda: read_carmen(gz), args.repeat)
-            record(f"generated 361-beam .gz, {label}", args.scans, b, m)
-        carmen_mod._ENGINE["name"] = "auto"
+                  f"({gz.stat().st_size / 1e6:.1f} MB gz)")  # fmt: skip
+        b, m = best_of(lambda: read_carmen(plain), args.repeat)
+        record("generated 361-beam", args.scans, b, m)
+        b, m = best_of(lambda: read_carmen(gz), args.repeat)
+        record("generated 361-beam .gz", args.scans, b, m)
+        # the reader's one float parser (the core's parse_floats) against numpy.fromstring,
+        # the pure-numpy alternative it replaced, on the same text
+        from icploc._core import parse_floats
+
+        text = "\n".join(ln for ln in plain.read_text().splitlines() if ln.startswith("FLASER"))
+        text = "\n".join(ln.split(None, 1)[1].rsplit(None, 2)[0] for ln in text.splitlines())
+        b, m = best_of(lambda: parse_floats(text), args.repeat)
+        record("floats: core parse_floats", args.scans, b, m, f"{len(text) / 1e6:.1f} MB")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            b, m = best_of(lambda: np.fromstring(text, dtype=np.float64, sep=" "), args.repeat)
+        record("floats: numpy.fromstring (replaced)", args.scans, b, m, f"{len(text) / 1e6:.1f} MB")
         log = read_carmen(plain)
         b, m = best_of(lambda: sum(1 for _ in log), args.repeat)
         record("iterate merged stream (scans+odometry)", args.scans, b, m, f"{len(log)} messages")

@@ -14,7 +14,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from icploc.logs import LogFormatError, detect_format, log_info, open_log
-from icploc.logs import carmen as carmen_mod
 from icploc.logs._base import repair_stamps
 from icploc.logs.carmen import flaser_angles, read_carmen, write_carmen
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
@@ -80,12 +79,8 @@ def test_flaser_angles_in_read_scans(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- round trips
 
 
-@pytest.mark.parametrize("engine", ["auto", "numpy"])
 @pytest.mark.parametrize("gz", [False, True])
-def test_round_trip_flaser(
-    tmp_path: Path, engine: str, gz: bool, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    monkeypatch.setitem(carmen_mod._ENGINE, "name", engine)
+def test_round_trip_flaser(tmp_path: Path, gz: bool) -> None:
     scans = _scans(30, 361)
     odoms = _odoms(120)
     poses = np.column_stack((np.arange(30) * 0.1, np.arange(30) * -0.05, np.linspace(-1, 1, 30)))
@@ -354,11 +349,9 @@ def _damaged(tmp_path: Path, body: str) -> Path:
 
 
 @pytest.mark.parametrize(("body", "msg", "outcome"), MALFORMED)
-@pytest.mark.parametrize("engine", ["auto", "numpy"])
 def test_strict_refuses_malformed_lines_naming_file_and_line(
-    tmp_path: Path, body: str, msg: str, outcome: str, engine: str, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, body: str, msg: str, outcome: str
 ) -> None:
-    monkeypatch.setitem(carmen_mod._ENGINE, "name", engine)
     p = _damaged(tmp_path, body)
     with pytest.raises(LogFormatError, match=msg) as ei:
         read_carmen(p, strict=True)
@@ -367,11 +360,9 @@ def test_strict_refuses_malformed_lines_naming_file_and_line(
 
 
 @pytest.mark.parametrize(("body", "msg", "outcome"), MALFORMED)
-@pytest.mark.parametrize("engine", ["auto", "numpy"])
 def test_lenient_reader_keeps_every_intact_scan(
-    tmp_path: Path, body: str, msg: str, outcome: str, engine: str, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, body: str, msg: str, outcome: str
 ) -> None:
-    monkeypatch.setitem(carmen_mod._ENGINE, "name", engine)
     d = read_carmen(_damaged(tmp_path, body))
     kept = {"dropped": 20, "invalid": 21, "repaired": 21}[outcome]
     assert len(d.scans) == kept

@@ -37,7 +37,6 @@ import re
 import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -171,69 +170,21 @@ def _is_type_word(tok: str) -> bool:
 
 
 def _fast_matrix(heads: list[str], ncols: int) -> NDArray[np.float64] | None:
-    """All rows as one (rows, ncols) matrix, or None when they do not convert cleanly."""
+    """All rows as one (rows, ncols) matrix, or None when they do not convert cleanly (the
+    caller then parses line by line, naming the bad line).
+
+    The one float parser: the core's ``parse_floats`` (Rust; whitespace-separated decimal /
+    exponent / ``nan`` / ``inf`` tokens, exact round-trip conversion, ``ValueError`` on any
+    other token). NaN and inf come back as such; the readers check finiteness afterwards."""
     if not heads:
         return np.zeros((0, ncols))
-    text = "\n".join(heads)
-    native = _native_parser() if _ENGINE["name"] == "auto" else None
-    if native is not None:
-        try:
-            flat = np.asarray(native(text), dtype=np.float64)
-        except ValueError:
-            return None
-        return flat.reshape(len(heads), ncols) if flat.size == len(heads) * ncols else None
+    from icploc._core import parse_floats
+
     try:
-        import pandas as pd  # optional accelerator: ~2.5x faster than numpy.fromstring
-    except ImportError:  # pragma: no cover - depends on the environment
-        pd = None
-    if pd is not None and _ENGINE["name"] != "numpy":
-        # single spaces (the common case) parse fastest; tabs or runs of spaces need \s+
-        for sep in (" ", r"\s+"):
-            try:
-                m = pd.read_csv(
-                    io.StringIO(text),
-                    sep=sep,
-                    header=None,
-                    dtype=np.float64,
-                    engine="c",
-                    keep_default_na=False,
-                    na_values=["nan", "NaN", "-nan", "NAN"],
-                ).to_numpy(dtype=np.float64)
-            except Exception:  # noqa: BLE001 - any tokenizer/conversion failure
-                continue
-            if m.shape == (len(heads), ncols):
-                # pandas' fast float parser can be 1 ulp off; stamps must be exact
-                try:
-                    m[:, -1] = [float(h.rsplit(None, 1)[1]) for h in heads]
-                except (ValueError, IndexError):
-                    return None
-                return m
-        return None
-    try:
-        flat = np.fromstring(text, dtype=np.float64, sep=" ")
+        flat = np.asarray(parse_floats("\n".join(heads)), dtype=np.float64)
     except ValueError:
         return None
-    if flat.size != len(heads) * ncols:
-        return None
-    return flat.reshape(len(heads), ncols)
-
-
-def _native_parser() -> Callable[[str], Any] | None:
-    """``icploc._core.parse_floats(text) -> float64 array`` if the core provides it.
-
-    Contract: whitespace-separated decimal / exponent / ``nan`` / ``inf`` tokens, all of
-    them, in order, exact (round-trip) conversion; ``ValueError`` on any other token.
-    """
-    try:
-        from icploc import _core
-    except ImportError:  # pragma: no cover - the package needs the core anyway
-        return None
-    fn = getattr(_core, "parse_floats", None)
-    return fn if callable(fn) else None
-
-
-#: which matrix parser to use ("auto" or "numpy"); tests flip it to cover both paths
-_ENGINE = {"name": "auto"}
+    return flat.reshape(len(heads), ncols) if flat.size == len(heads) * ncols else None
 
 
 def _num(path: str, lineno: int, what: str, tok: str) -> float:
