@@ -159,6 +159,8 @@ def is_carmen(path: str | os.PathLike[str]) -> bool:
 #: a character no CARMEN text line holds (anything but tab, CR and printable ASCII): binary
 #: garbage that happens to start with an upper-case word is still garbage
 _BINARY = re.compile(r"[^\t\r\x20-\x7e]")
+#: control characters: no text line, not even a comment in some 8-bit encoding, holds them
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
 def _is_type_word(tok: str) -> bool:
@@ -646,8 +648,8 @@ def read_carmen(
     params: dict[str, str] = {}
     for i, line in enumerate(lines):
         t = line.split(None, 2)
-        if not t or t[0][0] == "#":
-            continue
+        if not t or (t[0][0] == "#" and not _CONTROL.search(line)):
+            continue  # a comment (one holding control characters is garbage: dropped below)
         kind = t[0]
         if kind == "FLASER":
             try:
