@@ -26,7 +26,8 @@ def batch(
         typer.Option("--scheduler", help="Dask scheduler address (default: a local cluster)"),
     ] = None,
     workers: Annotated[
-        int | None, typer.Option("--workers", help="Local cluster workers (default: one per core)")
+        int | None,
+        typer.Option("--workers", help="Local cluster workers; default: one per core (count)"),
     ] = None,
     truth_dir: Annotated[
         Path | None,

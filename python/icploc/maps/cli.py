@@ -68,12 +68,14 @@ def show(
     out: Path = typer.Option(
         Path("map.png"), "--out", "-o", help="image to write (.png, .svg, .pdf)"
     ),
-    spacing: float = typer.Option(0.1, help="sample spacing to draw [m]; 0 draws no samples"),
-    pose: str | None = typer.Option(None, help="'x,y,theta' to draw a scanner and what it sees"),  # noqa: UP007
-    fov: float = typer.Option(360.0, help="field of view with --pose [degrees]"),
-    max_range: float = typer.Option(30.0, help="max range with --pose [m]"),
+    spacing: float = typer.Option(0.1, help="sample spacing to draw; 0 draws no samples (m)"),
+    pose: str | None = typer.Option(
+        None, help="'x,y,theta' to draw a scanner and what it sees (m, m, rad)"
+    ),  # noqa: UP007
+    fov: float = typer.Option(360.0, help="field of view with --pose (deg)"),
+    max_range: float = typer.Option(30.0, help="max range with --pose (m)"),
     normals: bool = typer.Option(False, help="draw sample normals"),
-    dpi: int = typer.Option(150),
+    dpi: int = typer.Option(150, help="image resolution (dots per inch)"),
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Draw the grid, the fitted lines and the samples to an image."""
@@ -104,7 +106,7 @@ def show(
 @map_app.command()
 def info(
     map_path: Path = typer.Argument(..., help="map file"),
-    spacing: float = typer.Option(0.05, help="sample spacing for the point counts [m]"),
+    spacing: float = typer.Option(0.05, help="sample spacing for the point counts (m)"),
     as_json: bool = typer.Option(False, "--json", help="print JSON"),
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
@@ -128,8 +130,8 @@ def info(
 def prepare(
     map_path: Path = typer.Argument(..., help="map file"),
     out: Path = typer.Option(..., "--out", "-o", help="prepared map to write (.npz)"),
-    spacing: list[float] = typer.Option([0.05], help="sample spacing(s) to store [m]"),
-    min_length: float | None = typer.Option(None, help="shortest fitted line for grids [m]"),  # noqa: UP007
+    spacing: list[float] = typer.Option([0.05], help="sample spacing(s) to store (m)"),
+    min_length: float | None = typer.Option(None, help="shortest fitted line for grids (m)"),  # noqa: UP007
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Fit and sample once; save everything to one .npz that loads fast."""
@@ -149,7 +151,7 @@ def convert(
     out: Path = typer.Option(
         ..., "--out", "-o", help=".geojson (lines), .yaml (ROS grid) or .npz (prepared map)"
     ),
-    resolution: float = typer.Option(0.05, help="cell size for .yaml output [m]"),
+    resolution: float = typer.Option(0.05, help="cell size for .yaml output (m)"),
     no_cache: bool = typer.Option(False, "--no-cache", help=NO_CACHE_HELP),
 ) -> None:
     """Write the map in the format of the --out suffix (icploc.maps.formats): its lines as
@@ -177,9 +179,9 @@ def build(
     poses: Path | None = typer.Option(  # noqa: UP007
         None, help="TUM file of laser poses (default: the log's own corrected poses)"
     ),
-    resolution: float = typer.Option(0.05, help="cell size [m]"),
-    min_hits: int = typer.Option(2, help="beam hits a cell needs to be occupied"),
-    max_range: float = typer.Option(30.0, help="use beams up to this range [m]"),
+    resolution: float = typer.Option(0.05, help="cell size (m)"),
+    min_hits: int = typer.Option(2, help="beam hits a cell needs to be occupied (count)"),
+    max_range: float = typer.Option(30.0, help="use beams up to this range (m)"),
 ) -> None:
     """Build a map_server map (YAML + PGM) from a log's scans at known poses; free space by
     ray casting."""
