@@ -369,3 +369,76 @@ def test_demo_into_a_file_is_one_error_line(tmp_path: Path) -> None:
     f.write_text("x")
     r = runner.invoke(app, ["demo", "--quick", "--out", str(f)])
     assert (r.exit_code, r.output) == (1, f"error: --out {f}: exists and is not a directory\n")
+
+
+# ----------------------------------------------------------------------------- issue 15
+
+
+def test_log_info_prints_each_log_and_one_error_line_per_bad_one(tmp_path: Path) -> None:
+    import numpy as np
+    from icploc.logs.carmen import flaser_angles
+    from icploc.types import Scan
+
+    good = tmp_path / "a.log"
+    scans = [Scan(stamp=t, ranges=np.ones(180), angles=flaser_angles(180), max_range=8.0) for t in (1.0, 2.0)]
+    write_carmen(good, scans, [])
+    bad = tmp_path / "bad.log"
+    bad.write_text("FLASER 3 1 2\n")
+    r = runner.invoke(app, ["log", "info", str(good), str(bad), "--strict"])
+    assert (r.exit_code, "2 × 180 beams" in r.stdout, f"{bad}:1: FLASER: truncated" in r.stderr) == (
+        1,
+        True,
+        True,
+    )
+
+
+def _all_commands() -> list[tuple[str, object]]:
+    import click
+    import typer
+    from icploc.cli import _register
+
+    _register()
+    root = typer.main.get_command(app)
+    out: list[tuple[str, object]] = []
+
+    def walk(cmd: click.Command, path: str) -> None:
+        if isinstance(cmd, click.Group):
+            for name in cmd.list_commands(click.Context(cmd)):
+                sub = cmd.get_command(click.Context(cmd), name)
+                assert sub is not None
+                walk(sub, f"{path} {name}")
+        else:
+            out.append((path.strip(), cmd))
+
+    walk(root, "")
+    return out
+
+
+#: a unit (or what the number counts) in parentheses at the end of a numeric option's help
+_UNIT = r"\((?:[^()]*\b(?:m|rad|deg|s|Hz|Bd|count|0-1|an integer|dots per inch)\b[^()]*)\)$"
+
+
+def test_every_numeric_option_says_its_unit() -> None:
+    import re
+
+    import click
+
+    missing = []
+    for name, cmd in _all_commands():
+        for p in cmd.params:  # type: ignore[attr-defined]
+            numeric = isinstance(p.type, (click.types.FloatParamType, click.types.IntParamType))
+            if isinstance(p, click.Option) and numeric and not re.search(_UNIT, p.help or ""):
+                missing.append(f"{name} {p.opts[0]}: {p.help!r}")
+    assert missing == []
+
+
+@pytest.mark.parametrize("command", [["replay"], ["map", "build"], ["log", "info"], ["config", "check"]])
+def test_help_shows_plain_argument_names_and_no_bool_type(command: list[str]) -> None:
+    r = runner.invoke(app, [*command, "--help"], env={"COLUMNS": "200"})
+    usage = next(ln for ln in r.stdout.splitlines() if "Usage:" in ln)
+    assert ("{" in usage, "<bool>" in r.stdout, r.exit_code) == (False, False, 0)
+
+
+def test_units_in_brackets_are_not_eaten_by_the_help_markup() -> None:
+    r = runner.invoke(app, ["map", "build", "--help"], env={"COLUMNS": "200"})
+    assert "cell size (m)" in r.stdout

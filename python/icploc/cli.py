@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from typer.core import TyperGroup
+from typer.core import TyperArgument, TyperGroup, TyperOption
 
 from icploc.batch_cli import batch as _batch_command
 from icploc.errors import UsageError
@@ -35,9 +35,43 @@ class UserError(UsageError):
     """An error the user can fix: printed as one ``error: ...`` line (exit 1), no traceback."""
 
 
+class _Argument(TyperArgument):
+    """A positional argument shown as ``LOG`` (required) or ``[LOG]`` in the usage line,
+    not typer's ``{log}``."""
+
+    def _usage_display_name(self) -> str:
+        name = self.metavar or (self.name or "").upper()
+        if self.nargs != 1:
+            name += "..."
+        return name if self.required else f"[{name}]"
+
+
+def _tidy_help(cmd: Any, ctx: Any) -> None:
+    """The help of one command as a user reads it: arguments upper case (``LOG``, not
+    ``{log}``), no ``<bool>`` type for a flag (it takes no value; --help included)."""
+    for p in cmd.get_params(ctx):
+        if type(p) is TyperArgument:
+            p.__class__ = _Argument
+            if p.metavar is None and p.name:
+                p.metavar = p.name.upper()
+        elif isinstance(p, TyperOption) and p.is_flag and p.metavar is None:
+            p.metavar = ""
+
+
 class _Guarded(TyperGroup):
     """Every command: a user error (OSError, ValueError) becomes one ``error: ...`` line and
-    exit 1, Ctrl-C exit 130, instead of a traceback."""
+    exit 1, Ctrl-C exit 130, instead of a traceback; every command's help tidied
+    (:func:`_tidy_help`)."""
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        cmd = super().get_command(ctx, cmd_name)
+        if cmd is not None:
+            _tidy_help(cmd, ctx)
+        return cmd
+
+    def get_help(self, ctx: Any) -> str:
+        _tidy_help(self, ctx)
+        return super().get_help(ctx)
 
     def invoke(self, ctx: Any) -> Any:
         try:
@@ -82,12 +116,16 @@ def _register() -> None:
         return
     from icploc.maps.cli import map_app
 
-    app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.")
+    app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.", cls=_Guarded)
     _REGISTERED.append(True)
 
 
 config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True, cls=_Guarded)
 app.add_typer(config_app, name="config")
+log_app = typer.Typer(
+    help="Inspect logs (CARMEN, ROS 1/2 bags, icploc recordings).", no_args_is_help=True, cls=_Guarded
+)
+app.add_typer(log_app, name="log")
 app.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
 
 
@@ -105,6 +143,36 @@ def config_check(path: Annotated[Path, typer.Argument(help="YAML file to validat
     keys and bad values are errors, exit 2); print the full configuration it gives."""
     cfg = _load_config(path)
     typer.echo(cfg.to_yaml(), nl=False)
+
+
+@log_app.command("info")
+def log_info(
+    logs: Annotated[
+        list[Path], typer.Argument(help="CARMEN log (.log/.gz), ROS 1/2 bag, or icploc raw recording")
+    ],
+    format: Annotated[
+        str | None,
+        typer.Option("--format", help="Read as this format (carmen, rosbag, recorded); default: detect"),
+    ] = None,
+    strict: Annotated[
+        bool, typer.Option("--strict", help="Refuse a malformed line or an impossible reading")
+    ] = False,
+) -> None:
+    """Print what each log holds: scans, beams, odometry, time span, stamps, and what the
+    reader skipped or repaired. A log that cannot be read is one error line (exit 1); the
+    other logs are still read."""
+    from icploc.logs import load_log
+
+    failed = False
+    for path in logs:
+        try:
+            opts = {"strict": True} if strict else {}
+            typer.echo(load_log(path, format=format, **opts).info.summary())
+        except (ValueError, OSError) as e:
+            typer.secho(f"error: {_describe(e)}", fg="red", err=True)
+            failed = True
+    if failed:
+        raise typer.Exit(EXIT_ERROR)
 
 
 def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
@@ -134,8 +202,8 @@ def _pose_option(text: str | None):  # type: ignore[no-untyped-def]
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Output directory")] = Path("icploc-demo"),
     quick: Annotated[bool, typer.Option(help="Short paths (a few seconds)")] = False,
-    people: Annotated[int, typer.Option(help="People walking in the lab")] = 3,
-    seed: Annotated[int, typer.Option(help="Random seed")] = 0,
+    people: Annotated[int, typer.Option(help="People walking in the lab (count)")] = 3,
+    seed: Annotated[int, typer.Option(help="Random seed (an integer)")] = 0,
 ) -> None:
     """The paper's lab experiments (random walk, circles) with a simulated PowerBot and
     PLS on pseudo-terminals: writes plots and Tables 3-5 style results."""
@@ -211,7 +279,7 @@ def replay(
             "--max-lost",
             min=0.0,
             max=1.0,
-            help="Exit 3 when more than this share of the scans ends lost (1 = never)",
+            help="Exit 3 when more than this share of the scans ends lost; 1 = never (0-1)",
         ),
     ] = 0.5,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
@@ -282,7 +350,9 @@ def run_cmd(
     simulate: Annotated[
         bool, typer.Option("--simulate", help="Use the device simulators on ptys")
     ] = False,
-    initial_pose: Annotated[str | None, typer.Option("--initial-pose", help="X,Y,THETA")] = None,
+    initial_pose: Annotated[
+        str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")
+    ] = None,
     global_start: Annotated[
         bool,
         typer.Option("--global", help="With --simulate: do not tell the localizer the start pose"),
@@ -290,15 +360,17 @@ def run_cmd(
     out: Annotated[Path | None, typer.Option("--out", help="Write the trajectory (TUM)")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Record the raw bytes")] = None,
     config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
-    duration: Annotated[float | None, typer.Option(help="Stop after this many seconds")] = None,
-    baud: Annotated[int, typer.Option(help="Laser baud rate")] = 38400,
+    duration: Annotated[float | None, typer.Option(help="Stop after this long (s)")] = None,
+    baud: Annotated[
+        int, typer.Option(help="Laser baud rate: 9600, 19200, 38400 or 500000 (Bd)")
+    ] = 38400,
     mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
     state: Annotated[
         Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
     ] = None,
     reconnect_timeout: Annotated[
         float,
-        typer.Option(help="Give up on a vanished device after this many seconds (exit 1)"),
+        typer.Option(help="Give up on a vanished device after this long, exit 1 (s)"),
     ] = 60.0,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate).

@@ -1,30 +1,28 @@
-"""``python -m icploc.logs LOG [LOG ...]``: print what each log holds (scans, beams, stamps)."""
+"""``python -m icploc.logs LOG [LOG ...]``: a shim for ``icploc log info LOG [LOG ...]`` (print
+what each log holds); the command itself is in :mod:`icploc.cli`."""
 
 from __future__ import annotations
 
-import argparse
 import sys
-
-from icploc.logs import LogFormatError, load_log
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m icploc.logs", description=__doc__)
-    ap.add_argument("logs", nargs="+", help="CARMEN log (.log/.gz), ROS 1/2 bag, or recording")
-    ap.add_argument("--format", default=None, help="force a format (carmen, rosbag, recorded)")
-    ap.add_argument(
-        "--strict", action="store_true", help="refuse a malformed line or impossible reading"
-    )
-    args = ap.parse_args(argv)
-    status = 0
-    for path in args.logs:
-        try:
-            opts = {"strict": True} if args.strict else {}
-            print(load_log(path, format=args.format, **opts).info.summary())
-        except (LogFormatError, OSError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            status = 1
-    return status
+    """Run ``icploc log info`` with ``argv``; returns the exit code."""
+    import click
+    import typer
+
+    from icploc.cli import app
+
+    args = sys.argv[1:] if argv is None else list(argv)
+    cmd = typer.main.get_command(app)
+    try:
+        rv = cmd.main(["log", "info", *args], prog_name="python -m icploc.logs", standalone_mode=False)
+    except click.ClickException as e:
+        e.show()
+        return e.exit_code
+    except click.exceptions.Exit as e:
+        return e.exit_code
+    return rv if isinstance(rv, int) else 0
 
 
 if __name__ == "__main__":
