@@ -9,6 +9,7 @@ import os
 from bisect import bisect_right
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -349,6 +350,20 @@ def repair_stamps(
     note = f"{reason}; synthetic stamps: scan index × {period:g} s"
     log.info("timestamps unusable: %s", note)
     return StampRepair(out, "synthetic", note, n)
+
+
+def scan_span(scans: list[Scan]) -> dict[str, Any]:
+    """The :class:`LogInfo` fields that summarise time-sorted ``scans``: beam counts,
+    angle span, max range, first and last stamp."""
+    return {
+        "n_scans": len(scans),
+        "beams": tuple(sorted({len(s) for s in scans})),
+        "angle_min": min((float(s.angles[0]) for s in scans if len(s)), default=math.nan),
+        "angle_max": max((float(s.angles[-1]) for s in scans if len(s)), default=math.nan),
+        "max_range": min((s.max_range for s in scans), default=math.inf),
+        "start": scans[0].stamp if scans else math.nan,
+        "end": scans[-1].stamp if scans else math.nan,
+    }
 
 
 # -- the reader registry: every reader module registers itself (icploc.logs finds them) ----

@@ -24,7 +24,7 @@ from icploc.drivers.recording import (
     is_recording,
     iter_records,
 )
-from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format
+from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format, scan_span
 from icploc.se2 import compose
 from icploc.types import Odometry, Scan
 
@@ -164,20 +164,7 @@ def load_recorded(path: str | os.PathLike[str], **opts: Any) -> LogData:
 
 
 def _info_from(path: str, scans: list[Scan], odoms: list[Odometry]) -> LogInfo:
-    import math
-
-    return LogInfo(
-        path=path,
-        format="recorded",
-        n_scans=len(scans),
-        n_odometry=len(odoms),
-        beams=tuple(sorted({len(s) for s in scans})),
-        angle_min=min((float(s.angles[0]) for s in scans if len(s)), default=math.nan),
-        angle_max=max((float(s.angles[-1]) for s in scans if len(s)), default=math.nan),
-        max_range=min((s.max_range for s in scans), default=math.inf),
-        start=scans[0].stamp if scans else math.nan,
-        end=scans[-1].stamp if scans else math.nan,
-    )
+    return LogInfo(path=path, format="recorded", n_odometry=len(odoms), **scan_span(scans))
 
 
 register_format("recorded", is_recorded, load_recorded, (".icpraw",), order=30)

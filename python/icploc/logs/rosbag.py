@@ -37,6 +37,7 @@ from icploc.logs._base import (
     log,
     register_format,
     repair_stamps,
+    scan_span,
 )
 from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
@@ -383,14 +384,8 @@ def read_rosbag(
     info = LogInfo(
         path=spath,
         format=fmt,
-        n_scans=len(scan_list),
         n_odometry=len(odom_list),
-        beams=tuple(sorted({len(s) for s in scan_list})),
-        angle_min=min((float(s.angles[0]) for s in scan_list if len(s)), default=math.nan),
-        angle_max=max((float(s.angles[-1]) for s in scan_list if len(s)), default=math.nan),
-        max_range=min((s.max_range for s in scan_list), default=math.inf),
-        start=scan_list[0].stamp if scan_list else math.nan,
-        end=scan_list[-1].stamp if scan_list else math.nan,
+        **scan_span(scan_list),
         stamps=rep.status,
         stamp_note=rep.note,
         n_repaired_stamps=rep.n_changed,
