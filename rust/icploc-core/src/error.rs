@@ -3,8 +3,8 @@
 use thiserror::Error;
 
 /// Everything that can go wrong in the core. The Python binding maps each variant to an
-/// exception class (`InvalidInputError`, `EmptyMapError`, `InvalidConfigError`, all
-/// subclasses of `ValueError`).
+/// exception class (`InvalidInputError`, `EmptyMapError`, `GridTooLargeError`,
+/// `InvalidConfigError`, all subclasses of `ValueError`).
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum IcpError {
     /// The map has no points.
@@ -33,6 +33,19 @@ pub enum IcpError {
         field: &'static str,
         value: String,
         reason: &'static str,
+    },
+    /// A grid (likelihood field, distance field) would need more cells than the core's
+    /// memory bound: a coarser resolution (or a smaller map) is needed.
+    #[error(
+        "resolution: a {width:.1} m x {height:.1} m map at {resolution} m needs {cells} cells, \
+         more than {max}"
+    )]
+    GridTooLarge {
+        width: f64,
+        height: f64,
+        resolution: f64,
+        cells: f64,
+        max: usize,
     },
     /// Any other invalid input.
     #[error("{what}: {reason}")]

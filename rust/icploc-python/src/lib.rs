@@ -33,6 +33,7 @@ pyo3::create_exception!(
 static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static EMPTY_MAP: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INVALID_CONFIG: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+static GRID_TOO_LARGE: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 
 /// A class with several bases (e.g. IcpError and ValueError), made with `type()`.
 fn make_class(
@@ -69,6 +70,19 @@ fn empty_map(py: Python<'_>) -> &Py<PyType> {
     })
 }
 
+fn grid_too_large(py: Python<'_>) -> &Py<PyType> {
+    GRID_TOO_LARGE.get_or_init(py, || {
+        let base = invalid_input(py).bind(py).clone();
+        make_class(
+            py,
+            "GridTooLargeError",
+            vec![base],
+            "A grid would need more cells than the core's memory bound (use a coarser resolution).",
+        )
+        .expect("creating GridTooLargeError")
+    })
+}
+
 fn invalid_config(py: Python<'_>) -> &Py<PyType> {
     INVALID_CONFIG.get_or_init(py, || {
         make_class(
@@ -86,6 +100,7 @@ fn to_py(py: Python<'_>, e: CoreError) -> PyErr {
     let msg = e.to_string();
     let cls = match e {
         CoreError::EmptyMap => empty_map(py),
+        CoreError::GridTooLarge { .. } => grid_too_large(py),
         CoreError::InvalidConfig { .. } => invalid_config(py),
         CoreError::Internal(_) => return IcpError::new_err(msg),
         _ => invalid_input(py),
@@ -1005,6 +1020,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("IcpError", py.get_type::<IcpError>())?;
     m.add("InvalidInputError", invalid_input(py).bind(py))?;
     m.add("EmptyMapError", empty_map(py).bind(py))?;
+    m.add("GridTooLargeError", grid_too_large(py).bind(py))?;
     m.add("InvalidConfigError", invalid_config(py).bind(py))?;
     m.add_class::<PyMapIndex>()?;
     m.add_class::<PyIcpConfig>()?;
