@@ -21,6 +21,9 @@ class InvalidInputError(IcpError, ValueError):
 class EmptyMapError(InvalidInputError):
     """The map has no points."""
 
+class GridTooLargeError(InvalidInputError):
+    """A grid would need more cells than the core's memory bound (use a coarser resolution)."""
+
 class InvalidConfigError(IcpError, ValueError):
     """A configuration value is out of range (e.g. a non-positive threshold)."""
 

@@ -63,13 +63,12 @@ impl LikelihoodField {
         let wf = ((xmax - xmin) / resolution).floor() + 1.0;
         let hf = ((ymax - ymin) / resolution).floor() + 1.0;
         if !(wf.is_finite() && hf.is_finite()) || wf * hf > MAX_CELLS as f64 {
-            return Err(IcpError::InvalidInput {
-                what: "resolution".into(),
-                reason: format!(
-                    "a {:.1} m x {:.1} m map at {resolution} m needs {wf} x {hf} cells, more than {MAX_CELLS}",
-                    xmax - xmin,
-                    ymax - ymin
-                ),
+            return Err(IcpError::GridTooLarge {
+                width: xmax - xmin,
+                height: ymax - ymin,
+                resolution,
+                cells: wf * hf,
+                max: MAX_CELLS,
             });
         }
         let (w, h) = (wf as usize, hf as usize);
@@ -209,4 +208,22 @@ pub(crate) fn pool<T: Copy + Send + Sync>(
             m
         })
         .collect()
+}
+
+#[cfg(test)]
+mod grid_bound_tests {
+    use super::*;
+
+    #[test]
+    fn a_grid_beyond_the_bound_is_grid_too_large() {
+        let idx = MapIndex::new(vec![[0.0, 0.0], [5000.0, 5000.0]], None).unwrap();
+        let e = LikelihoodField::build(&idx, 0.05, 0.1, 6).unwrap_err();
+        assert!(
+            matches!(e, IcpError::GridTooLarge { max: MAX_CELLS, .. }),
+            "{e}"
+        );
+        assert!(e
+            .to_string()
+            .starts_with("resolution: a 5000.0 m x 5000.0 m map"));
+    }
 }
