@@ -102,3 +102,32 @@ def test_a_bad_trajectory_file_raises_a_file_format_error(tmp_path: Path) -> Non
     with pytest.raises(FileFormatError) as ei:
         read_tum(p)
     assert (ei.value.path, ei.value.line) == (str(p), 2)
+
+
+def test_a_grid_beyond_the_core_memory_bound_has_its_own_type() -> None:
+    import numpy as np
+    from icploc._core import GlobalLocalizer, GridTooLargeError, InvalidInputError, MapIndex
+
+    idx = MapIndex(np.array([[0.0, 0.0], [5000.0, 5000.0]]))
+    with pytest.raises(GridTooLargeError, match="needs 10000200001 cells") as ei:
+        GlobalLocalizer(idx, 0.05)
+    assert (isinstance(ei.value, InvalidInputError), isinstance(ei.value, ValueError)) == (True, True)
+
+
+def test_global_relocalization_coarsens_on_the_typed_error_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    import numpy as np
+    from icploc import relocalize
+    from icploc._core import GridTooLargeError, MapIndex
+
+    tried: list[float] = []
+
+    class Fake:
+        def __init__(self, index: object, config: relocalize.RelocalizeConfig) -> None:
+            tried.append(config.resolution)
+            if config.resolution < 0.2:
+                raise GridTooLargeError("too many cells")
+
+    monkeypatch.setattr(relocalize, "Relocalizer", Fake)
+    g = relocalize.GlobalRelocalization.deferred()
+    assert g.ready(MapIndex(np.array([[0.0, 0.0], [10.0, 10.0]])))
+    assert tried == pytest.approx([0.05, 0.1, 0.2])

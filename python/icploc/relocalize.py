@@ -462,6 +462,8 @@ class GlobalRelocalization:
             return True
         if self._unavailable:
             return False
+        from icploc._core import GridTooLargeError
+
         try:
             x0, y0, x1, y1 = index.bounds
             area = max(float(x1 - x0), 1.0) * max(float(y1 - y0), 1.0)
@@ -470,8 +472,8 @@ class GlobalRelocalization:
                 try:
                     self._relocalizer = Relocalizer(index, self.settings.replace(resolution=res))
                     break
-                except ValueError as e:
-                    if res == 8 * res0 or "cells" not in str(e):
+                except GridTooLargeError:
+                    if res == 8 * res0:
                         raise
         except (ValueError, RuntimeError, MemoryError) as e:
             import warnings
