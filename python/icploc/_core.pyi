@@ -315,6 +315,9 @@ class GlobalSearchResult:
     def refine_time(self) -> float: ...
     def __len__(self) -> int: ...
 
+def global_defaults() -> dict[str, float | int]:
+    """The core's defaults of the settings :class:`GlobalLocalizer` takes (m, rad)."""
+
 @final
 class GlobalLocalizer:
     """Global localization on one map: a likelihood pyramid built once at ``resolution``,
@@ -327,20 +330,21 @@ class GlobalLocalizer:
         resolution: float = 0.05,
         *,
         angle_step: float | None = None,
-        max_points: int = 96,
-        sigma: float = 0.15,
-        min_clearance: float = 0.2,
-        accept_ratio: float = 0.8,
-        min_score: float = 0.15,
-        max_candidates: int = 32,
-        levels: int = 6,
-        score_sigma: float = 0.05,
-        inlier_distance: float = 0.1,
-        distinct_distance: float = 0.5,
+        max_points: int | None = None,
+        sigma: float | None = None,
+        min_clearance: float | None = None,
+        accept_ratio: float | None = None,
+        min_score: float | None = None,
+        max_candidates: int | None = None,
+        levels: int | None = None,
+        score_sigma: float | None = None,
+        inlier_distance: float | None = None,
+        distinct_distance: float | None = None,
         distinct_angle: float | None = None,
-        ambiguity_margin: float = 0.1,
+        ambiguity_margin: float | None = None,
         icp_config: IcpConfig | None = None,
-    ) -> Self: ...
+    ) -> Self:
+        """Every setting left None is the core's default (:func:`global_defaults`)."""
     def search(
         self,
         scan_xy: ArrayLike,

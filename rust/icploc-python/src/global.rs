@@ -171,11 +171,13 @@ fn pair4(py: Python<'_>, obj: Option<&Bound<'_, PyAny>>, what: &str) -> PyResult
 #[pymethods]
 impl PyGlobalLocalizer {
     #[new]
+    /// Every setting left `None` is the core's default (`GlobalConfig::default()`, see
+    /// `global_defaults()`): the one source.
     #[pyo3(signature = (
-        index, resolution=0.05, *, angle_step=None, max_points=96, sigma=0.15,
-        min_clearance=0.2, accept_ratio=0.8, min_score=0.15, max_candidates=32,
-        levels=6, score_sigma=0.05, inlier_distance=0.1, distinct_distance=0.5,
-        distinct_angle=None, ambiguity_margin=0.1, icp_config=None
+        index, resolution=0.05, *, angle_step=None, max_points=None, sigma=None,
+        min_clearance=None, accept_ratio=None, min_score=None, max_candidates=None,
+        levels=None, score_sigma=None, inlier_distance=None, distinct_distance=None,
+        distinct_angle=None, ambiguity_margin=None, icp_config=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -183,18 +185,18 @@ impl PyGlobalLocalizer {
         index: Bound<'_, PyMapIndex>,
         resolution: f64,
         angle_step: Option<f64>,
-        max_points: usize,
-        sigma: f64,
-        min_clearance: f64,
-        accept_ratio: f64,
-        min_score: f64,
-        max_candidates: usize,
-        levels: usize,
-        score_sigma: f64,
-        inlier_distance: f64,
-        distinct_distance: f64,
+        max_points: Option<usize>,
+        sigma: Option<f64>,
+        min_clearance: Option<f64>,
+        accept_ratio: Option<f64>,
+        min_score: Option<f64>,
+        max_candidates: Option<usize>,
+        levels: Option<usize>,
+        score_sigma: Option<f64>,
+        inlier_distance: Option<f64>,
+        distinct_distance: Option<f64>,
         distinct_angle: Option<f64>,
-        ambiguity_margin: f64,
+        ambiguity_margin: Option<f64>,
         icp_config: Option<PyRef<'_, PyIcpConfig>>,
     ) -> PyResult<Self> {
         let d = GlobalConfig::default();
@@ -204,18 +206,18 @@ impl PyGlobalLocalizer {
         };
         let cfg = GlobalConfig {
             angle_step: angle_step.unwrap_or(d.angle_step),
-            max_points,
-            sigma,
-            min_clearance,
-            accept_ratio,
-            min_score,
-            max_candidates,
-            levels,
-            score_sigma,
-            inlier_distance,
-            distinct_distance,
+            max_points: max_points.unwrap_or(d.max_points),
+            sigma: sigma.unwrap_or(d.sigma),
+            min_clearance: min_clearance.unwrap_or(d.min_clearance),
+            accept_ratio: accept_ratio.unwrap_or(d.accept_ratio),
+            min_score: min_score.unwrap_or(d.min_score),
+            max_candidates: max_candidates.unwrap_or(d.max_candidates),
+            levels: levels.unwrap_or(d.levels),
+            score_sigma: score_sigma.unwrap_or(d.score_sigma),
+            inlier_distance: inlier_distance.unwrap_or(d.inlier_distance),
+            distinct_distance: distinct_distance.unwrap_or(d.distinct_distance),
             distinct_angle: distinct_angle.unwrap_or(d.distinct_angle),
-            ambiguity_margin,
+            ambiguity_margin: ambiguity_margin.unwrap_or(d.ambiguity_margin),
             icp,
             ..d
         };
@@ -357,7 +359,30 @@ impl PyGlobalLocalizer {
     }
 }
 
+/// The core's defaults of the global search settings `GlobalLocalizer` takes (metres,
+/// radians): `GlobalConfig::default()`, the one source of them.
+#[pyfunction]
+fn global_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = GlobalConfig::default();
+    let out = PyDict::new(py);
+    out.set_item("angle_step", d.angle_step)?;
+    out.set_item("max_points", d.max_points)?;
+    out.set_item("sigma", d.sigma)?;
+    out.set_item("min_clearance", d.min_clearance)?;
+    out.set_item("accept_ratio", d.accept_ratio)?;
+    out.set_item("min_score", d.min_score)?;
+    out.set_item("max_candidates", d.max_candidates)?;
+    out.set_item("levels", d.levels)?;
+    out.set_item("score_sigma", d.score_sigma)?;
+    out.set_item("inlier_distance", d.inlier_distance)?;
+    out.set_item("distinct_distance", d.distinct_distance)?;
+    out.set_item("distinct_angle", d.distinct_angle)?;
+    out.set_item("ambiguity_margin", d.ambiguity_margin)?;
+    Ok(out)
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(global_defaults, m)?)?;
     m.add_class::<PyGlobalLocalizer>()?;
     m.add_class::<PyGlobalResult>()?;
     m.add_class::<PyCandidate>()?;
