@@ -9,6 +9,7 @@ Sections (the keys of a YAML config file)::
     localizer:  the outer loop (motion model, calibration, verification, lost, recovery)
     map:        how the map is sampled for the ICP index (spacing, visibility culling)
     relocalize: the global relocalization's hypothesis tracker and kidnap check
+    global_search: the global search both run (icploc.GlobalLocalizer; the core's defaults)
     recovery:   the local recovery around the dead-reckoned pose
     kidnap:     when a global kidnap check runs while tracking
 
@@ -25,6 +26,7 @@ configuration a file gives.
 
 from __future__ import annotations
 
+import math
 import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args
@@ -50,6 +52,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ConfigError",
     "GatingSection",
+    "GlobalSearchSection",
     "IcpSection",
     "KidnapSection",
     "LocalizerConfig",
@@ -543,6 +546,72 @@ class RelocalizeSection(Section):
     clean_margin: float = _f(0.1, "... below the best's score minus this", ge=0, le=1)
 
 
+def _global_default(name: str) -> Any:
+    """The Rust core's default of one global search setting (``GlobalConfig::default()``)."""
+    from icploc._core import global_defaults
+
+    return global_defaults()[name]
+
+
+class GlobalSearchSection(Section):
+    """The global search (icploc.GlobalLocalizer: branch-and-bound over positions and
+    headings on a likelihood pyramid, the best seeds refined by ICP) the relocalization and
+    the kidnap check run; every default is the Rust core's own (GlobalConfig::default())."""
+
+    section: ClassVar[str] = "global_search"
+
+    angle_step: float = _f(
+        _global_default("angle_step"), "heading lattice step", "rad", gt=0, le=math.pi
+    )
+    max_points: int = _f(_global_default("max_points"), "scan points of the coarse search", ge=3)
+    sigma: float = _f(_global_default("sigma"), "sigma of the coarse likelihood grid", "m", gt=0)
+    min_clearance: float = _f(
+        _global_default("min_clearance"),
+        "candidate positions at least this far from the map",
+        "m",
+        ge=0,
+    )
+    accept_ratio: float = _f(
+        _global_default("accept_ratio"),
+        "keep coarse leaves scoring this fraction of the best",
+        gt=0,
+        le=1,
+    )
+    min_score: float = _f(
+        _global_default("min_score"),
+        "never keep a coarse leaf below this share of a perfect score",
+        ge=0,
+        lt=1,
+    )
+    max_candidates: int = _f(
+        _global_default("max_candidates"), "seeds refined by ICP at most", ge=1
+    )
+    levels: int = _f(
+        _global_default("levels"), "pyramid depth: the top node covers 2^levels cells", ge=0, le=12
+    )
+    score_sigma: float = _f(
+        _global_default("score_sigma"), "sigma of the fine likelihood", "m", gt=0
+    )
+    inlier_distance: float = _f(
+        _global_default("inlier_distance"), "a scan point this near the map is an inlier", "m", gt=0
+    )
+    distinct_distance: float = _f(
+        _global_default("distinct_distance"),
+        "two candidates farther apart than this are distinct",
+        "m",
+        ge=0,
+    )
+    distinct_angle: float = _f(
+        _global_default("distinct_angle"), "... or turned more than this", "rad", ge=0
+    )
+    ambiguity_margin: float = _f(
+        _global_default("ambiguity_margin"),
+        "the best two distinct candidates within this relative score are ambiguous",
+        ge=0,
+        lt=1,
+    )
+
+
 class RecoverySection(Section):
     """The local recovery (icploc.recovery.LocalRecovery): multi-start ICP around the
     dead-reckoned pose within its uncertainty (3 sigma, min_radius .. max_radius); the
@@ -604,6 +673,7 @@ _SECTIONS: tuple[type[Section], ...] = (
     LocalizerSection,
     MapSection,
     RelocalizeSection,
+    GlobalSearchSection,
     RecoverySection,
     KidnapSection,
 )
@@ -620,6 +690,7 @@ class LocalizerConfig(BaseModel):
     localizer: LocalizerSection = Field(default_factory=LocalizerSection)
     map: MapSection = Field(default_factory=MapSection)
     relocalize: RelocalizeSection = Field(default_factory=RelocalizeSection)
+    global_search: GlobalSearchSection = Field(default_factory=GlobalSearchSection)
     recovery: RecoverySection = Field(default_factory=RecoverySection)
     kidnap: KidnapSection = Field(default_factory=KidnapSection)
 
