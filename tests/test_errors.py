@@ -111,10 +111,15 @@ def test_a_grid_beyond_the_core_memory_bound_has_its_own_type() -> None:
     idx = MapIndex(np.array([[0.0, 0.0], [5000.0, 5000.0]]))
     with pytest.raises(GridTooLargeError, match="needs 10000200001 cells") as ei:
         GlobalLocalizer(idx, 0.05)
-    assert (isinstance(ei.value, InvalidInputError), isinstance(ei.value, ValueError)) == (True, True)
+    assert (isinstance(ei.value, InvalidInputError), isinstance(ei.value, ValueError)) == (
+        True,
+        True,
+    )
 
 
-def test_global_relocalization_coarsens_on_the_typed_error_only(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_global_relocalization_coarsens_on_the_typed_error_only(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     import numpy as np
     from icploc import relocalize
     from icploc._core import GridTooLargeError, MapIndex
@@ -122,7 +127,9 @@ def test_global_relocalization_coarsens_on_the_typed_error_only(monkeypatch: pyt
     tried: list[float] = []
 
     class Fake:
-        def __init__(self, index: object, config: relocalize.RelocalizeConfig) -> None:
+        def __init__(
+            self, index: object, config: relocalize.RelocalizeConfig, **kw: object
+        ) -> None:
             tried.append(config.resolution)
             if config.resolution < 0.2:
                 raise GridTooLargeError("too many cells")

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.config import LocalizerConfig, RelocalizeSection
+from icploc.config import GlobalSearchSection, LocalizerConfig, RelocalizeSection
 from icploc.kidnap import CheckVerdict
 from icploc.recovery import Candidate, LocalRecovery, RecoveryStep, RecoveryView
 from icploc.scanprep import prepare_scan
@@ -404,8 +404,11 @@ class GlobalRelocalization:
     ) -> None:
         #: None: built from the localizer's map index when first needed (:meth:`deferred`)
         self._relocalizer = relocalizer
-        #: the ``relocalize:`` settings (the deferred build, the kidnap check)
-        self.settings: RelocalizeSection = (config or LocalizerConfig()).relocalize
+        cfg = config or LocalizerConfig()
+        #: the ``relocalize:`` settings (the deferred build, the kidnap check) and the
+        #: ``global_search:`` settings of the deferred build's GlobalLocalizer
+        self.settings: RelocalizeSection = cfg.relocalize
+        self.global_search: GlobalSearchSection = cfg.global_search
         self.local = local or LocalRecovery.from_config(config)
         #: run the global searches on a worker thread (``localizer.lost_check: background``):
         #: ``recover`` never waits for one; a search's candidates join the hypotheses when
@@ -470,7 +473,9 @@ class GlobalRelocalization:
             res0 = max(0.05, math.ceil(math.sqrt(area / self.settings.max_cells) / 0.05) * 0.05)
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
-                    self._relocalizer = Relocalizer(index, self.settings.replace(resolution=res))
+                    self._relocalizer = Relocalizer(
+                        index, self.settings.replace(resolution=res), **self.global_search.to_dict()
+                    )
                     break
                 except GridTooLargeError:
                     if res == 8 * res0:
