@@ -260,3 +260,23 @@ def test_the_relocalization_components_read_their_settings_from_the_config() -> 
         0.2,
     )
     assert got.local.max_radius == 1.5
+
+
+def test_global_search_defaults_are_the_cores() -> None:
+    from icploc._core import global_defaults
+
+    assert LocalizerConfig().global_search.to_dict() == global_defaults()
+
+
+def test_global_search_settings_reach_the_global_localizer() -> None:
+    import numpy as np
+    from icploc._core import MapIndex
+    from icploc.relocalize import GlobalRelocalization
+
+    cfg = LocalizerConfig().replace(global_search={"max_candidates": 5, "ambiguity_margin": 0.2})
+    g = GlobalRelocalization.deferred(config=cfg)
+    x = np.linspace(0.0, 4.0, 81)
+    walls = np.vstack([np.column_stack([x, 0 * x]), np.column_stack([x, 0 * x + 3.0])])
+    assert g.ready(MapIndex(walls))
+    rel = g.relocalizer
+    assert (rel.search_cap, rel.glob.ambiguity_margin) == (5, 0.2)
