@@ -37,6 +37,7 @@ from icploc import clock
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse, wrap_angle
+from icploc.trajectory import tum_line
 
 __all__ = [
     "LiveResult",
@@ -70,10 +71,8 @@ class RunUsageError(RunError):
     exit_code = 2
 
 
-def tum_row(stamp: float, pose: Sequence[float]) -> str:
-    """One TUM trajectory line: ``stamp x y z qx qy qz qw`` (planar: z = qx = qy = 0)."""
-    h = 0.5 * pose[2]
-    return f"{stamp:.6f} {pose[0]:.6f} {pose[1]:.6f} 0 0 0 {math.sin(h):.9f} {math.cos(h):.9f}\n"
+#: one TUM row; kept as an alias of :func:`icploc.trajectory.tum_line` (the one TUM writer)
+tum_row = tum_line
 
 
 @dataclass
