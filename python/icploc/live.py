@@ -37,7 +37,7 @@ from icploc import clock
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse, wrap_angle
-from icploc.trajectory import tum_line
+from icploc.trajectory import TumWriter, tum_line
 
 __all__ = [
     "LiveResult",
@@ -121,22 +121,19 @@ class LiveResult:
 
 
 class _TumWriter:
-    """TUM rows written and flushed one by one; a write error stops the file, not the run."""
+    """TUM rows written and flushed one by one (:class:`icploc.trajectory.TumWriter`); a
+    write error stops the file, not the run."""
 
     def __init__(self, f: TextIO | None, name: str = "--out") -> None:
-        self.f = f
-        self.name = name
-        self.error: str | None = None
+        self._w = TumWriter(f, flush_every=0.0, on_error="stop", name=name) if f is not None else None
+
+    @property
+    def error(self) -> str | None:
+        return self._w.error if self._w is not None else None
 
     def write(self, est: Estimate) -> None:
-        if self.f is None:
-            return
-        try:
-            self.f.write(tum_row(est.stamp, est.pose))
-            self.f.flush()
-        except OSError as e:
-            self.error = f"{self.name}: writing stopped: {e.strerror or e}"
-            self.f = None
+        if self._w is not None:
+            self._w.write(est.stamp, est.pose)
 
 
 def _device_failures() -> tuple[type[BaseException], ...]:
