@@ -37,7 +37,7 @@ from icploc import clock
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse, wrap_angle
-from icploc.trajectory import TumWriter, tum_line
+from icploc.trajectory import Trajectory, TumWriter, tum_line
 
 __all__ = [
     "LiveResult",
@@ -658,11 +658,7 @@ def run_simulated(
 def truth_at(
     truth: list[tuple[float, Pose]], stamps: Sequence[float] | NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """(N, 3) true poses at ``stamps`` (the generated scan nearest in time)."""
-    t = np.array([s for s, _ in truth])
-    p = np.array([q for _, q in truth])
-    idx = np.clip(np.searchsorted(t, np.asarray(stamps)), 1, len(t) - 1)
-    prev = idx - 1
-    choose = np.abs(t[prev] - np.asarray(stamps)) <= np.abs(t[idx] - np.asarray(stamps))
-    idx = np.where(choose, prev, idx)
-    return np.asarray(p[idx], dtype=np.float64)
+    """(N, 3) true poses at ``stamps`` (the generated scan nearest in time:
+    :meth:`icploc.trajectory.Trajectory.at`)."""
+    t = Trajectory.from_poses([s for s, _ in truth], [q for _, q in truth])
+    return t.at(stamps, method="nearest", max_dt=math.inf)[0]
