@@ -296,3 +296,37 @@ def test_summary_reports_the_learned_odometry_calibration(sim_run: dict) -> None
         f"odometry calibration (learned): distance x{s:.4f}, turns x{t:.4f}, "
         f"heading drift {math.degrees(d):+.2f} deg/m"
     )
+
+
+def test_replay_plot_has_the_truth_the_status_and_the_error_panel(
+    sim_run: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--plot draws through plotting.plot_run with everything known: the truth, each
+    scan's status (lost stretches dotted) and the errors against the truth (a panel)."""
+    import icploc.plotting
+
+    seen: dict = {}
+    real = icploc.plotting.plot_run
+
+    def spy(path, **kw):  # type: ignore[no-untyped-def]
+        seen.update(kw)
+        return real(path, **kw)
+
+    monkeypatch.setattr(icploc.plotting, "plot_run", spy)
+    log = _write("carmen", sim_run)
+    res = replay(log, sim_run["map"], truth=sim_run["truth"], plot=tmp_path / "p.png")
+    assert res.evaluation is not None
+    got = (
+        len(seen["truth"]),
+        len(seen["status"]),
+        seen["errors"] is res.evaluation.ate,
+        (tmp_path / "p.png").read_bytes()[:4],
+    )
+    assert got == (len(sim_run["scans"]), res.scans, True, b"\x89PNG")
+
+
+def test_odometry_trajectory_starts_at_the_first_estimate(sim_run: dict) -> None:
+    items = sorted(sim_run["scans"] + sim_run["odoms"], key=lambda m: m.stamp)
+    res = replay(items, Map.load(sim_run["map"]), initial_pose=sim_run["frames"][0].truth)
+    odo = res.odometry_trajectory()
+    assert np.allclose(odo.poses[0], res.estimates[0].pose)
