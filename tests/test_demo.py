@@ -31,6 +31,13 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
         assert set(r.status) <= {"tracking", "degraded"}
         assert r.files["plot"].stat().st_size > 10_000
         assert len(r.files["trajectory"].read_text().splitlines()) == s["scans"]
+        # the truth is written beside the estimates: scoring the files gives the same median
+        from icploc.trajectory import evaluate, read_tum
+
+        ev = evaluate(read_tum(r.files["trajectory"]), read_tum(r.files["truth"]))
+        assert ev is not None and ev.ate.position.median == pytest.approx(
+            s["median_error_m"], abs=1e-5
+        )
     md = (tmp_path / "results.md").read_text()
     assert "End point, odometry" in md and "End point, truth" in md
     assert "Random motion (Table 3" in md and "Circle motion" in md and "glass wall (Table 5" in md

@@ -10,7 +10,8 @@ the glass and the paper's errors grew (Table 5 / Fig. 11). They run at once in r
 time. Written to ``--out``: a plot per experiment (:func:`icploc.plotting.plot_run`:
 odometry, localized trajectory and truth on the map, and the error over time),
 ``results.md`` with start / end points like Tables 3–5 plus the true end point, and the
-TUM trajectories. Errors are scored by :mod:`icploc.trajectory`.
+TUM trajectories (``<run>.tum``) with the truth at each scan (``<run>.truth.tum``).
+Errors are scored by :mod:`icploc.trajectory`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.trajectory import AteResult, Trajectory, ate, pose_errors
+from icploc.trajectory import AteResult, Trajectory, ate, pose_errors, write_tum
 
 __all__ = ["DemoResult", "Experiment", "experiments", "glass_walk", "run_demo"]
 
@@ -149,6 +150,8 @@ def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
         o = Trajectory(stamps[have], np.array([e.odometry for e in ests if e.odometry is not None]))
         odo[have] = o.started_at(start).poses
     dist = Trajectory(stamps, tru).path_length()
+    # the truth beside the estimates, so a run can be scored again (icploc.trajectory.evaluate)
+    write_tum(out / f"{exp.name}.truth.tum", Trajectory(stamps, tru))
     return DemoResult(
         name=exp.name,
         title=exp.title,
@@ -160,7 +163,7 @@ def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
         distance=dist,
         wall_time=wall,
         scans_per_second=len(ests) / max(res.wall_time, 1e-9),
-        files={"trajectory": out / f"{exp.name}.tum"},
+        files={"trajectory": out / f"{exp.name}.tum", "truth": out / f"{exp.name}.truth.tum"},
     )
 
 
