@@ -5,9 +5,9 @@ The lab is 7.5 m × 7.5 m (56.25 m²) with a 5 m glass wall section and people w
 pseudo-terminals (:mod:`icploc.sim`); the real drivers read them; the localizer runs
 on every scan. Experiment 1 is a random walk of more than 20 m that ends where it
 started (the paper's Table 3 / Fig. 9), experiment 2 drives circles (Table 4 /
-Fig. 10), experiment 3 is a random walk along the glass wall, where most beams pass
-the glass and the paper's errors grew (Table 5 / Fig. 11). They run at once in real
-time. Written to ``--out``: a plot per experiment (:func:`icploc.plotting.plot_run`:
+Fig. 10), experiment 3 is a random walk along the glass wall, where 70 % of the beams
+that meet the glass pass it and the paper's errors grew (Table 5 / Fig. 11). They run at
+once in real time. Written to ``--out``: a plot per experiment (:func:`icploc.plotting.plot_run`:
 odometry, localized trajectory and truth on the map, and the error over time),
 ``results.md`` with start / end points like Tables 3–5 plus the true end point, and the
 TUM trajectories (``<run>.tum``) with the truth at each scan (``<run>.truth.tum``).
@@ -87,7 +87,7 @@ class DemoResult:
 def glass_walk(length: float = 15.0, seed: int = 2) -> NDArray[np.float64]:
     """A random walk of at least ``length`` metres from the origin and back to it, its
     waypoints in the band 0.65–1.55 m from the lab's glass wall (:func:`icploc.worlds.lab`:
-    glass at y = 3.75 m for |x| ≤ 2.5 m), so the scans see mostly through the glass: the
+    glass at y = 3.75 m for |x| ≤ 2.5 m), so many beams meet the glass: the
     paper's Table 5 / Fig. 11 run."""
     rng = np.random.default_rng(seed)
     pts = [(0.0, 0.0), (0.0, 1.5)]
