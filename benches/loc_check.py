@@ -45,6 +45,7 @@ from icploc.logs import open_log
 from icploc.maps import Map
 from icploc.maps.ros import save_ros
 from icploc.se2 import between, compose, transform_points
+from icploc.trajectory import ErrorStats, Trajectory, pose_errors
 from numpy.typing import NDArray
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -223,7 +224,7 @@ def evaluate(
             est.append(loc.update(scans[i], tuple(odo[k])))
         t_loc = time.perf_counter() - t2
     P = np.array([e.pose for e in est])
-    err = np.hypot(*(P[:, :2] - P_true[:, :2]).T)
+    err, _ = pose_errors(P, P_true)
     status = np.array([e.status.value for e in est])
     tracking = status == "tracking"
     false_tracking = int(np.sum(tracking & (err > 0.5)))
@@ -239,8 +240,10 @@ def evaluate(
             nees.append(float(v @ np.linalg.solve(e.covariance, v)))
         except np.linalg.LinAlgError:
             pass
-    odo_map = np.array([compose(tuple(P_true[0]), between(tuple(odo[0]), tuple(o))) for o in odo])
-    oerr = np.hypot(*(odo_map[:, :2] - P_true[:, :2]).T)
+    stamps = np.arange(len(odo), dtype=np.float64)
+    odo_map = Trajectory(stamps, np.asarray(odo, dtype=np.float64)).started_at(P_true[0]).poses
+    oerr, _ = pose_errors(odo_map, P_true)
+    stats = ErrorStats.of(err)
     counts = {s: int(np.sum(status == s)) for s in ("tracking", "degraded", "lost")}
     lost = status == "lost"
     calib = getattr(est[-1], "calibration", None)
@@ -249,9 +252,9 @@ def evaluate(
         "scans": len(loc_idx),
         "map_scans": len(map_idx),
         "distance_m": float(np.sum(np.hypot(*np.diff(P_true[:, :2], axis=0).T))),
-        "median_cm": float(np.median(err)) * 100,
-        "p95_cm": float(np.percentile(err, 95)) * 100,
-        "max_cm": float(err.max()) * 100,
+        "median_cm": stats.median * 100,
+        "p95_cm": stats.p95 * 100,
+        "max_cm": stats.max * 100,
         "false_tracking": false_tracking,
         "first_false_tracking": first_false,
         "max_lost_err_cm": float(err[lost].max()) * 100 if lost.any() else 0.0,

@@ -25,6 +25,7 @@ from icploc.logs import open_log
 from icploc.maps import Map
 from icploc.maps.build import build_grid
 from icploc.se2 import between, compose
+from icploc.trajectory import ErrorStats
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "radish_corrected_logs"
 
@@ -83,9 +84,10 @@ def main() -> None:
                     scans[n // 2 :], truth[n // 2 :], m.index(a.resolution), cfg, 0,
                     a.max_range, mode == "step",
                 )
+                stats = ErrorStats.of(e)
                 res[f"{label}_{mode}"] = {
-                    "median_m": round(float(np.median(e)), 4),
-                    "p95_m": round(float(np.percentile(e, 95)), 4),
+                    "median_m": round(stats.median, 4),
+                    "p95_m": round(stats.p95, 4),
                     "over_10cm": round(float((e > 0.1).mean()), 4),
                 }
         fit = extracted.meta["fit"]

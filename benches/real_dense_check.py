@@ -19,6 +19,7 @@ from icploc.localizer import Localizer
 from icploc.logs import open_log
 from icploc.maps import Map
 from icploc.se2 import between, compose, transform_points
+from icploc.trajectory import ErrorStats, Trajectory, pose_errors
 from numpy.typing import NDArray
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -116,11 +117,12 @@ def evaluate(
         est.append(e)
     t_loc = time.perf_counter() - t1
     P = np.array([e.pose for e in est])
-    err = np.hypot(*(P[:, :2] - P_true[:, :2]).T)
-    eth = np.degrees(np.abs(np.angle(np.exp(1j * (P[:, 2] - P_true[:, 2])))))
-    odo_map = np.array([compose(P_true[0], between(odo[0], o)) for o in odo])
-    oerr = np.hypot(*(odo_map[:, :2] - P_true[:, :2]).T)
-    dist = float(np.sum(np.hypot(*np.diff(P_true[:, :2], axis=0).T)))
+    err, hd = pose_errors(P, P_true)
+    seq = np.arange(len(P_true), dtype=np.float64)
+    odo_map = Trajectory(seq, np.asarray(odo, dtype=np.float64)).started_at(P_true[0]).poses
+    oerr, _ = pose_errors(odo_map, P_true)
+    dist = Trajectory(seq, P_true).path_length()
+    ate, oate, eth = ErrorStats.of(err), ErrorStats.of(oerr), ErrorStats.of(hd)
     counts: dict[str, int] = {}
     for e in est:
         counts[e.status.value] = counts.get(e.status.value, 0) + 1
@@ -130,12 +132,12 @@ def evaluate(
         "beams": len(scans[0]),
         "distance_m": dist,
         "map_points": len(m.sample(0.05)[0]) if hasattr(m, "sample") else None,
-        "ate_rmse_m": float(np.sqrt(np.mean(err**2))),
-        "ate_median_m": float(np.median(err)),
-        "ate_p95_m": float(np.percentile(err, 95)),
-        "ate_max_m": float(err.max()),
-        "heading_max_deg": float(eth.max()),
-        "odometry_ate_rmse_m": float(np.sqrt(np.mean(oerr**2))),
+        "ate_rmse_m": ate.rmse,
+        "ate_median_m": ate.median,
+        "ate_p95_m": ate.p95,
+        "ate_max_m": ate.max,
+        "heading_max_deg": math.degrees(eth.max),
+        "odometry_ate_rmse_m": oate.rmse,
         "status": counts,
         "nan_poses": bad,
         "localize_scans_per_s": len(loc_idx) / t_loc,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 import time
@@ -32,6 +33,7 @@ from icploc.config import LocalizerConfig
 from icploc.logs import write_carmen
 from icploc.maps import Map
 from icploc.replay import replay
+from icploc.trajectory import ErrorStats, Trajectory, pose_errors
 
 TARGETS = {
     "lab": {"median_m": 0.003, "p95_m": 0.010, "max_m": 0.025, "max_deg": 0.5},
@@ -81,18 +83,17 @@ def accuracy_case(
     res = replay(items, m, config=config, initial_pose=frames[0].truth)
     dt = time.perf_counter() - t0
     T = np.array([f.truth for f in frames])
-    P = res.poses
-    e = np.hypot(P[:, 0] - T[:, 0], P[:, 1] - T[:, 1])
-    eth = np.degrees(np.abs(np.angle(np.exp(1j * (P[:, 2] - T[:, 2])))))
-    dist = float(np.sum(np.hypot(*np.diff(T[:, :2], axis=0).T)))
+    pos, hd = pose_errors(res.poses, T)  # each scan against its own true pose
+    e, eth = ErrorStats.of(pos), ErrorStats.of(hd)
+    dist = Trajectory(np.array([f.scan.stamp for f in frames]), T).path_length()
     return {
         "case": name,
         "scans": len(frames),
         "distance_m": round(dist, 1),
-        "median_m": float(np.median(e)),
-        "p95_m": float(np.percentile(e, 95)),
-        "max_m": float(e.max()),
-        "max_deg": float(eth.max()),
+        "median_m": e.median,
+        "p95_m": e.p95,
+        "max_m": e.max,
+        "max_deg": math.degrees(eth.max),
         "status": res.status_counts,
         "localize_scans_per_s": len(frames) / dt,
     }

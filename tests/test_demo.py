@@ -14,7 +14,7 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
     from icploc.demo import run_demo
 
     results = run_demo(tmp_path, quick=True, people=3, seed=1)
-    assert [r.name for r in results] == ["random_walk", "circles"]
+    assert [r.name for r in results] == ["random_walk", "circles", "glass"]
     for r in results:
         s = r.summary()
         assert s["scans"] > 50
@@ -31,9 +31,16 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
         assert set(r.status) <= {"tracking", "degraded"}
         assert r.files["plot"].stat().st_size > 10_000
         assert len(r.files["trajectory"].read_text().splitlines()) == s["scans"]
+        # the truth is written beside the estimates: scoring the files gives the same median
+        from icploc.trajectory import evaluate, read_tum
+
+        ev = evaluate(read_tum(r.files["trajectory"]), read_tum(r.files["truth"]))
+        assert ev is not None and ev.ate.position.median == pytest.approx(
+            s["median_error_m"], abs=1e-5
+        )
     md = (tmp_path / "results.md").read_text()
     assert "End point, odometry" in md and "End point, truth" in md
-    assert "Random motion" in md and "Circle motion" in md
+    assert "Random motion (Table 3" in md and "Circle motion" in md and "glass wall (Table 5" in md
 
 
 def test_demo_paths_match_the_paper() -> None:
@@ -42,7 +49,7 @@ def test_demo_paths_match_the_paper() -> None:
     from icploc import worlds
     from icploc.demo import experiments
 
-    walk, circles = experiments(quick=False)
+    walk, circles, _ = experiments(quick=False)
     length = float(np.sum(np.hypot(*np.diff(walk.path, axis=0).T)))
     assert length > 20.0
     assert np.allclose(walk.path[0], walk.path[-1])
@@ -77,3 +84,19 @@ def test_demo_command_help() -> None:
     r = CliRunner().invoke(app, ["demo", "--help"])
     assert r.exit_code == 0
     assert "--out" in r.output
+
+
+def test_glass_walk_runs_along_the_glass_wall() -> None:
+    """Table 5's run (the paper's Fig. 11): from the start and back, more than 20 m, every
+    waypoint past the first within 1.55 m of the lab's glass wall and in front of it."""
+    import numpy as np
+    from icploc import worlds
+    from icploc.demo import experiments
+
+    path = experiments(quick=False)[2].path
+    (gx0, gy, gx1, _), = worlds.lab().glass
+    length = float(np.sum(np.hypot(*np.diff(path, axis=0).T)))
+    inner = path[2:-1]
+    assert (length > 20.0, tuple(path[0]), tuple(path[-1])) == (True, (0.0, 0.0), (0.0, 0.0))
+    assert np.all((gy - inner[:, 1] >= 0.65) & (gy - inner[:, 1] <= 1.55))
+    assert np.all((inner[:, 0] > min(gx0, gx1)) & (inner[:, 0] < max(gx0, gx1)))

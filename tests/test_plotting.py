@@ -99,3 +99,57 @@ def test_plot_errors(tmp_path: Path) -> None:
     assert line.get_xdata()[0] == 0.0
     with pytest.raises(ValueError, match="shape"):
         plot_errors(None, t, e[:-1])
+
+
+def _lost_run() -> tuple[Trajectory, list[str]]:
+    tr = _traj()
+    status = ["tracking"] * 20 + ["lost"] * 10 + ["degraded"] * 20
+    return tr, status
+
+
+def test_lost_stretch_is_dotted_and_not_part_of_the_localized_line() -> None:
+    tr, status = _lost_run()
+    ax = plot_run(None, localized=tr, status=status).axes[0]
+    loc = next(line for line in ax.get_lines() if line.get_label() == "localization")
+    lost = next(line for line in ax.get_lines() if line.get_label().startswith("lost"))
+    got = (
+        int(np.isnan(loc.get_xydata()[:, 0]).sum()),
+        int(np.isfinite(lost.get_xydata()[:, 0]).sum()),  # the 10 lost + the pose before
+        lost.get_linestyle(),
+    )
+    assert got == (10, 11, ":")
+
+
+def test_status_must_match_the_trajectory() -> None:
+    tr, status = _lost_run()
+    with pytest.raises(ValueError, match="status has 49 entries"):
+        plot_run(None, localized=tr, status=status[:-1])
+
+
+def test_error_panel_under_the_map_shades_lost_time() -> None:
+    from icploc.trajectory import ate
+
+    tr, status = _lost_run()
+    errors = ate(Trajectory(tr.stamps, tr.poses + [0.01, 0.0, 0.0]), tr)
+    fig = plot_run(None, lines=_square_map(), truth=tr, localized=tr, status=status, errors=errors)
+    eax = fig.axes[1]
+    shaded = [p for p in eax.patches if p.get_label() == "lost"]
+    got = (eax.get_xlabel(), np.allclose(eax.get_lines()[0].get_ydata(), 1.0), len(shaded))
+    assert got == ("time [s]", True, 1)
+
+
+def test_legend_sits_outside_the_map(tmp_path: Path) -> None:
+    """The legend must not hide a wall: it is drawn right of the map axes."""
+    fig = plot_run(tmp_path / "l.png", lines=_square_map(), truth=_traj(), localized=_traj())
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    leg = ax.get_legend().get_window_extent()
+    assert leg.x0 >= ax.get_window_extent().x1
+
+
+def test_glass_and_people_are_drawn_and_named() -> None:
+    glass = np.array([[2.0, 7.5, 5.5, 7.5]])
+    walk = np.array([[1.0, 1.0], [2.0, 1.0], [2.0, 2.0]])
+    ax = plot_run(None, lines=_square_map(), glass=glass, people=[walk, walk + 1]).axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert (labels.count("glass"), labels.count("people walking")) == (1, 1)

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from icploc import worlds
-from icploc.live import tum_row
 from icploc.logs import LogFormatError, write_carmen
 from icploc.maps import Map
-from icploc.replay import parse_pose, read_tum, replay
+from icploc.replay import parse_pose, replay
+from icploc.trajectory import read_tum, tum_line
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +22,7 @@ def sim_run(tmp_path_factory: pytest.TempPathFactory) -> dict:
     scans = [f.scan for f in frames]
     odoms = [f.odometry for f in frames]
     truth = d / "truth.tum"
-    truth.write_text("".join(tum_row(f.scan.stamp, f.truth) for f in frames))
+    truth.write_text("".join(tum_line(f.scan.stamp, f.truth) for f in frames))
     map_yaml = Map.from_lines(w.lines).to_ros(d / "lab.yaml", 0.05)
     return {
         "dir": d,
@@ -77,7 +77,8 @@ def test_replay_each_format(fmt: str, sim_run: dict, tmp_path: Path) -> None:
     res = replay(log, sim_run["map"], truth=sim_run["truth"], out=out)
     n = len(sim_run["scans"])
     assert res.scans == n
-    st, ps = read_tum(out)
+    tr = read_tum(out)
+    st, ps = tr.stamps, tr.poses
     assert len(st) == n
     assert np.allclose(st, [s.stamp for s in sim_run["scans"]], atol=1e-5)
     assert np.all(np.isfinite(ps))
@@ -104,7 +105,8 @@ def test_replay_writes_a_row_per_scan_while_lost(sim_run: dict, tmp_path: Path) 
         log, sim_run["map"], initial_pose=(30.0, 30.0, 0.0), out=out, plot=tmp_path / "p.png"
     )
     assert res.status_counts.get("lost", 0) > 0
-    st, ps = read_tum(out)
+    tr = read_tum(out)
+    st, ps = tr.stamps, tr.poses
     assert len(st) == len(sim_run["scans"])
     assert np.all(np.isfinite(ps))
     assert (tmp_path / "p.png").stat().st_size > 1000
@@ -262,7 +264,7 @@ def test_interrupted_replay_keeps_every_row_so_far(
     out, est = tmp_path / "t.tum", tmp_path / "e.csv"
     res = replay(_write("carmen", sim_run), sim_run["map"], initial_pose=sim_run["frames"][0].truth,
                  out=out, estimates=est)  # fmt: skip
-    got = (res.interrupted, res.scans, len(read_tum(out)[0]), len(est.read_text().splitlines()))
+    got = (res.interrupted, res.scans, len(read_tum(out)), len(est.read_text().splitlines()))
     assert got == (True, 100, 100, 101)
 
 
@@ -294,3 +296,37 @@ def test_summary_reports_the_learned_odometry_calibration(sim_run: dict) -> None
         f"odometry calibration (learned): distance x{s:.4f}, turns x{t:.4f}, "
         f"heading drift {math.degrees(d):+.2f} deg/m"
     )
+
+
+def test_replay_plot_has_the_truth_the_status_and_the_error_panel(
+    sim_run: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--plot draws through plotting.plot_run with everything known: the truth, each
+    scan's status (lost stretches dotted) and the errors against the truth (a panel)."""
+    import icploc.plotting
+
+    seen: dict = {}
+    real = icploc.plotting.plot_run
+
+    def spy(path, **kw):  # type: ignore[no-untyped-def]
+        seen.update(kw)
+        return real(path, **kw)
+
+    monkeypatch.setattr(icploc.plotting, "plot_run", spy)
+    log = _write("carmen", sim_run)
+    res = replay(log, sim_run["map"], truth=sim_run["truth"], plot=tmp_path / "p.png")
+    assert res.evaluation is not None
+    got = (
+        len(seen["truth"]),
+        len(seen["status"]),
+        seen["errors"] is res.evaluation.ate,
+        (tmp_path / "p.png").read_bytes()[:4],
+    )
+    assert got == (len(sim_run["scans"]), res.scans, True, b"\x89PNG")
+
+
+def test_odometry_trajectory_starts_at_the_first_estimate(sim_run: dict) -> None:
+    items = sorted(sim_run["scans"] + sim_run["odoms"], key=lambda m: m.stamp)
+    res = replay(items, Map.load(sim_run["map"]), initial_pose=sim_run["frames"][0].truth)
+    odo = res.odometry_trajectory()
+    assert np.allclose(odo.poses[0], res.estimates[0].pose)

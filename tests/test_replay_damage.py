@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from icploc import worlds
-from icploc.live import tum_row
 from icploc.logs import LogFormatError, write_carmen
 from icploc.maps import Map
 from icploc.replay import replay
+from icploc.trajectory import tum_line
 from icploc.types import Scan
 from log_damage import damage
 
@@ -34,7 +34,7 @@ def logs(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
         fmt=request.param,
     )
     truth = d / "truth.tum"
-    truth.write_text("".join(tum_row(f.scan.stamp, f.truth) for f in frames))
+    truth.write_text("".join(tum_line(f.scan.stamp, f.truth) for f in frames))
     dm = damage(clean.read_text(), np.random.default_rng(3))
     bad = d / "damaged.log"
     bad.write_bytes(dm.data)

@@ -294,3 +294,119 @@ def test_estimates_writer_row_per_estimate(tmp_path: Path) -> None:
     assert [tuple(rows[0]), len(rows), rows[1]["reason"], rows[1]["cov_tt"]] == [
         ESTIMATE_COLUMNS, 2, "jump, far", "0.0003",
     ]  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- one layer
+
+
+def test_write_tum_starts_with_the_header_and_reads_back(tmp_path: Path) -> None:
+    from icploc.trajectory import TUM_HEADER
+
+    p = tmp_path / "h.tum"
+    tr = _circle(10)
+    write_tum(p, tr)
+    back = read_tum(p)
+    assert (p.read_text().startswith(TUM_HEADER), np.allclose(back.poses, tr.poses, atol=1e-8)) == (
+        True,
+        True,
+    )
+
+
+def test_tum_line_is_what_the_writers_write(tmp_path: Path) -> None:
+    from icploc.trajectory import TumWriter, tum_line
+
+    p = tmp_path / "w.tum"
+    with TumWriter(p) as w:
+        w.write(1.25, (1.0, -2.0, 0.5))
+    assert p.read_text() == tum_line(1.25, (1.0, -2.0, 0.5))
+
+
+def test_tum_writer_on_an_open_file_leaves_it_open(tmp_path: Path) -> None:
+    from icploc.trajectory import TumWriter
+
+    p = tmp_path / "f.tum"
+    with open(p, "w", encoding="ascii") as fh:
+        w = TumWriter(fh)
+        w.write(0.0, (0.0, 0.0, 0.0))
+        w.close()
+        fh.write("# after\n")
+    assert p.read_text().splitlines()[1] == "# after"
+
+
+class _FullDisk:
+    name = "full.tum"
+    closed = False
+
+    def write(self, text: str) -> int:
+        raise OSError(28, "No space left on device")
+
+    def flush(self) -> None:
+        pass
+
+
+def test_tum_writer_can_stop_instead_of_raising() -> None:
+    from icploc.trajectory import TumWriter
+
+    w = TumWriter(_FullDisk(), on_error="stop", name="--out")  # type: ignore[arg-type]
+    w.write(0.0, (0.0, 0.0, 0.0))
+    w.write(0.1, (0.0, 0.0, 0.0))
+    assert (w.rows, w.error) == (0, "--out: writing stopped: No space left on device")
+
+
+def test_tum_writer_raises_by_default() -> None:
+    from icploc.trajectory import TumWriter
+
+    w = TumWriter(_FullDisk())  # type: ignore[arg-type]
+    with pytest.raises(OSError, match="No space"):
+        w.write(0.0, (0.0, 0.0, 0.0))
+
+
+def test_started_at_keeps_the_motion_and_moves_the_start() -> None:
+    tr = _circle(50)
+    start = (5.0, -1.0, 0.7)
+    moved = tr.started_at(start)
+    steps = [_rel(a, b) for a, b in zip(tr.poses[:-1], tr.poses[1:], strict=True)]
+    moved_steps = [_rel(a, b) for a, b in zip(moved.poses[:-1], moved.poses[1:], strict=True)]
+    assert np.allclose(moved.poses[0], start) and np.allclose(steps, moved_steps, atol=1e-9)
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return (c * dx + s * dy, -s * dx + c * dy, float(wrap(b[2] - a[2])))
+
+
+def test_pose_errors_wrap_the_heading() -> None:
+    from icploc.trajectory import pose_errors
+
+    pos, hd = pose_errors([[3.0, 4.0, math.pi - 0.1]], [[0.0, 0.0, -math.pi + 0.1]])
+    assert (float(pos[0]), round(float(hd[0]), 9)) == (5.0, 0.2)
+
+
+def test_pose_errors_refuse_unpaired_arrays() -> None:
+    from icploc.trajectory import pose_errors
+
+    with pytest.raises(ValueError, match="2 estimates for 1 reference"):
+        pose_errors(np.zeros((2, 3)), np.zeros((1, 3)))
+
+
+def test_evaluate_interpolates_the_truth_and_names_its_figures() -> None:
+    from icploc.trajectory import evaluate
+
+    ref = _circle(200)
+    est = Trajectory(ref.stamps[10:-10] + 0.05, ref.at(ref.stamps[10:-10] + 0.05)[0] + [0.02, 0, 0])
+    ev = evaluate(est, ref)
+    assert ev is not None
+    m = ev.metrics()
+    assert sorted(m) == [
+        "ate_max_m", "ate_median_m", "ate_p95_m", "ate_rmse_m", "heading_max_deg", "rpe_1m_rmse_m",
+    ]  # fmt: skip
+    assert m["ate_rmse_m"] == pytest.approx(0.02, abs=1e-9)
+
+
+def test_evaluate_without_overlap_is_none() -> None:
+    from icploc.trajectory import evaluate
+
+    ref = _circle(20)
+    est = Trajectory(ref.stamps + 100.0, ref.poses)
+    assert evaluate(est, ref) is None

@@ -430,13 +430,13 @@ def run_cmd(
         hooks.close()
     typer.echo(res.summary())
     if simulate and res.estimates:
-        import numpy as np
+        from icploc.trajectory import Trajectory, ate
 
-        T = live.truth_at(truth, [e.stamp for e in res.estimates])
-        P = np.array([e.pose for e in res.estimates])
-        err = np.hypot(*(P[:, :2] - T[:, :2]).T)
+        est = Trajectory.from_poses([e.stamp for e in res.estimates], [e.pose for e in res.estimates])
+        sim = Trajectory.from_poses([t for t, _ in truth], [p for _, p in truth])
+        a = ate(est, sim, method="nearest", max_dt=float("inf"))  # the simulator's pose at each scan
         typer.echo(
-            f"{len(P)} estimates; error vs simulator truth: median {np.median(err) * 1000:.1f} mm, max {err.max() * 1000:.1f} mm"
+            f"{a.n} estimates; error vs simulator truth: median {a.position.median * 1000:.1f} mm, max {a.position.max * 1000:.1f} mm"
         )
     for k, p in res.files.items():
         typer.echo(f"{k}: {p}")

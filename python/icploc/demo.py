@@ -1,13 +1,17 @@
-"""``icploc demo``: the paper's two experiments in its lab, through the real drivers.
+"""``icploc demo``: the paper's three experiments in its lab, through the real drivers.
 
 The lab is 7.5 m × 7.5 m (56.25 m²) with a 5 m glass wall section and people walking
 (:func:`icploc.worlds.lab`). A PowerBot and a SICK PLS are simulated byte for byte on
 pseudo-terminals (:mod:`icploc.sim`); the real drivers read them; the localizer runs
 on every scan. Experiment 1 is a random walk of more than 20 m that ends where it
 started (the paper's Table 3 / Fig. 9), experiment 2 drives circles (Table 4 /
-Fig. 10). Both run at once in real time. Written to ``--out``: a plot per experiment
-(odometry and localized trajectories on the map, with the truth), ``results.md`` with
-start / end points like Tables 3–5 plus the true end point, and the TUM trajectories.
+Fig. 10), experiment 3 is a random walk along the glass wall, where 70 % of the beams
+that meet the glass pass it and the paper's errors grew (Table 5 / Fig. 11). They run at
+once in real time. Written to ``--out``: a plot per experiment (:func:`icploc.plotting.plot_run`:
+odometry, localized trajectory and truth on the map, and the error over time),
+``results.md`` with start / end points like Tables 3–5 plus the true end point, and the
+TUM trajectories (``<run>.tum``) with the truth at each scan (``<run>.truth.tum``).
+Errors are scored by :mod:`icploc.trajectory`.
 """
 
 from __future__ import annotations
@@ -23,9 +27,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.se2 import Pose, between, compose
+from icploc.trajectory import AteResult, Trajectory, ate, pose_errors, write_tum
 
-__all__ = ["DemoResult", "Experiment", "run_demo"]
+__all__ = ["DemoResult", "Experiment", "experiments", "glass_walk", "run_demo"]
 
 
 @dataclass
@@ -43,7 +47,7 @@ class DemoResult:
     stamps: NDArray[np.float64]
     localized: NDArray[np.float64]  # (N, 3)
     odometry: NDArray[np.float64]  # (N, 3), odometry mapped into the map frame at the start
-    truth: NDArray[np.float64]  # (N, 3)
+    truth: NDArray[np.float64]  # (N, 3), the simulator's pose at each scan
     status: list[str]
     distance: float  # metres driven (truth)
     wall_time: float
@@ -51,28 +55,53 @@ class DemoResult:
     files: dict[str, Path] = field(default_factory=dict)
 
     @property
+    def ate(self) -> AteResult:
+        """The localized poses against the truth at the same scans."""
+        t = Trajectory(self.stamps, self.truth)
+        return ate(Trajectory(self.stamps, self.localized), t, method="nearest", max_dt=0.0)
+
+    @property
     def errors(self) -> NDArray[np.float64]:
-        return np.asarray(
-            np.hypot(*(self.localized[:, :2] - self.truth[:, :2]).T), dtype=np.float64
-        )
+        """Position error (m) per scan, in time order."""
+        return self.ate.position_errors
 
     @property
     def heading_errors_deg(self) -> NDArray[np.float64]:
-        d = np.angle(np.exp(1j * (self.localized[:, 2] - self.truth[:, 2])))
-        return np.asarray(np.degrees(np.abs(d)), dtype=np.float64)
+        return np.asarray(np.degrees(self.ate.heading_errors), dtype=np.float64)
 
     def summary(self) -> dict[str, float]:
-        e = self.errors
+        a = self.ate
+        odo_end, _ = pose_errors(self.odometry[-1:], self.truth[-1:])
         return {
-            "scans": float(len(e)),
+            "scans": float(a.n),
             "distance_m": self.distance,
-            "median_error_m": float(np.median(e)),
-            "p95_error_m": float(np.percentile(e, 95)),
-            "max_error_m": float(e.max()),
-            "max_heading_error_deg": float(self.heading_errors_deg.max()),
-            "odometry_end_error_m": float(np.hypot(*(self.odometry[-1, :2] - self.truth[-1, :2]))),
-            "localized_end_error_m": float(e[-1]),
+            "median_error_m": a.position.median,
+            "p95_error_m": a.position.p95,
+            "max_error_m": a.position.max,
+            "max_heading_error_deg": math.degrees(a.heading.max),
+            "odometry_end_error_m": float(odo_end[0]),
+            "localized_end_error_m": float(a.position_errors[-1]),
         }
+
+
+def glass_walk(length: float = 15.0, seed: int = 2) -> NDArray[np.float64]:
+    """A random walk of at least ``length`` metres from the origin and back to it, its
+    waypoints in the band 0.65–1.55 m from the lab's glass wall (:func:`icploc.worlds.lab`:
+    glass at y = 3.75 m for |x| ≤ 2.5 m), so many beams meet the glass: the
+    paper's Table 5 / Fig. 11 run."""
+    rng = np.random.default_rng(seed)
+    pts = [(0.0, 0.0), (0.0, 1.5)]
+    total = 1.5
+    band = ((-2.2, 2.2), (2.2, 3.1))
+    while total < length - 3.0:
+        for _ in range(100):
+            q = (float(rng.uniform(*band[0])), float(rng.uniform(*band[1])))
+            if math.dist(q, pts[-1]) > 1.2:
+                break
+        total += math.dist(q, pts[-1])
+        pts.append(q)
+    pts.append((0.0, 0.0))
+    return np.array(pts)
 
 
 def experiments(quick: bool = False) -> list[Experiment]:
@@ -81,17 +110,21 @@ def experiments(quick: bool = False) -> list[Experiment]:
     if quick:
         walk = worlds.lab_random_walk(length=8.0, seed=5)
         circles = worlds.circle_path(radius=1.2, laps=1)
+        glass = glass_walk(length=8.0, seed=2)
     else:
         walk = worlds.lab_random_walk(length=20.0, seed=13)  # a 20.7 m polyline
         circles = worlds.circle_path(radius=1.4, laps=3)
+        glass = glass_walk(length=20.0, seed=2)
     return [
         Experiment("random_walk", "Random motion (Table 3, Fig. 9)", walk, speed=1.5),
         Experiment("circles", "Circle motion (Table 4, Fig. 10)", circles, speed=1.5),
+        Experiment("glass", "Random motion along the glass wall (Table 5, Fig. 11)", glass,
+                   speed=1.5),  # fmt: skip
     ]
 
 
 def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
-    from icploc.live import run_simulated, truth_at
+    from icploc.live import run_simulated
 
     t0 = time.perf_counter()
     res, truth = run_simulated(
@@ -108,17 +141,17 @@ def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
         raise RuntimeError(f"demo {exp.name}: no scans were localized")
     stamps = np.array([e.stamp for e in ests])
     loc = np.array([e.pose for e in ests])
-    tru = truth_at(truth, stamps)
-    start: Pose = (float(exp.path[0, 0]), float(exp.path[0, 1]), 0.0)
-    odo0 = next((e.odometry for e in ests if e.odometry is not None), None)
-    odo = np.array(
-        [
-            compose(start, between(odo0, e.odometry)) if (odo0 and e.odometry) else (np.nan,) * 3
-            for e in ests
-        ],
-        dtype=np.float64,
-    )
-    dist = float(np.sum(np.hypot(*np.diff(tru[:, :2], axis=0).T))) if len(tru) > 1 else 0.0
+    sim_truth = Trajectory(np.array([t for t, _ in truth]), np.array([p for _, p in truth]))
+    tru, _ = sim_truth.at(stamps, method="nearest", max_dt=math.inf)  # the scan's own pose
+    start = (float(exp.path[0, 0]), float(exp.path[0, 1]), 0.0)
+    odo = np.full((len(ests), 3), np.nan)
+    have = np.array([e.odometry is not None for e in ests], dtype=bool)
+    if have.any():
+        o = Trajectory(stamps[have], np.array([e.odometry for e in ests if e.odometry is not None]))
+        odo[have] = o.started_at(start).poses
+    dist = Trajectory(stamps, tru).path_length()
+    # the truth beside the estimates, so a run can be scored again (icploc.trajectory.evaluate)
+    write_tum(out / f"{exp.name}.truth.tum", Trajectory(stamps, tru))
     return DemoResult(
         name=exp.name,
         title=exp.title,
@@ -130,7 +163,7 @@ def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
         distance=dist,
         wall_time=wall,
         scans_per_second=len(ests) / max(res.wall_time, 1e-9),
-        files={"trajectory": out / f"{exp.name}.tum"},
+        files={"trajectory": out / f"{exp.name}.tum", "truth": out / f"{exp.name}.truth.tum"},
     )
 
 
@@ -166,43 +199,24 @@ def table(r: DemoResult) -> str:
 
 
 def plot(r: DemoResult, world: Any, path: Path) -> Path:
-    """Two panels like the paper's Fig. 9–11: odometry (left), localization (right)."""
-    import matplotlib
+    """The lab (walls, glass, the people's paths) with the truth, the odometry and the
+    localized trajectory, and the error over time below: like the paper's Fig. 9–11."""
+    from icploc.plotting import plot_run
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 5.2), constrained_layout=True)
-    for ax, (traj, label, color) in zip(
-        axes,
-        [
-            (r.odometry, "odometry (encoder)", "tab:red"),
-            (r.localized, "ICP localization", "tab:blue"),
-        ],
-        strict=True,
-    ):
-        for x1, y1, x2, y2 in world.walls:
-            ax.plot([x1, x2], [y1, y2], color="k", lw=1.5)
-        for x1, y1, x2, y2 in world.glass:
-            ax.plot([x1, x2], [y1, y2], color="tab:cyan", lw=3, label="glass")
-        for k, person in enumerate(world.people):
-            loop = np.vstack([person.path, person.path[:1]])
-            ax.plot(loop[:, 0], loop[:, 1], color="tab:orange", lw=0.6, ls=":",
-                    label="people walking" if k == 0 else None)  # fmt: skip
-        ax.plot(r.truth[:, 0], r.truth[:, 1], color="0.6", lw=1, ls="--", label="truth")
-        ax.plot(traj[:, 0], traj[:, 1], color=color, lw=1.2, label=label)
-        ax.plot(*r.truth[0, :2], "go", label="start")
-        ax.plot(*traj[-1, :2], "x", color=color, ms=9, mew=2, label="end")
-        ax.set_aspect("equal")
-        ax.set_xlim(-4.2, 4.2)
-        ax.set_ylim(-4.2, 5.6)
-        ax.set_xlabel("x (m)")
-        ax.set_ylabel("y (m)")
-        ax.legend(loc="upper right", fontsize=7)
-        ax.set_title(label)
-    fig.suptitle(r.title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    have = np.isfinite(r.odometry).all(axis=1)
+    plot_run(
+        path,
+        lines=world.walls,
+        glass=world.glass,
+        people=[p.path for p in world.people],
+        truth=Trajectory(r.stamps, r.truth),
+        odometry=Trajectory(r.stamps[have], r.odometry[have]) if have.any() else None,
+        localized=Trajectory(r.stamps, r.localized),
+        status=r.status,
+        errors=r.ate,
+        title=r.title,
+        dpi=110,
+    )
     return path
 
 
@@ -215,7 +229,7 @@ def run_demo(
     parallel: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> list[DemoResult]:
-    """Run both experiments (at once, in real time), write plots and tables to ``out``."""
+    """Run the three experiments (at once, in real time), write plots and tables to ``out``."""
     from icploc import worlds
 
     outdir = Path(out)

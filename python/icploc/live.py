@@ -38,6 +38,7 @@ from icploc.errors import IcplocError
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse, wrap_angle
+from icploc.trajectory import Trajectory, TumWriter, tum_line
 
 __all__ = [
     "LiveResult",
@@ -71,10 +72,8 @@ class RunUsageError(RunError):
     exit_code = 2
 
 
-def tum_row(stamp: float, pose: Sequence[float]) -> str:
-    """One TUM trajectory line: ``stamp x y z qx qy qz qw`` (planar: z = qx = qy = 0)."""
-    h = 0.5 * pose[2]
-    return f"{stamp:.6f} {pose[0]:.6f} {pose[1]:.6f} 0 0 0 {math.sin(h):.9f} {math.cos(h):.9f}\n"
+#: one TUM row; kept as an alias of :func:`icploc.trajectory.tum_line` (the one TUM writer)
+tum_row = tum_line
 
 
 @dataclass
@@ -123,22 +122,19 @@ class LiveResult:
 
 
 class _TumWriter:
-    """TUM rows written and flushed one by one; a write error stops the file, not the run."""
+    """TUM rows written and flushed one by one (:class:`icploc.trajectory.TumWriter`); a
+    write error stops the file, not the run."""
 
     def __init__(self, f: TextIO | None, name: str = "--out") -> None:
-        self.f = f
-        self.name = name
-        self.error: str | None = None
+        self._w = TumWriter(f, flush_every=0.0, on_error="stop", name=name) if f is not None else None
+
+    @property
+    def error(self) -> str | None:
+        return self._w.error if self._w is not None else None
 
     def write(self, est: Estimate) -> None:
-        if self.f is None:
-            return
-        try:
-            self.f.write(tum_row(est.stamp, est.pose))
-            self.f.flush()
-        except OSError as e:
-            self.error = f"{self.name}: writing stopped: {e.strerror or e}"
-            self.f = None
+        if self._w is not None:
+            self._w.write(est.stamp, est.pose)
 
 
 def _device_failures() -> tuple[type[BaseException], ...]:
@@ -663,11 +659,7 @@ def run_simulated(
 def truth_at(
     truth: list[tuple[float, Pose]], stamps: Sequence[float] | NDArray[np.float64]
 ) -> NDArray[np.float64]:
-    """(N, 3) true poses at ``stamps`` (the generated scan nearest in time)."""
-    t = np.array([s for s, _ in truth])
-    p = np.array([q for _, q in truth])
-    idx = np.clip(np.searchsorted(t, np.asarray(stamps)), 1, len(t) - 1)
-    prev = idx - 1
-    choose = np.abs(t[prev] - np.asarray(stamps)) <= np.abs(t[idx] - np.asarray(stamps))
-    idx = np.where(choose, prev, idx)
-    return np.asarray(p[idx], dtype=np.float64)
+    """(N, 3) true poses at ``stamps`` (the generated scan nearest in time:
+    :meth:`icploc.trajectory.Trajectory.at`)."""
+    t = Trajectory.from_poses([s for s, _ in truth], [q for _, q in truth])
+    return t.at(stamps, method="nearest", max_dt=math.inf)[0]

@@ -28,12 +28,13 @@ from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
 from icploc.localizer import Estimate, Localizer, Status, run
+from icploc.trajectory import Evaluation, Trajectory, evaluate, read_tum
 from icploc.types import Odometry, Scan
 
 if TYPE_CHECKING:
     from icploc.logs import LogInfo
 
-__all__ = ["ReplayResult", "load_map", "parse_pose", "read_tum", "replay"]
+__all__ = ["ReplayResult", "load_map", "parse_pose", "replay"]
 
 
 @dataclass
@@ -44,7 +45,10 @@ class ReplayResult:
     load_time: float  #: seconds to read and parse the log
     localize_time: float  #: seconds in the localization loop
     status_counts: dict[str, int]
+    #: figures against ``truth`` (:meth:`icploc.trajectory.Evaluation.metrics`)
     metrics: dict[str, float] = field(default_factory=dict)
+    #: the whole evaluation against ``truth`` (None without one, or none overlapping)
+    evaluation: Evaluation | None = None
     files: dict[str, Path] = field(default_factory=dict)
     #: what the log reader read, dropped and repaired (None for an in-memory log)
     log_info: LogInfo | None = None
@@ -80,6 +84,22 @@ class ReplayResult:
     @property
     def stamps(self) -> NDArray[np.float64]:
         return np.array([e.stamp for e in self.estimates], dtype=np.float64)
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """The estimates as a :class:`~icploc.trajectory.Trajectory` (one pose per scan)."""
+        return Trajectory(self.stamps, self.poses)
+
+    def odometry_trajectory(self) -> Trajectory:
+        """The odometry of the localized scans, started at the first estimate's pose (how
+        far dead reckoning alone would have gone, in the map frame)."""
+        ests = [e for e in self.estimates if e.odometry is not None]
+        if not ests:
+            return Trajectory.empty()
+        odo = Trajectory(
+            np.array([e.stamp for e in ests]), np.array([e.odometry for e in ests])
+        )
+        return odo.started_at(self.estimates[0].pose)
 
     def summary(self) -> str:
         c = self.status_counts
@@ -131,45 +151,6 @@ def parse_pose(text: str) -> tuple[float, float, float]:
     return (vals[0], vals[1], vals[2])
 
 
-def read_tum(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """A TUM trajectory as (stamps (N,), poses (N, 3)); uses :mod:`icploc.trajectory`
-    when present. Errors name the file and line."""
-    try:
-        from icploc import trajectory as tr
-
-        reader = getattr(tr, "read_tum", None)
-        if reader is not None:
-            got = reader(path)
-            if isinstance(got, tuple) and len(got) == 2:
-                return np.asarray(got[0], dtype=np.float64), np.asarray(got[1], dtype=np.float64)
-            if hasattr(got, "stamps") and hasattr(got, "poses"):
-                return np.asarray(got.stamps, dtype=np.float64), np.asarray(
-                    got.poses, dtype=np.float64
-                )
-    except ImportError:
-        pass
-    stamps: list[float] = []
-    poses: list[tuple[float, float, float]] = []
-    with open(path) as f:
-        for n, line in enumerate(f, 1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            tok = s.split()
-            if len(tok) != 8:
-                raise ValueError(
-                    f"{path}:{n}: a TUM row has 8 fields (stamp x y z qx qy qz qw), got {len(tok)}"
-                )
-            try:
-                t, x, y, _z, qx, qy, qz, qw = (float(v) for v in tok)
-            except ValueError:
-                raise ValueError(f"{path}:{n}: not a number in {s!r}") from None
-            yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-            stamps.append(t)
-            poses.append((x, y, yaw))
-    return np.array(stamps), np.array(poses).reshape(-1, 3)
-
-
 def load_map(map_arg: Any, cache: bool | None = None) -> Any:
     """A Map from a path (anything ``icploc.Map.load`` reads; ``cache`` as there: None uses
     the prepared-map cache unless ICPLOC_NO_CACHE is set, False neither reads nor writes it),
@@ -179,47 +160,6 @@ def load_map(map_arg: Any, cache: bool | None = None) -> Any:
 
         return Map.load(map_arg, cache=cache)
     return map_arg
-
-
-def _metrics(
-    stamps: NDArray[np.float64],
-    poses: NDArray[np.float64],
-    t_true: NDArray[np.float64],
-    p_true: NDArray[np.float64],
-) -> dict[str, float]:
-    """ATE (positions, both in the map frame: no alignment) and RPE over 1 m segments."""
-    if len(t_true) < 2 or len(stamps) == 0:
-        return {}
-    order = np.argsort(t_true)
-    t_true, p_true = t_true[order], p_true[order]
-    inside = (stamps >= t_true[0]) & (stamps <= t_true[-1])
-    if not inside.any():
-        return {}
-    st, ps = stamps[inside], poses[inside]
-    tx = np.interp(st, t_true, p_true[:, 0])
-    ty = np.interp(st, t_true, p_true[:, 1])
-    th_u = np.unwrap(p_true[:, 2])
-    tth = np.interp(st, t_true, th_u)
-    e = np.hypot(ps[:, 0] - tx, ps[:, 1] - ty)
-    eth = np.abs(np.angle(np.exp(1j * (ps[:, 2] - tth))))
-    out = {
-        "ate_rmse_m": float(np.sqrt(np.mean(e**2))),
-        "ate_median_m": float(np.median(e)),
-        "ate_p95_m": float(np.percentile(e, 95)),
-        "ate_max_m": float(e.max()),
-        "heading_max_deg": float(np.degrees(eth.max())),
-    }
-    # RPE: relative translation error over ~1 m of travel
-    d = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(tx), np.diff(ty)))])
-    j = np.searchsorted(d, d + 1.0)
-    ok = j < len(d)
-    if ok.any():
-        i = np.nonzero(ok)[0]
-        j = j[ok]
-        rel_true = np.column_stack([tx[j] - tx[i], ty[j] - ty[i]])
-        rel_est = ps[j, :2] - ps[i, :2]
-        out["rpe_1m_rmse_m"] = float(np.sqrt(np.mean(np.sum((rel_est - rel_true) ** 2, axis=1))))
-    return out
 
 
 def replay(
@@ -312,16 +252,20 @@ def replay(
         why = "; ".join(d.strip() for d in info.damage_lines()) if info is not None else ""
         raise ValueError(f"{name}: the log holds no laser scans" + (f" ({why})" if why else ""))
 
-    t_true = p_true = None
+    truth_tr: Trajectory | None = None
     if truth is not None:
-        t_true, p_true = read_tum(truth) if isinstance(truth, (str, Path)) else truth
-        t_true = np.asarray(t_true, dtype=np.float64)
-        p_true = np.asarray(p_true, dtype=np.float64).reshape(-1, 3)
+        if isinstance(truth, (str, Path)):
+            truth_tr = read_tum(truth)
+        else:
+            truth_tr = Trajectory(
+                np.asarray(truth[0], dtype=np.float64),
+                np.asarray(truth[1], dtype=np.float64).reshape(-1, 3),
+            )
 
     if initial_pose is None and not global_localize:
-        if t_true is not None and len(t_true):
-            k = int(np.argmin(np.abs(t_true - scans[0].stamp)))
-            initial_pose = tuple(p_true[k])  # type: ignore[index]
+        if truth_tr is not None and len(truth_tr):
+            k = int(np.argmin(np.abs(truth_tr.stamps - scans[0].stamp)))
+            initial_pose = tuple(truth_tr.poses[k])
         elif cfg.localizer.initial_pose is not None:
             initial_pose = cfg.localizer.initial_pose
 
@@ -387,67 +331,23 @@ def replay(
         res.files["trajectory"] = Path(out)
     if estimates is not None:
         res.files["estimates"] = Path(estimates)
-    if t_true is not None and p_true is not None:
-        res.metrics = _metrics(res.stamps, res.poses, t_true, p_true)
+    if truth_tr is not None and len(truth_tr) >= 2 and got:
+        # the truth interpolated at each scan's stamp; scans outside its span are left out
+        res.evaluation = evaluate(res.trajectory, truth_tr)
+        if res.evaluation is not None:
+            res.metrics = res.evaluation.metrics()
     if plot is not None and got:
-        res.files["plot"] = plot_replay(
-            res, m, plot, truth=(t_true, p_true) if t_true is not None else None
+        from icploc.plotting import plot_run
+
+        plot_run(
+            plot,
+            map=m,
+            truth=truth_tr,
+            odometry=res.odometry_trajectory(),
+            localized=res.trajectory,
+            status=[e.status for e in got],
+            errors=res.evaluation.ate if res.evaluation is not None else None,
+            title=Path(res.log).name,
         )
+        res.files["plot"] = Path(plot)
     return res
-
-
-def plot_replay(
-    res: ReplayResult,
-    map_: Any,
-    path: str | Path,
-    truth: tuple[Any, Any] | None = None,
-) -> Path:
-    """The map with the odometry, localized (and true) trajectories, like Fig. 9–11."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from icploc.se2 import between, compose
-
-    fig, ax = plt.subplots(figsize=(8, 8), constrained_layout=True)
-    lines = getattr(map_, "lines", None)
-    if lines is not None and len(lines):
-        for x1, y1, x2, y2 in np.asarray(lines):
-            ax.plot([x1, x2], [y1, y2], color="k", lw=0.8)
-    elif hasattr(map_, "points"):
-        pts = np.asarray(map_.points)
-        ax.plot(pts[:, 0], pts[:, 1], ",", color="k")
-    P = res.poses
-    ests = res.estimates
-    odo0 = next((e.odometry for e in ests if e.odometry is not None), None)
-    if odo0 is not None:
-        start = ests[0].pose
-        odo = np.array(
-            [compose(start, between(odo0, e.odometry)) for e in ests if e.odometry is not None]
-        )
-        ax.plot(odo[:, 0], odo[:, 1], color="tab:red", lw=0.8, label="odometry")
-    if truth is not None:
-        ax.plot(truth[1][:, 0], truth[1][:, 1], color="0.5", ls="--", lw=0.8, label="truth")
-    # lost stretches are drawn as such (the dead-reckoned pose, dotted), never as part of
-    # the localized line
-    lost = np.array([e.status.value == "lost" for e in ests], dtype=bool)
-    ok_xy = P[:, :2].astype(float, copy=True)
-    ok_xy[lost] = np.nan
-    ax.plot(ok_xy[:, 0], ok_xy[:, 1], color="tab:blue", lw=1.0, label="localized")
-    if lost.any():
-        lost_xy = P[:, :2].astype(float, copy=True)
-        keep = lost.copy()
-        keep[1:] |= lost[:-1]  # join each lost stretch to the scan before it
-        lost_xy[~keep] = np.nan
-        ax.plot(lost_xy[:, 0], lost_xy[:, 1], ":", color="tab:orange", lw=1.0,
-                label=f"lost, dead-reckoned ({int(lost.sum())} scans)")  # fmt: skip
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title(Path(res.log).name)
-    p = Path(path)
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    return p

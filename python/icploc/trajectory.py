@@ -4,6 +4,11 @@ A :class:`Trajectory` is ``stamps`` (N,) and ``poses`` (N, 3) = x, y, theta. TUM
 ``stamp x y z qx qy qz qw``; we write z = qx = qy = 0 and read the yaw back from the
 quaternion. Errors are computed in the fixed map frame (no alignment) unless asked to
 align with the best SE(2) transform first.
+
+This module is the one place that reads and writes trajectories and scores them
+(:func:`ate`, :func:`rpe`, :func:`evaluate`, :func:`pose_errors`, :class:`ErrorStats`);
+replay, the demo, live runs, the CLI and the benches use it, and :mod:`icploc.plotting`
+draws what it computes.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import IO, Any, Literal
+from typing import IO, Any, Literal, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,6 +32,7 @@ __all__ = [
     "Association",
     "EstimatesWriter",
     "ErrorStats",
+    "Evaluation",
     "RpeResult",
     "Trajectory",
     "TrajectoryFormatError",
@@ -34,8 +40,11 @@ __all__ = [
     "align_se2",
     "associate",
     "ate",
+    "evaluate",
+    "pose_errors",
     "read_tum",
     "rpe",
+    "tum_line",
     "wrap",
     "write_tum",
 ]
@@ -112,6 +121,15 @@ class Trajectory:
         )
         return Trajectory(self.stamps.copy(), out)
 
+    def started_at(self, pose: ArrayLike) -> Trajectory:
+        """The same motion started from ``pose``: pose k becomes ``pose ⊕ (p0⁻¹ ⊕ p_k)``
+        with p0 the first pose in the given order (odometry drawn in the map frame)."""
+        if len(self) == 0:
+            return self
+        p0 = self.poses[:1]
+        rel = _between(np.repeat(p0, len(self), axis=0), self.poses)
+        return Trajectory(self.stamps.copy(), rel).transformed(pose)
+
     def at(
         self,
         stamps: ArrayLike,
@@ -169,74 +187,141 @@ class Trajectory:
 # ----------------------------------------------------------------------------- TUM files
 
 
-def _yaw_to_quat(th: F64) -> tuple[F64, F64]:
-    return np.sin(th / 2.0), np.cos(th / 2.0)
-
-
 def _quat_to_yaw(qx: F64, qy: F64, qz: F64, qw: F64) -> F64:
     return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
 
+#: the comment line :func:`write_tum` starts a file with
+TUM_HEADER = "# timestamp x y z qx qy qz qw\n"
+
+
+def tum_line(stamp: float, pose: Sequence[float], precision: int = 6) -> str:
+    """One TUM row ``stamp x y 0 0 0 qz qw`` (the format ``icploc replay --out`` writes):
+    stamp and position with ``precision`` decimals, the quaternion with 9 or more."""
+    h = 0.5 * float(pose[2])
+    q = max(9, precision)
+    return (
+        f"{stamp:.{precision}f} {float(pose[0]):.{precision}f} {float(pose[1]):.{precision}f} "
+        f"0 0 0 {math.sin(h):.{q}f} {math.cos(h):.{q}f}\n"
+    )
+
+
 def write_tum(path: str | os.PathLike[str], traj: Trajectory, *, precision: int = 9) -> None:
-    """Write ``stamp x y 0 0 0 qz qw`` rows (one per pose, in the given order)."""
-    qz, qw = _yaw_to_quat(traj.theta)
-    with open(path, "w", encoding="ascii") as fh:
-        fh.write("# timestamp x y z qx qy qz qw\n")
+    """Write a whole trajectory: :data:`TUM_HEADER`, then one :func:`tum_line` per pose
+    (in the given order)."""
+    with TumWriter(path, header=True, precision=precision) as w:
         for k in range(len(traj)):
-            fh.write(
-                f"{traj.stamps[k]:.{precision}f} {traj.poses[k, 0]:.{precision}f} "
-                f"{traj.poses[k, 1]:.{precision}f} 0 0 0 {qz[k]:.{precision}f} {qw[k]:.{precision}f}\n"
-            )
+            w.write(float(traj.stamps[k]), traj.poses[k])
+
+
+_W = TypeVar("_W", bound="_RowWriter")
 
 
 class _RowWriter:
     """A text file written one row at a time and flushed at least every ``flush_every``
-    seconds and on close, so an interrupted run keeps every row written before."""
+    seconds and on close, so an interrupted run keeps every row written before.
 
-    def __init__(self, path: str | os.PathLike[str], flush_every: float = 0.2) -> None:
-        self.path = os.fspath(path)
-        self._fh: IO[str] = open(self.path, "w", encoding="ascii", newline="")  # noqa: SIM115
+    ``target``: a path (opened for writing, closed by :meth:`close`) or an open text file
+    (left open). ``on_error="raise"`` lets an OSError out of :meth:`write`;
+    ``"stop"`` (a live run: a full disk must not end it) stops writing, keeps the message
+    in :attr:`error` and lets the caller go on."""
+
+    def __init__(
+        self,
+        target: str | os.PathLike[str] | IO[str],
+        flush_every: float = 0.2,
+        *,
+        on_error: Literal["raise", "stop"] = "raise",
+        name: str | None = None,
+    ) -> None:
+        if on_error not in ("raise", "stop"):
+            raise ValueError(f"on_error must be 'raise' or 'stop', got {on_error!r}")
+        if isinstance(target, (str, os.PathLike)):
+            self.path: str | None = os.fspath(target)
+            self._fh: IO[str] | None = open(self.path, "w", encoding="ascii", newline="")  # noqa: SIM115
+            self._owned = True
+        else:
+            self.path = getattr(target, "name", None)
+            self._fh = target
+            self._owned = False
+        self.name = name or self.path or "output"
         self._every = flush_every
+        self._on_error = on_error
         self._last = time.monotonic()
         self.rows = 0
+        #: why writing stopped (``on_error="stop"``), else None
+        self.error: str | None = None
+
+    def _failed(self, e: OSError) -> None:
+        if self._on_error == "raise":
+            raise e
+        self.error = f"{self.name}: writing stopped: {e.strerror or e}"
+        self._fh = None
 
     def _put(self, text: str) -> None:
-        self._fh.write(text)
-        self.rows += 1
-        now = time.monotonic()
-        if now - self._last >= self._every:
-            self._fh.flush()
-            self._last = now
+        if self._fh is None:
+            return
+        try:
+            self._fh.write(text)
+            self.rows += 1
+            now = time.monotonic()
+            if now - self._last >= self._every:
+                self._fh.flush()
+                self._last = now
+        except OSError as e:
+            self._failed(e)
 
     def flush(self) -> None:
-        self._fh.flush()
+        if self._fh is None:
+            return
+        try:
+            self._fh.flush()
+        except OSError as e:
+            self._failed(e)
 
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
-            self._fh.close()
+        fh, self._fh = self._fh, None
+        if fh is None or fh.closed:
+            return
+        try:
+            fh.flush()
+            if self._owned:
+                fh.close()
+        except OSError as e:
+            if self._on_error == "raise":
+                raise
+            self.error = self.error or f"{self.name}: writing stopped: {e.strerror or e}"
 
-    def __enter__(self) -> _RowWriter:
+    def __enter__(self: _W) -> _W:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-def tum_line(stamp: float, pose: Sequence[float]) -> str:
-    """One TUM row ``stamp x y 0 0 0 qz qw`` (the format ``icploc replay --out`` writes)."""
-    h = 0.5 * float(pose[2])
-    return (
-        f"{stamp:.6f} {float(pose[0]):.6f} {float(pose[1]):.6f} 0 0 0 "
-        f"{math.sin(h):.9f} {math.cos(h):.9f}\n"
-    )
-
-
 class TumWriter(_RowWriter):
-    """A TUM trajectory written as it is produced: ``write(stamp, pose)`` per row."""
+    """A TUM trajectory written as it is produced: ``write(stamp, pose)`` per row
+    (:func:`tum_line`); ``header=True`` starts it with :data:`TUM_HEADER`. See
+    :class:`_RowWriter` for ``target``, ``flush_every`` and ``on_error``."""
+
+    def __init__(
+        self,
+        target: str | os.PathLike[str] | IO[str],
+        flush_every: float = 0.2,
+        *,
+        header: bool = False,
+        precision: int = 6,
+        on_error: Literal["raise", "stop"] = "raise",
+        name: str | None = None,
+    ) -> None:
+        super().__init__(target, flush_every, on_error=on_error, name=name)
+        self._precision = precision
+        if header:
+            self._put(TUM_HEADER)
+            self.rows = 0
 
     def write(self, stamp: float, pose: Sequence[float]) -> None:
-        self._put(tum_line(stamp, pose))
+        self._put(tum_line(stamp, pose, self._precision))
 
 
 #: the columns of ``icploc replay --estimates``: one row per scan
@@ -253,6 +338,7 @@ class EstimatesWriter(_RowWriter):
 
     def __init__(self, path: str | os.PathLike[str], flush_every: float = 0.2) -> None:
         super().__init__(path, flush_every)
+        assert self._fh is not None
         self._csv = csv.writer(self._fh, lineterminator="\n")
         self._csv.writerow(ESTIMATE_COLUMNS)
         self.rows = 0
@@ -272,7 +358,7 @@ class EstimatesWriter(_RowWriter):
         self.rows += 1
         now = time.monotonic()
         if now - self._last >= self._every:
-            self._fh.flush()
+            self.flush()
             self._last = now
 
 
@@ -353,8 +439,21 @@ def align_se2(est_xy: ArrayLike, ref_xy: ArrayLike) -> tuple[float, float, float
     return (float(tx), float(ty), th)
 
 
+def pose_errors(est: ArrayLike, ref: ArrayLike) -> tuple[F64, F64]:
+    """Position error (m) and absolute heading error (rad, wrapped) of paired (N, 3)
+    poses: row k of ``est`` against row k of ``ref``."""
+    e = np.asarray(est, dtype=np.float64).reshape(-1, 3)
+    r = np.asarray(ref, dtype=np.float64).reshape(-1, 3)
+    if e.shape != r.shape:
+        raise ValueError(f"pose_errors: {len(e)} estimates for {len(r)} reference poses")
+    pos = np.hypot(e[:, 0] - r[:, 0], e[:, 1] - r[:, 1])
+    return np.asarray(pos, dtype=np.float64), np.abs(wrap(e[:, 2] - r[:, 2]))
+
+
 @dataclass(frozen=True)
 class ErrorStats:
+    """Statistics of absolute errors (NaN for none)."""
+
     rmse: float
     mean: float
     median: float
@@ -388,6 +487,18 @@ class AteResult:
     heading_errors: F64 = field(default_factory=lambda: np.zeros(0), repr=False)
     stamps: F64 = field(default_factory=lambda: np.zeros(0), repr=False)
 
+    def metrics(self) -> dict[str, float]:
+        """Flat figures, metres and degrees: ``ate_rmse_m``, ``ate_median_m``, ``ate_p95_m``,
+        ``ate_max_m``, ``heading_max_deg``."""
+        p = self.position
+        return {
+            "ate_rmse_m": p.rmse,
+            "ate_median_m": p.median,
+            "ate_p95_m": p.p95,
+            "ate_max_m": p.max,
+            "heading_max_deg": math.degrees(self.heading.max),
+        }
+
     def summary(self) -> str:
         p, h = self.position, self.heading
         return (
@@ -415,8 +526,7 @@ def ate(
     if align:
         T = align_se2(e[:, :2], a.ref[:, :2])
         e = Trajectory(a.stamps, e).transformed(T).poses
-    pos = np.hypot(e[:, 0] - a.ref[:, 0], e[:, 1] - a.ref[:, 1])
-    hd = np.abs(wrap(e[:, 2] - a.ref[:, 2]))
+    pos, hd = pose_errors(e, a.ref)
     return AteResult(
         position=ErrorStats.of(pos),
         heading=ErrorStats.of(hd),
@@ -438,6 +548,12 @@ class RpeResult:
     n: int
     delta: float
     unit: str
+
+    def metrics(self) -> dict[str, float]:
+        """``rpe_<delta><unit>_rmse_m`` (e.g. ``rpe_1m_rmse_m``); nothing without pairs."""
+        if self.n == 0:
+            return {}
+        return {f"rpe_{self.delta:g}{self.unit}_rmse_m": self.translation.rmse}
 
     def summary(self) -> str:
         return (
@@ -491,3 +607,36 @@ def rpe(
         delta=delta,
         unit=unit,
     )
+
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """An estimated trajectory scored against a reference: ATE and RPE."""
+
+    ate: AteResult
+    rpe: RpeResult
+
+    def metrics(self) -> dict[str, float]:
+        """:meth:`AteResult.metrics` and :meth:`RpeResult.metrics` in one dict."""
+        return {**self.ate.metrics(), **self.rpe.metrics()}
+
+
+def evaluate(
+    est: Trajectory,
+    ref: Trajectory,
+    *,
+    method: Literal["nearest", "interpolate"] = "interpolate",
+    max_dt: float = 0.0,
+    max_gap: float = math.inf,
+    rpe_delta: float = 1.0,
+) -> Evaluation | None:
+    """ATE (map frame, no alignment) and RPE over ``rpe_delta`` metres of ``est`` against
+    ``ref``, or None when no estimate falls within the reference. The defaults score a
+    run against a simulator's or a log's truth: the truth interpolated at each estimate's
+    stamp, estimates outside its time span left out."""
+    a = associate(est, ref, method=method, max_dt=max_dt, max_gap=max_gap)
+    if len(a.stamps) == 0:
+        return None
+    kw: dict[str, Any] = {"method": method, "max_dt": max_dt, "max_gap": max_gap}
+    return Evaluation(ate(est, ref, **kw), rpe(est, ref, delta=rpe_delta, unit="m", **kw))

@@ -106,16 +106,13 @@ def plot_map(
 
 def save_map_plot(m: Map, out: str | Path, *, dpi: int = 150, **options: Any) -> Path:
     """Render :func:`plot_map` to an image file (PNG, SVG, PDF by suffix) without a display."""
-    import matplotlib
+    # a figure on its own Agg canvas: no pyplot state, the caller's backend left alone
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(10, 10))
-    try:
-        plot_map(m, ax=ax, **options)
-        fig.tight_layout()
-        fig.savefig(out, dpi=dpi)
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=(10, 10))
+    FigureCanvasAgg(fig)
+    plot_map(m, ax=fig.add_subplot(1, 1, 1), **options)
+    fig.tight_layout()
+    fig.savefig(out, dpi=dpi)
     return Path(out)
