@@ -18,7 +18,7 @@ from icploc.cli import app
 from icploc.drivers.ports import PortError, check_port
 from icploc.localizer import Estimate, Status
 from icploc.maps import Map
-from icploc.sim.world import World
+from icploc.sim.scenes import box
 from icploc.types import Scan
 from typer.testing import CliRunner
 
@@ -39,7 +39,7 @@ def pty_port() -> Iterator[str]:
 @pytest.fixture
 def files(tmp_path: Path) -> dict[str, Path]:
     m = tmp_path / "box.geojson"
-    Map.from_lines(World.box(10.0, 8.0).lines).to_geojson(m)
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
     out = tmp_path / "old.tum"
     out.write_text("1.0 0 0 0 0 0 0 1\n")
     rec = tmp_path / "old.icpraw"
@@ -88,7 +88,7 @@ def test_record_pointing_at_the_config_is_a_usage_error(
 
 
 def test_out_pointing_at_a_ros_map_image_is_refused(tmp_path: Path, pty_port: str) -> None:
-    yaml_path = Map.from_lines(World.box(4.0, 3.0).lines).to_ros(tmp_path / "room.yaml", 0.05)
+    yaml_path = Map.from_lines(box(4.0, 3.0).lines).to_ros(tmp_path / "room.yaml", 0.05)
     image = next(p for p in tmp_path.iterdir() if p.suffix in (".pgm", ".png"))
     before = image.read_bytes()
     r = _run("--map", str(yaml_path), "--laser", pty_port, "--out", str(image))

@@ -13,8 +13,8 @@ from icploc.drivers.sick import PLS
 from icploc.logs.recorded import is_recorded, read_recorded
 from icploc.sim.device import Faults
 from icploc.sim.powerbot_device import constant_plan
+from icploc.sim.scenes import box
 from icploc.sim.session import SimSession
-from icploc.sim.world import World
 from icploc.types import Odometry, Scan
 
 
@@ -23,7 +23,7 @@ def record_session(
 ) -> tuple[list[Scan], list[Odometry], int]:
     """Record 40 scans and 60 SIPs; returns them and how many SIPs the driver's queue
     dropped (the SIP reader runs ahead while the test reads the scans first)."""
-    world = World.box(10.0, 8.0)
+    world = box(10.0, 8.0)
     with SimSession(world, start_pose=(2.0, 4.0, 0.0), plan=constant_plan(0.5, 0.3), realtime=False,
                     laser_faults=faults) as sim:  # fmt: skip
         with Recorder(path) as rec:

@@ -10,9 +10,8 @@ simulator driven by one world and one robot, in background threads.
 ...     with PLS(sim.laser_port) as laser, PowerBot(sim.base_port) as bot:
 ...         for scan in laser.scans(): ...
 
-The world may be an :class:`icploc.sim.world.World` (``scan(pose, angles, max_range,
-noise_std, rng, t)``) or any object with the ``ranges(sensor_pose, angles, max_range,
-t=, rng=, noise=)`` method of :class:`icploc.worlds.World`.
+The world is an :class:`icploc.sim.world.World` (or the older :class:`icploc.worlds.World`,
+on its way out): its ``ranges(sensor_pose, angles, max_range, t=, rng=, noise=)``.
 
 A velocity ``plan`` (``t -> (v, w)``) moves the robot by itself, overriding host
 velocity commands (like a joystick); without a plan the robot obeys the PowerBot
@@ -177,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     import time
 
     from icploc.sim.powerbot_device import waypoint_plan
-    from icploc.sim.world import World
+    from icploc.sim.scenes import box
 
     p = argparse.ArgumentParser(description=main.__doc__)
     p.add_argument("--people", type=int, default=2)
@@ -189,7 +188,7 @@ def main(argv: list[str] | None = None) -> None:
         help="follow a built-in square plan instead of host commands",
     )
     a = p.parse_args(argv)
-    world = World.box(10.0, 8.0)
+    world = box(10.0, 8.0)
     world.add_random_people(a.people, seed=a.seed)
     plan = waypoint_plan([(8.0, 0.5, 0.0), (3.14, 0.0, 0.5)] * 4) if a.drive else None
     with SimSession(
