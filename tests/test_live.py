@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from icploc import clock, live, worlds
+from icploc import clock, live
 from icploc.cli import app
 from icploc.drivers.ports import PortError, check_port
 from icploc.localizer import Estimate, Status
 from icploc.maps import Map
-from icploc.sim.scenes import box
+from icploc.sim.harness import run_simulated, truth_at
+from icploc.sim.scenes import box, lab_random_walk
 from icploc.types import Scan
 from typer.testing import CliRunner
 
@@ -283,7 +284,7 @@ def _outage(which: str, down: float = 1.0, up: float = 3.0, *, power_cycle: bool
     def emitted(e: Estimate) -> None:  # when the loop produced it
         ev["emitted"].append((clock.now(), e))
 
-    res, truth = live.run_simulated(path=worlds.lab_random_walk(length=4.0, seed=3), timeout=40.0,
+    res, truth = run_simulated(path=lab_random_walk(length=4.0, seed=3), timeout=40.0,
                                     on_session=hook, out=out, reconnect_timeout=reconnect_timeout,
                                     on_estimate=emitted)  # fmt: skip
     ev["stop"].set()
@@ -328,7 +329,7 @@ def test_coasting_follows_the_robot(laser_unplugged: dict[str, Any]) -> None:
 def test_laser_reconnects_and_tracking_resumes(laser_unplugged: dict[str, Any]) -> None:
     ev, res = laser_unplugged, laser_unplugged["res"]
     after = [e for e in res.estimates if e.stamp > ev["up"]]
-    T = live.truth_at(ev["scan_truth"], [e.stamp for e in after])
+    T = truth_at(ev["scan_truth"], [e.stamp for e in after])
     err = np.hypot(*(np.array([e.pose for e in after])[:, :2] - T[:, :2]).T)
     assert res.reconnects["laser"] == 1 and res.laser_outages == 1
     assert after[-1].status is Status.TRACKING and float(np.median(err)) < 0.01
@@ -350,7 +351,7 @@ def test_unplugged_base_matches_scans_without_odometry_and_says_so() -> None:
     scans = {id(e) for e in res.estimates}
     during = [e for t, e in ev["emitted"] if ev["down"] + 1.0 < t < ev["up"] and id(e) in scans]
     after = [e for e in res.estimates if e.stamp > ev["up"] + 1.0]
-    T = live.truth_at(ev["scan_truth"], [e.stamp for e in after])
+    T = truth_at(ev["scan_truth"], [e.stamp for e in after])
     err = np.hypot(*(np.array([e.pose for e in after])[:, :2] - T[:, :2]).T)
     # none claims tracking ("lost" is the localizer's own verdict, kept as it is)
     marked = {(e.status, e.reason) for e in during if e.status is not Status.LOST}
