@@ -39,7 +39,7 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
 def test_demo_paths_match_the_paper() -> None:
     """The full demo drives a random walk of more than 20 m and circles, in the 7.5 m lab."""
     import numpy as np
-    from icploc import worlds
+    from icploc import sim as worlds
     from icploc.demo import experiments
 
     walk, circles = experiments(quick=False)
@@ -56,7 +56,7 @@ def test_demo_lab_is_the_papers_room() -> None:
     """The paper's lab is 7.5 m x 7.5 m (56.25 m^2) around the start: measured by casting
     rays from the origin along the axes onto the demo map's walls and glass."""
     import numpy as np
-    from icploc import worlds
+    from icploc import sim as worlds
 
     segs = np.asarray(worlds.lab().lines, dtype=np.float64)
 

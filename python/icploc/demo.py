@@ -76,7 +76,7 @@ class DemoResult:
 
 
 def experiments(quick: bool = False) -> list[Experiment]:
-    from icploc import worlds
+    from icploc import sim as worlds
 
     if quick:
         walk = worlds.lab_random_walk(length=8.0, seed=5)
@@ -91,7 +91,7 @@ def experiments(quick: bool = False) -> list[Experiment]:
 
 
 def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
-    from icploc.live import run_simulated, truth_at
+    from icploc.sim.harness import run_simulated, truth_at
 
     t0 = time.perf_counter()
     res, truth = run_simulated(
@@ -216,7 +216,7 @@ def run_demo(
     log: Callable[[str], None] | None = None,
 ) -> list[DemoResult]:
     """Run both experiments (at once, in real time), write plots and tables to ``out``."""
-    from icploc import worlds
+    from icploc import sim as worlds
 
     outdir = Path(out)
     outdir.mkdir(parents=True, exist_ok=True)
