@@ -404,3 +404,69 @@ def test_simulate_refuses_an_output_that_is_the_config(files: dict[str, Path]) -
     before = _snapshot(files)
     r = _run("--simulate", "--config", str(files["config"]), "--out", str(files["config"]))
     assert (r.exit_code, "is the config" in r.output, _snapshot(files) == before) == (2, True, True)
+
+
+def _estimate(stamp: float, pose: tuple[float, float, float], status: Status) -> Estimate:
+    return Estimate(stamp=stamp, pose=pose, covariance=np.eye(3) * 1e-4, status=status,
+                    inlier_ratio=0.9, iterations=3, time=0.0)  # fmt: skip
+
+
+@pytest.fixture
+def fake_simulation(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """``icploc run --simulate`` without the simulators: run_simulated replaced by one
+    that records its arguments and returns ``seen["result"]`` with a truth along x."""
+    from icploc.sim import harness
+
+    seen: dict[str, Any] = {}
+
+    def fake(**kw: Any) -> tuple[live.LiveResult, list[tuple[float, tuple[float, float, float]]]]:
+        seen.update(kw)
+        truth = [(0.1 * i, (0.1 * i, 0.0, 0.0)) for i in range(50)]
+        return seen["result"], truth
+
+    monkeypatch.setattr(harness, "run_simulated", fake)
+    seen["result"] = live.LiveResult(estimates=[_estimate(0.0, (0.0, 0.0, 0.0), Status.TRACKING)], scans=1)
+    return seen
+
+
+def test_run_simulate_tells_the_localizer_the_initial_pose(fake_simulation: dict[str, Any]) -> None:
+    r = _run("--simulate", "--initial-pose", "0.5,-0.4,0.3")
+    assert r.exit_code == 0, r.output
+    assert fake_simulation["initial_pose"] == (0.5, -0.4, 0.3)
+
+
+def test_run_simulate_without_initial_pose_leaves_the_start_to_the_simulator(
+    fake_simulation: dict[str, Any],
+) -> None:
+    assert _run("--simulate").exit_code == 0
+    assert fake_simulation["initial_pose"] is None
+
+
+def test_run_global_and_initial_pose_together_is_a_usage_error(fake_simulation: dict[str, Any]) -> None:
+    r = _run("--simulate", "--global", "--initial-pose", "0,0,0")
+    assert (r.exit_code, "contradict" in r.output, "initial_pose" in fake_simulation) == (2, True, False)
+
+
+def test_run_simulate_error_counts_tracking_estimates_only(fake_simulation: dict[str, Any]) -> None:
+    """A lost guess 1 m off is no measurement: the error is over the tracking ones."""
+    ests = [_estimate(0.1 * i, (0.1 * i + 0.002, 0.0, 0.0), Status.TRACKING) for i in range(10)]
+    ests += [_estimate(1.0 + 0.1 * i, (0.0, 1.0, 0.0), Status.LOST) for i in range(5)]
+    fake_simulation["result"] = live.LiveResult(estimates=ests, scans=len(ests))
+    r = _run("--simulate")
+    assert r.exit_code == 0, r.output
+    assert "10 tracking estimates; error vs simulator truth: median 2.0 mm, max 2.0 mm (5 lost or degraded, not counted)" in r.output
+
+
+def test_run_simulate_all_lost_reports_no_error_vs_truth(
+    fake_simulation: dict[str, Any], tmp_path: Path
+) -> None:
+    """Lost in a wrong map: no "error vs truth 0.0 mm", but that nothing was tracking."""
+    m = tmp_path / "elsewhere.geojson"
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
+    fake_simulation["result"] = live.LiveResult(
+        estimates=[_estimate(0.1 * i, (0.1 * i, 0.0, 0.0), Status.LOST) for i in range(8)], scans=8
+    )
+    r = _run("--simulate", "--map", str(m))
+    assert r.exit_code == 0, r.output
+    assert "no estimate was tracking (8 lost or degraded): no error vs simulator truth" in r.output
+    assert " mm" not in r.output

@@ -517,13 +517,3 @@ def run_hardware(
         outputs.close(res)
     assert res is not None
     return res
-
-
-def __getattr__(name: str) -> Any:
-    """``run_simulated`` and ``truth_at`` moved to :mod:`icploc.sim.harness` (this
-    forwarding goes once every caller imports them from there)."""
-    if name in ("run_simulated", "truth_at"):
-        from icploc.sim import harness
-
-        return getattr(harness, name)
-    raise AttributeError(f"module 'icploc.live' has no attribute {name!r}")
