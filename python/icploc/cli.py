@@ -82,6 +82,9 @@ def _register() -> None:
     from icploc.maps.cli import map_app
 
     app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.")
+    from icploc.sim.cli import sim_app
+
+    app.add_typer(sim_app, name="sim", help="Device simulators (PLS, PowerBot) on pseudo-terminals.")
     _REGISTERED.append(True)
 
 
