@@ -155,7 +155,7 @@ def replay_config(path: str | os.PathLike[str], config: Any, config_given: bool)
     configured: Pose = tuple(config.scan.mounting)  # type: ignore[assignment]
     rec = recorded_mounting(path)
     if rec is None:
-        how = "the config's" if config_given else "the default (the laser at the robot's centre)"
+        how = "the config's" if any(configured) else "none (the laser at the robot's centre)"
         return config, (
             f"the recording holds no laser mounting (made before recordings carried it): "
             f"using {how}, {_mm(configured)}; if the laser sat elsewhere, give it in --config "
