@@ -229,3 +229,48 @@ def test_replay_config_lets_a_config_with_another_mounting_win_and_says_so(tmp_p
     given = LocalizerConfig().replace(scan={"laser_x": 0.3})
     cfg, note = replay_config(path, given, config_given=True)
     assert (cfg.scan.mounting, "from the config" in note, "+0.251" in note) == ((0.3, 0.0, 0.0), True, True)
+
+
+@pytest.fixture(scope="module")
+def box_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from icploc.maps import Map
+
+    m = tmp_path_factory.mktemp("map") / "box.geojson"
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
+    return m
+
+
+def _first_pose_error(path: Path, box_map: Path) -> tuple[float, str]:
+    """Replay without a config from the true start (2, 4, 0): the first estimate's
+    distance from it (the robot has barely moved), and the summary."""
+    from icploc.replay import replay
+
+    res = replay(path, box_map, initial_pose=(2.0, 4.0, 0.0))
+    p = res.poses[0]
+    return float(np.hypot(p[0] - 2.0, p[1] - 4.0)), res.summary()
+
+
+def test_replay_of_a_recording_with_its_mounting_needs_no_config(tmp_path: Path, box_map: Path) -> None:
+    path = tmp_path / "new.icpraw"
+    record_session(path, header=mounting_header(MOUNT))
+    err, summary = _first_pose_error(path, box_map)
+    assert (err < 0.05, "laser mounting from the recording" in summary) == (True, True)
+
+
+def test_replay_of_an_old_recording_says_the_mounting_is_missing(tmp_path: Path, box_map: Path) -> None:
+    path = tmp_path / "old.icpraw"
+    record_session(path)
+    err, summary = _first_pose_error(path, box_map)
+    # the scans are taken at the centre: the fit is the laser's pose, 0.25 m ahead
+    assert (err > 0.2, "holds no laser mounting" in summary) == (True, True)
+
+
+def test_icploc_replay_of_a_new_recording_uses_its_mounting(tmp_path: Path, box_map: Path) -> None:
+    from icploc.cli import app
+    from typer.testing import CliRunner
+
+    path = tmp_path / "new.icpraw"
+    record_session(path, header=mounting_header(MOUNT))
+    r = CliRunner().invoke(app, ["replay", str(path), "--map", str(box_map), "--initial-pose", "2,4,0",
+                                 "--no-progress", "--max-lost", "1"])  # fmt: skip
+    assert "log: laser mounting from the recording: x +0.251 m" in r.output, r.output
