@@ -156,3 +156,51 @@ def test_session_realtime_rates() -> None:
     taken = np.array([t for t, _, _ in sim.truth])
     lag = [float(np.min(np.abs(taken - s.stamp))) for s in scans[2:]]
     assert np.median(lag) < 0.02
+
+
+def _scenario():  # type: ignore[no-untyped-def]
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benches"))
+    import scenario
+
+    return scenario
+
+
+@pytest.mark.parametrize(("model", "expected"), [(IncidenceGlass(), 1.0), (RandomGlass(1.0), 6.0)])
+def test_the_clinic_family_of_the_benchmarks_is_a_world(model: object, expected: float) -> None:
+    """benches/scenario.py's clinic wing as a simulated world: from the corridor, straight
+    at the nurse station's glass front (y = 5) 1 m away; seen through, the room's far wall."""
+    from icploc.sim.scenes import from_plan
+
+    c = _scenario().clinic_world()
+    w = from_plan(c.name, c.opaque, c.glass, glass_model=model)  # type: ignore[arg-type]
+    assert w.ranges((21.5, 6.0, -math.pi / 2), [0.0], 30.0)[0] == pytest.approx(expected)
+
+
+def _drive(pursuit, pose, dt: float = 0.02, steps: int = 5000):  # type: ignore[no-untyped-def]
+    """Integrate the pursuit's commands from ``pose``; the final pose and the step count."""
+    x, y, th = pose
+    for k in range(steps):
+        cmd = pursuit.command((x, y, th))
+        if cmd is None:
+            return (x, y, th), k
+        v, w = cmd
+        x, y, th = x + v * dt * math.cos(th), y + v * dt * math.sin(th), th + w * dt
+    raise AssertionError("the pursuit never finished")
+
+
+def test_pure_pursuit_visits_the_waypoints_and_ends_on_the_last() -> None:
+    from icploc.sim.pursuit import PurePursuit
+
+    pursuit = PurePursuit(np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]]), tolerance=0.1)
+    end, _ = _drive(pursuit, (0.0, 0.0, 0.0))
+    assert math.hypot(end[0] - 2.0, end[1] - 2.0) < 0.1
+
+
+def test_pursuit_plan_stops_and_says_done_at_the_end() -> None:
+    from icploc.sim.pursuit import PursuitPlan
+
+    plan = PursuitPlan(np.array([[0.0, 0.0], [1.0, 0.0]]), lambda: (0.95, 0.0, 0.0))
+    assert (plan(0.0), plan.done.is_set()) == ((0.0, 0.0), True)
