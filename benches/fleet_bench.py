@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.logs import write_carmen
 from icploc.maps import Map
 

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
 from icploc.relocalize import Relocalizer, attach, global_localizer
@@ -81,31 +81,31 @@ def building(
                 if rng.random() < 0.6:
                     cx = x + float(rng.uniform(0.6, 3.0))
                     cy = (1.0 if y == yc0 else 17.0) + float(rng.uniform(0.0, 1.5))
-                    w += worlds._rect(cx, cy, cx + 0.6, cy + 0.8)
+                    w += worlds.rect(cx, cy, cx + 0.6, cy + 0.8)
                 continue
             # a desk (1.6 x 0.8 m) against the back wall or a side wall
             if rng.random() < 0.5:
                 dx = x + float(rng.uniform(0.2, 2.2))
                 y0 = back + inward * 0.0
                 y1 = back + inward * 0.8
-                w += worlds._rect(dx, min(y0, y1), dx + 1.6, max(y0, y1))
+                w += worlds.rect(dx, min(y0, y1), dx + 1.6, max(y0, y1))
             else:
                 side = x if rng.random() < 0.5 else x + 4.0 - 0.8
                 dy = float(rng.uniform(1.0, 6.0))
                 y0, y1 = back + inward * dy, back + inward * (dy + 1.6)
-                w += worlds._rect(side, min(y0, y1), side + 0.8, max(y0, y1))
+                w += worlds.rect(side, min(y0, y1), side + 0.8, max(y0, y1))
             # a cabinet (0.5 x 1.0 m) and a shelf (0.4 x 1.2 m along a side wall)
             cx = x + float(rng.uniform(0.5, 3.0))
             cy = back + inward * float(rng.uniform(2.0, 7.0))
-            w += worlds._rect(cx, cy - 0.5, cx + 0.5, cy + 0.5)
+            w += worlds.rect(cx, cy - 0.5, cx + 0.5, cy + 0.5)
             sx = x if rng.random() < 0.5 else x + 4.0 - 0.4
             sy = back + inward * float(rng.uniform(1.5, 6.5))
-            w += worlds._rect(sx, min(sy, sy + inward * 1.2), sx + 0.4, max(sy, sy + inward * 1.2))
+            w += worlds.rect(sx, min(sy, sy + inward * 1.2), sx + 0.4, max(sy, sy + inward * 1.2))
             # a chair and a waste bin
             for size in (0.5, 0.3):
                 px = x + float(rng.uniform(0.4, 3.6 - size))
                 py = back + inward * float(rng.uniform(0.4, 7.5))
-                w += worlds._rect(px, py, px + size, py + size)
+                w += worlds.rect(px, py, px + size, py + size)
         x += 4.0
     x = 4.0
     while x < width - 1e-9:

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.logs import open_log, write_carmen
 from icploc.maps import Map
 from icploc.mcap_export import McapRecorder, attach

@@ -8,7 +8,7 @@ Throughput: a 361-beam CARMEN log (FLASER + ODOM) of the lab is written to a tem
 directory, then ``icploc.replay.replay`` reads, parses and localizes it end to end on one
 core (target >= 5,000 scans/s).
 
-Accuracy: the kinematic simulator (:func:`icploc.worlds.simulate`) with 2 cm range noise
+Accuracy: the kinematic simulator (:func:`icploc.sim.simulate`) with 2 cm range noise
 drives runs in the lab (glass wall, 3 people walking, ~90 m), in the lab with a crowd of 12
 people circling around the robot, and along long repetitive shelf aisles. The map is the
 floor plan rasterised as a 5 cm ROS grid (walls through cell centres) and loaded back
@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.logs import write_carmen
 from icploc.maps import Map

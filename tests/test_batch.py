@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.live import tum_row
 from icploc.logs import write_carmen
 from icploc.maps import Map

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.cli import _register, app
 from icploc.config import LocalizerConfig
 from icploc.live import tum_row
@@ -190,7 +190,7 @@ def test_run_simulate_live_path(tmp_path: Path) -> None:
 def test_run_simulate_without_start_pose_localizes_globally(tmp_path: Path) -> None:
     """`icploc run --simulate --global`: the localizer is not told the start; it locks on
     by global search over the live path and then tracks the simulator's truth."""
-    from icploc import live
+    from icploc.sim import harness as live
 
     res, truth = live.run_simulated(timeout=6.0, global_start=True)
     assert res.estimates

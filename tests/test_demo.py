@@ -46,7 +46,7 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
 def test_demo_paths_match_the_paper() -> None:
     """The full demo drives a random walk of more than 20 m and circles, in the 7.5 m lab."""
     import numpy as np
-    from icploc import worlds
+    from icploc import sim as worlds
     from icploc.demo import experiments
 
     walk, circles, _ = experiments(quick=False)
@@ -63,7 +63,7 @@ def test_demo_lab_is_the_papers_room() -> None:
     """The paper's lab is 7.5 m x 7.5 m (56.25 m^2) around the start: measured by casting
     rays from the origin along the axes onto the demo map's walls and glass."""
     import numpy as np
-    from icploc import worlds
+    from icploc import sim as worlds
 
     segs = np.asarray(worlds.lab().lines, dtype=np.float64)
 
@@ -90,7 +90,7 @@ def test_glass_walk_runs_along_the_glass_wall() -> None:
     """Table 5's run (the paper's Fig. 11): from the start and back, more than 20 m, every
     waypoint past the first within 1.55 m of the lab's glass wall and in front of it."""
     import numpy as np
-    from icploc import worlds
+    from icploc import sim as worlds
     from icploc.demo import experiments
 
     path = experiments(quick=False)[2].path

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc import GlobalLocalizer, InvalidConfigError, InvalidInputError, worlds
+from icploc import GlobalLocalizer, InvalidConfigError, InvalidInputError
+from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
 from icploc.maps import Map
@@ -73,7 +74,7 @@ def test_relocalizer_locks_within_five_scans_and_never_wrong(lab, lab_glob) -> N
 
 
 def rectangle() -> worlds.World:
-    return worlds.World("box", np.array(worlds._rect(0.0, 0.0, 8.0, 5.0)))
+    return worlds.World("box", np.array(worlds.rect(0.0, 0.0, 8.0, 5.0)))
 
 
 def test_symmetric_room_reports_ambiguity_and_never_locks() -> None:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, run
 from icploc.maps import Map
@@ -132,7 +132,7 @@ def test_a_crowd_is_not_a_kidnapping() -> None:
 def test_replay_in_a_symmetric_room_reports_ambiguity() -> None:
     """A replay without an initial pose in a perfectly symmetric room: never a lock, and
     the summary says the lost scans were ambiguous rather than simply lost."""
-    room = worlds.World("room", np.array(worlds._rect(0.0, 0.0, 8.0, 5.0)))
+    room = worlds.World("room", np.array(worlds.rect(0.0, 0.0, 8.0, 5.0)))
     path = worlds.circle_path(radius=1.0, laps=1, center=(4.0, 2.5))
     frames = list(worlds.simulate(room, path, start=(4.0, 2.5, 0.0), seed=3, max_frames=30))
     res = replay(_items(frames), Map.from_lines(room.lines))

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.config import ConfigError, LocalizerConfig
 from icploc.localizer import Localizer, Status
 from icploc.maps import Map

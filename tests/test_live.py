@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 import pytest
-from icploc import clock, live, worlds
+from icploc import clock, live
 from icploc.cli import app
 from icploc.drivers.ports import PortError, check_port
 from icploc.localizer import Estimate, Status
 from icploc.maps import Map
-from icploc.sim.world import World
+from icploc.sim.harness import run_simulated, truth_at
+from icploc.sim.scenes import box, lab_random_walk
 from icploc.types import Scan
 from typer.testing import CliRunner
 
@@ -39,7 +40,7 @@ def pty_port() -> Iterator[str]:
 @pytest.fixture
 def files(tmp_path: Path) -> dict[str, Path]:
     m = tmp_path / "box.geojson"
-    Map.from_lines(World.box(10.0, 8.0).lines).to_geojson(m)
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
     out = tmp_path / "old.tum"
     out.write_text("1.0 0 0 0 0 0 0 1\n")
     rec = tmp_path / "old.icpraw"
@@ -88,7 +89,7 @@ def test_record_pointing_at_the_config_is_a_usage_error(
 
 
 def test_out_pointing_at_a_ros_map_image_is_refused(tmp_path: Path, pty_port: str) -> None:
-    yaml_path = Map.from_lines(World.box(4.0, 3.0).lines).to_ros(tmp_path / "room.yaml", 0.05)
+    yaml_path = Map.from_lines(box(4.0, 3.0).lines).to_ros(tmp_path / "room.yaml", 0.05)
     image = next(p for p in tmp_path.iterdir() if p.suffix in (".pgm", ".png"))
     before = image.read_bytes()
     r = _run("--map", str(yaml_path), "--laser", pty_port, "--out", str(image))
@@ -283,7 +284,7 @@ def _outage(which: str, down: float = 1.0, up: float = 3.0, *, power_cycle: bool
     def emitted(e: Estimate) -> None:  # when the loop produced it
         ev["emitted"].append((clock.now(), e))
 
-    res, truth = live.run_simulated(path=worlds.lab_random_walk(length=4.0, seed=3), timeout=40.0,
+    res, truth = run_simulated(path=lab_random_walk(length=4.0, seed=3), timeout=40.0,
                                     on_session=hook, out=out, reconnect_timeout=reconnect_timeout,
                                     on_estimate=emitted)  # fmt: skip
     ev["stop"].set()
@@ -328,7 +329,7 @@ def test_coasting_follows_the_robot(laser_unplugged: dict[str, Any]) -> None:
 def test_laser_reconnects_and_tracking_resumes(laser_unplugged: dict[str, Any]) -> None:
     ev, res = laser_unplugged, laser_unplugged["res"]
     after = [e for e in res.estimates if e.stamp > ev["up"]]
-    T = live.truth_at(ev["scan_truth"], [e.stamp for e in after])
+    T = truth_at(ev["scan_truth"], [e.stamp for e in after])
     err = np.hypot(*(np.array([e.pose for e in after])[:, :2] - T[:, :2]).T)
     assert res.reconnects["laser"] == 1 and res.laser_outages == 1
     assert after[-1].status is Status.TRACKING and float(np.median(err)) < 0.01
@@ -350,7 +351,7 @@ def test_unplugged_base_matches_scans_without_odometry_and_says_so() -> None:
     scans = {id(e) for e in res.estimates}
     during = [e for t, e in ev["emitted"] if ev["down"] + 1.0 < t < ev["up"] and id(e) in scans]
     after = [e for e in res.estimates if e.stamp > ev["up"] + 1.0]
-    T = live.truth_at(ev["scan_truth"], [e.stamp for e in after])
+    T = truth_at(ev["scan_truth"], [e.stamp for e in after])
     err = np.hypot(*(np.array([e.pose for e in after])[:, :2] - T[:, :2]).T)
     # none claims tracking ("lost" is the localizer's own verdict, kept as it is)
     marked = {(e.status, e.reason) for e in during if e.status is not Status.LOST}
@@ -403,3 +404,69 @@ def test_simulate_refuses_an_output_that_is_the_config(files: dict[str, Path]) -
     before = _snapshot(files)
     r = _run("--simulate", "--config", str(files["config"]), "--out", str(files["config"]))
     assert (r.exit_code, "is the config" in r.output, _snapshot(files) == before) == (2, True, True)
+
+
+def _estimate(stamp: float, pose: tuple[float, float, float], status: Status) -> Estimate:
+    return Estimate(stamp=stamp, pose=pose, covariance=np.eye(3) * 1e-4, status=status,
+                    inlier_ratio=0.9, iterations=3, time=0.0)  # fmt: skip
+
+
+@pytest.fixture
+def fake_simulation(monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    """``icploc run --simulate`` without the simulators: run_simulated replaced by one
+    that records its arguments and returns ``seen["result"]`` with a truth along x."""
+    from icploc.sim import harness
+
+    seen: dict[str, Any] = {}
+
+    def fake(**kw: Any) -> tuple[live.LiveResult, list[tuple[float, tuple[float, float, float]]]]:
+        seen.update(kw)
+        truth = [(0.1 * i, (0.1 * i, 0.0, 0.0)) for i in range(50)]
+        return seen["result"], truth
+
+    monkeypatch.setattr(harness, "run_simulated", fake)
+    seen["result"] = live.LiveResult(estimates=[_estimate(0.0, (0.0, 0.0, 0.0), Status.TRACKING)], scans=1)
+    return seen
+
+
+def test_run_simulate_tells_the_localizer_the_initial_pose(fake_simulation: dict[str, Any]) -> None:
+    r = _run("--simulate", "--initial-pose", "0.5,-0.4,0.3")
+    assert r.exit_code == 0, r.output
+    assert fake_simulation["initial_pose"] == (0.5, -0.4, 0.3)
+
+
+def test_run_simulate_without_initial_pose_leaves_the_start_to_the_simulator(
+    fake_simulation: dict[str, Any],
+) -> None:
+    assert _run("--simulate").exit_code == 0
+    assert fake_simulation["initial_pose"] is None
+
+
+def test_run_global_and_initial_pose_together_is_a_usage_error(fake_simulation: dict[str, Any]) -> None:
+    r = _run("--simulate", "--global", "--initial-pose", "0,0,0")
+    assert (r.exit_code, "contradict" in r.output, "initial_pose" in fake_simulation) == (2, True, False)
+
+
+def test_run_simulate_error_counts_tracking_estimates_only(fake_simulation: dict[str, Any]) -> None:
+    """A lost guess 1 m off is no measurement: the error is over the tracking ones."""
+    ests = [_estimate(0.1 * i, (0.1 * i + 0.002, 0.0, 0.0), Status.TRACKING) for i in range(10)]
+    ests += [_estimate(1.0 + 0.1 * i, (0.0, 1.0, 0.0), Status.LOST) for i in range(5)]
+    fake_simulation["result"] = live.LiveResult(estimates=ests, scans=len(ests))
+    r = _run("--simulate")
+    assert r.exit_code == 0, r.output
+    assert "10 tracking estimates; error vs simulator truth: median 2.0 mm, max 2.0 mm (5 lost or degraded, not counted)" in r.output
+
+
+def test_run_simulate_all_lost_reports_no_error_vs_truth(
+    fake_simulation: dict[str, Any], tmp_path: Path
+) -> None:
+    """Lost in a wrong map: no "error vs truth 0.0 mm", but that nothing was tracking."""
+    m = tmp_path / "elsewhere.geojson"
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
+    fake_simulation["result"] = live.LiveResult(
+        estimates=[_estimate(0.1 * i, (0.1 * i, 0.0, 0.0), Status.LOST) for i in range(8)], scans=8
+    )
+    r = _run("--simulate", "--map", str(m))
+    assert r.exit_code == 0, r.output
+    assert "no estimate was tracking (8 lost or degraded): no error vs simulator truth" in r.output
+    assert " mm" not in r.output

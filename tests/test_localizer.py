@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from icploc import MapIndex, worlds
+from icploc import MapIndex
+from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
 from icploc.se2 import compose, wrap_angle

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.live import tum_row
 from icploc.logs import write_carmen
 from icploc.maps import Map

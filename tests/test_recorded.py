@@ -8,25 +8,32 @@ from pathlib import Path
 import numpy as np
 import pytest
 from icploc.drivers.powerbot import PowerBot
-from icploc.drivers.recording import RECORD, Recorder, RecordingFormatError, iter_records
+from icploc.drivers.recording import (
+    RECORD,
+    Recorder,
+    RecordingFormatError,
+    iter_records,
+    mounting_header,
+    recorded_mounting,
+)
 from icploc.drivers.sick import PLS
-from icploc.logs.recorded import is_recorded, read_recorded
+from icploc.logs.recorded import is_recorded, read_recorded, replay_config
 from icploc.sim.device import Faults
 from icploc.sim.powerbot_device import constant_plan
+from icploc.sim.scenes import box
 from icploc.sim.session import SimSession
-from icploc.sim.world import World
 from icploc.types import Odometry, Scan
 
 
 def record_session(
-    path: Path, faults: Faults | None = None
+    path: Path, faults: Faults | None = None, header: dict[str, object] | None = None
 ) -> tuple[list[Scan], list[Odometry], int]:
     """Record 40 scans and 60 SIPs; returns them and how many SIPs the driver's queue
     dropped (the SIP reader runs ahead while the test reads the scans first)."""
-    world = World.box(10.0, 8.0)
+    world = box(10.0, 8.0)
     with SimSession(world, start_pose=(2.0, 4.0, 0.0), plan=constant_plan(0.5, 0.3), realtime=False,
                     laser_faults=faults) as sim:  # fmt: skip
-        with Recorder(path) as rec:
+        with Recorder(path, header=header) as rec:
             with (
                 PLS(sim.laser_port, baud_settle=0.0, recorder=rec) as laser,
                 PowerBot(sim.base_port, recorder=rec) as bot,
@@ -167,3 +174,103 @@ def test_recorder_write_error_stops_the_recording_not_the_caller(tmp_path: Path)
     rec.rx(dev, 2.0, b"abc")
     rec.rx(dev, 3.0, b"def")  # ignored, no exception
     assert (rec.closed, getattr(rec.error, "errno", None)) == (True, 28)
+
+
+# -- the laser mounting in the recording ----------------------------------------------------
+
+MOUNT = (0.251, 0.0, 0.0)  # the simulated PowerBot's laser, 0.251 m ahead of the centre
+
+
+def test_a_run_records_its_laser_mounting(tmp_path: Path) -> None:
+    from icploc.live import RunOutputs
+
+    rec = tmp_path / "run.icpraw"
+    outs = RunOutputs(None, rec, MOUNT)
+    outs.commit()
+    outs.close(None)
+    assert recorded_mounting(rec) == MOUNT
+
+
+def test_an_old_recording_has_no_mounting(tmp_path: Path) -> None:
+    Recorder(tmp_path / "old.icpraw").close()
+    assert recorded_mounting(tmp_path / "old.icpraw") is None
+
+
+def test_a_malformed_mounting_is_an_error_naming_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.icpraw"
+    Recorder(path, header={"laser_mounting": [0.25, "x", 0]}).close()
+    with pytest.raises(RecordingFormatError, match=r"bad\.icpraw.*laser_mounting"):
+        recorded_mounting(path)
+
+
+def test_replay_config_takes_the_recorded_mounting_without_a_config(tmp_path: Path) -> None:
+    from icploc.config import LocalizerConfig
+
+    path = tmp_path / "new.icpraw"
+    Recorder(path, header=mounting_header(MOUNT)).close()
+    cfg, note = replay_config(path, LocalizerConfig(), config_given=False)
+    assert (cfg.scan.mounting, note.startswith("laser mounting from the recording")) == (MOUNT, True)
+
+
+def test_replay_config_says_an_old_recording_has_no_mounting(tmp_path: Path) -> None:
+    from icploc.config import LocalizerConfig
+
+    path = tmp_path / "old.icpraw"
+    Recorder(path).close()
+    cfg, note = replay_config(path, LocalizerConfig(), config_given=False)
+    assert (cfg.scan.mounting, "holds no laser mounting" in note) == ((0.0, 0.0, 0.0), True)
+
+
+def test_replay_config_lets_a_config_with_another_mounting_win_and_says_so(tmp_path: Path) -> None:
+    from icploc.config import LocalizerConfig
+
+    path = tmp_path / "new.icpraw"
+    Recorder(path, header=mounting_header(MOUNT)).close()
+    given = LocalizerConfig().replace(scan={"laser_x": 0.3})
+    cfg, note = replay_config(path, given, config_given=True)
+    assert (cfg.scan.mounting, "from the config" in note, "+0.251" in note) == ((0.3, 0.0, 0.0), True, True)
+
+
+@pytest.fixture(scope="module")
+def box_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from icploc.maps import Map
+
+    m = tmp_path_factory.mktemp("map") / "box.geojson"
+    Map.from_lines(box(10.0, 8.0).lines).to_geojson(m)
+    return m
+
+
+def _first_pose_error(path: Path, box_map: Path) -> tuple[float, str]:
+    """Replay without a config from the true start (2, 4, 0): the first estimate's
+    distance from it (the robot has barely moved), and the summary."""
+    from icploc.replay import replay
+
+    res = replay(path, box_map, initial_pose=(2.0, 4.0, 0.0))
+    p = res.poses[0]
+    return float(np.hypot(p[0] - 2.0, p[1] - 4.0)), res.summary()
+
+
+def test_replay_of_a_recording_with_its_mounting_needs_no_config(tmp_path: Path, box_map: Path) -> None:
+    path = tmp_path / "new.icpraw"
+    record_session(path, header=mounting_header(MOUNT))
+    err, summary = _first_pose_error(path, box_map)
+    assert (err < 0.05, "laser mounting from the recording" in summary) == (True, True)
+
+
+def test_replay_of_an_old_recording_says_the_mounting_is_missing(tmp_path: Path, box_map: Path) -> None:
+    path = tmp_path / "old.icpraw"
+    record_session(path)
+    err, summary = _first_pose_error(path, box_map)
+    # the scans are taken at the centre: the fit is the laser's pose, 0.25 m ahead
+    assert (err > 0.2, "holds no laser mounting" in summary) == (True, True)
+
+
+def test_icploc_replay_of_a_new_recording_uses_its_mounting(tmp_path: Path, box_map: Path) -> None:
+    from icploc.cli import app
+    from typer.testing import CliRunner
+
+    path = tmp_path / "new.icpraw"
+    record_session(path, header=mounting_header(MOUNT))
+    r = CliRunner().invoke(app, ["replay", str(path), "--map", str(box_map), "--initial-pose", "2,4,0",
+                                 "--no-progress", "--max-lost", "1"])  # fmt: skip
+    assert "log: laser mounting from the recording: x +0.251 m" in r.output, r.output

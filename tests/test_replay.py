@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.logs import LogFormatError, write_carmen
 from icploc.maps import Map
 from icploc.replay import parse_pose, replay
@@ -155,7 +155,7 @@ def test_parse_pose() -> None:
 @pytest.mark.slow
 def test_replay_recorded_raw_bytes_session(tmp_path: Path) -> None:
     """A live simulated session (drivers over ptys) recorded byte for byte, then replayed."""
-    from icploc.live import run_simulated, truth_at
+    from icploc.sim.harness import run_simulated, truth_at
 
     w = worlds.lab(people=1)
     path = np.array([(0.0, 0.0), (1.2, 0.0), (1.2, 0.8)])

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.logs import LogFormatError, write_carmen
 from icploc.maps import Map
 from icploc.replay import replay

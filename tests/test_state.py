@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc import worlds
+from icploc import sim as worlds
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.maps import Map
 from icploc.replay import replay

@@ -117,6 +117,9 @@ def _register() -> None:
     from icploc.maps.cli import map_app
 
     app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.", cls=_Guarded)
+    from icploc.sim.cli import sim_app
+
+    app.add_typer(sim_app, name="sim", help="Device simulators (PLS, PowerBot) on pseudo-terminals.", cls=_Guarded)
     _REGISTERED.append(True)
 
 
@@ -380,6 +383,10 @@ def run_cmd(
     odometry (laser missing) or is matched without odometry (base missing), its status
     saying so. Ctrl-C ends the run with complete files and a summary.
 
+    With --simulate the simulated robot drives the built-in lab; --initial-pose is the
+    pose the localizer is told (default: where the simulated robot starts), --global tells
+    it nothing. The error against the simulator's truth counts the tracking estimates only.
+
     Exit codes: 0 done (also after Ctrl-C); 1 error (a port, a device that does not
     answer or does not come back, a file); 2 usage (missing options, an output that is an
     input); 130 Ctrl-C before the devices answered."""
@@ -396,6 +403,8 @@ def run_cmd(
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
+    if global_start and pose is not None:
+        raise typer.BadParameter("--global and --initial-pose contradict each other: give one", param_hint="--global")
     # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
     hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else ())
 
@@ -409,11 +418,13 @@ def run_cmd(
 
     try:
         if simulate:
-            res, truth = live.run_simulated(config=cfg if config is not None else None, out=out, record=record,
-                                            on_estimate=show, map_=str(map_path) if map_path else None,
-                                            timeout=duration or 120.0, global_start=global_start,
-                                            reconnect_timeout=reconnect_timeout, config_path=config,
-                                            on_localizer=hooks.on_localizer)  # fmt: skip
+            from icploc.sim.harness import run_simulated
+
+            res, truth = run_simulated(config=cfg if config is not None else None, out=out, record=record,
+                                       on_estimate=show, map_=str(map_path) if map_path else None,
+                                       initial_pose=pose, timeout=duration or 120.0, global_start=global_start,
+                                       reconnect_timeout=reconnect_timeout, config_path=config,
+                                       on_localizer=hooks.on_localizer)  # fmt: skip
         else:
             assert map_path is not None and laser is not None
             res = live.run_hardware(map_path, laser, base, config=cfg, config_path=config, initial_pose=pose,
@@ -429,15 +440,8 @@ def run_cmd(
     finally:
         hooks.close()
     typer.echo(res.summary())
-    if simulate and res.estimates:
-        from icploc.trajectory import Trajectory, ate
-
-        est = Trajectory.from_poses([e.stamp for e in res.estimates], [e.pose for e in res.estimates])
-        sim = Trajectory.from_poses([t for t, _ in truth], [p for _, p in truth])
-        a = ate(est, sim, method="nearest", max_dt=float("inf"))  # the simulator's pose at each scan
-        typer.echo(
-            f"{a.n} estimates; error vs simulator truth: median {a.position.median * 1000:.1f} mm, max {a.position.max * 1000:.1f} mm"
-        )
+    if simulate:
+        _simulated_error(res.estimates, truth, map_path)
     for k, p in res.files.items():
         typer.echo(f"{k}: {p}")
     for w in res.write_errors:
@@ -446,6 +450,31 @@ def run_cmd(
         typer.secho(f"error: {res.error}", fg="red", err=True)
     if res.error is not None or res.write_errors:
         raise typer.Exit(1)
+
+
+def _simulated_error(estimates: list[Any], truth: list[Any], map_path: Path | None) -> None:
+    """``run --simulate``: the error against the simulator's truth, over the estimates
+    that claim to be right (tracking) only; a lost or degraded guess is no measurement."""
+    import numpy as np
+
+    from icploc.sim.harness import truth_at
+
+    tracked = [e for e in estimates if e.status.value == "tracking"]
+    others = len(estimates) - len(tracked)
+    if not tracked:
+        typer.secho(
+            f"no estimate was tracking ({others} lost or degraded): no error vs simulator truth"
+            + (f" (is {map_path} a map of the simulated lab?)" if map_path is not None else ""),
+            fg="yellow",
+        )
+        return
+    T = truth_at(truth, [e.stamp for e in tracked])
+    P = np.array([e.pose for e in tracked])
+    err = np.hypot(*(P[:, :2] - T[:, :2]).T)
+    typer.echo(
+        f"{len(P)} tracking estimates; error vs simulator truth: median {np.median(err) * 1000:.1f} mm, "
+        f"max {err.max() * 1000:.1f} mm" + (f" ({others} lost or degraded, not counted)" if others else "")
+    )
 
 
 def _run_hooks(**kw):  # type: ignore[no-untyped-def]

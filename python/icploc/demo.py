@@ -1,7 +1,7 @@
 """``icploc demo``: the paper's three experiments in its lab, through the real drivers.
 
 The lab is 7.5 m × 7.5 m (56.25 m²) with a 5 m glass wall section and people walking
-(:func:`icploc.worlds.lab`). A PowerBot and a SICK PLS are simulated byte for byte on
+(:func:`icploc.sim.lab`). A PowerBot and a SICK PLS are simulated byte for byte on
 pseudo-terminals (:mod:`icploc.sim`); the real drivers read them; the localizer runs
 on every scan. Experiment 1 is a random walk of more than 20 m that ends where it
 started (the paper's Table 3 / Fig. 9), experiment 2 drives circles (Table 4 /
@@ -86,7 +86,7 @@ class DemoResult:
 
 def glass_walk(length: float = 15.0, seed: int = 2) -> NDArray[np.float64]:
     """A random walk of at least ``length`` metres from the origin and back to it, its
-    waypoints in the band 0.65–1.55 m from the lab's glass wall (:func:`icploc.worlds.lab`:
+    waypoints in the band 0.65–1.55 m from the lab's glass wall (:func:`icploc.sim.lab`:
     glass at y = 3.75 m for |x| ≤ 2.5 m), so many beams meet the glass: the
     paper's Table 5 / Fig. 11 run."""
     rng = np.random.default_rng(seed)
@@ -105,7 +105,7 @@ def glass_walk(length: float = 15.0, seed: int = 2) -> NDArray[np.float64]:
 
 
 def experiments(quick: bool = False) -> list[Experiment]:
-    from icploc import worlds
+    from icploc import sim as worlds
 
     if quick:
         walk = worlds.lab_random_walk(length=8.0, seed=5)
@@ -124,7 +124,7 @@ def experiments(quick: bool = False) -> list[Experiment]:
 
 
 def _run_one(exp: Experiment, world: Any, seed: int, out: Path) -> DemoResult:
-    from icploc.live import run_simulated
+    from icploc.sim.harness import run_simulated
 
     t0 = time.perf_counter()
     res, truth = run_simulated(
@@ -230,7 +230,7 @@ def run_demo(
     log: Callable[[str], None] | None = None,
 ) -> list[DemoResult]:
     """Run the three experiments (at once, in real time), write plots and tables to ``out``."""
-    from icploc import worlds
+    from icploc import sim as worlds
 
     outdir = Path(out)
     outdir.mkdir(parents=True, exist_ok=True)

@@ -2,14 +2,15 @@
 is stamped on :func:`icploc.clock.now`, each scan is localized as it arrives.
 
 :func:`run_live` is the loop; :func:`run_hardware` opens real devices (``icploc run
---map MAP --laser PORT --base PORT``); :func:`run_simulated` runs the identical path
-against the device simulators on pseudo-terminals (``icploc run --simulate``).
+--map MAP --laser PORT --base PORT``); :func:`icploc.sim.harness.run_simulated` runs the
+identical path against the device simulators on pseudo-terminals (``icploc run
+--simulate``).
 
 Before anything is opened or written, :func:`run_hardware` checks the ports (they exist,
 are serial devices, may be opened) and the outputs (writable, none of them an input:
 the map, its image, the config, a port); a failure is a :class:`RunError` with a message
-for the user. The trajectory (TUM) and the raw-byte recording are written and flushed as
-they go; an existing ``--out`` / ``--record`` is replaced only once the devices answered.
+for the user. The trajectory (TUM) and the raw-byte recording (which carries the laser mounting
+the run used) are written and flushed as they go; an existing ``--out`` / ``--record`` is replaced only once the devices answered.
 
 A vanished device does not end the run: the drivers reconnect by themselves (bounded
 back-off, the full handshake again). While the laser is missing the estimate coasts on
@@ -30,25 +31,23 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-from numpy.typing import NDArray
-
 from icploc import clock
 from icploc.errors import IcplocError
 from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
-from icploc.se2 import Pose, between, compose, inverse, wrap_angle
-from icploc.trajectory import Trajectory, TumWriter, tum_line
+from icploc.se2 import Pose, between, compose, inverse
+from icploc.trajectory import TumWriter, tum_line
 
 __all__ = [
     "LiveResult",
-    "PursuitPlan",
     "RunError",
+    "RunOutputs",
     "RunUsageError",
     "check_outputs",
+    "open_devices",
     "run_hardware",
     "run_live",
-    "run_simulated",
+    "start_localizer",
     "tum_row",
 ]
 
@@ -309,43 +308,28 @@ def run_live(
     return res
 
 
-class PursuitPlan:
-    """A velocity plan for the simulated base (``t -> (v, w)``): pure pursuit along a
-    polyline using the simulator's true pose (a person with a joystick), then stop.
-    ``done`` is set when the last waypoint is reached."""
+def start_localizer(
+    m: Any,
+    config: Any,
+    initial_pose: Sequence[float] | None,
+    on_localizer: Callable[[Localizer], None] | None = None,
+) -> Localizer:
+    """The localizer of a live run on map ``m``: lost checks (global searches) in the
+    background, so the loop never stalls on one; at ``initial_pose``, or without one
+    lost and localizing globally (multi-hypothesis search, lock verified over the next
+    scans). ``on_localizer`` (hooks: icploc.state ``--state``, icploc.mcap_export
+    ``--mcap``) sees it before the first scan."""
+    cfg = config.replace(localizer={"lost_check": "background"})
+    loc = Localizer(m, cfg, initial_pose=initial_pose)
+    if initial_pose is None:
+        from icploc.relocalize import attach
 
-    def __init__(
-        self,
-        path: NDArray[np.float64],
-        pose: Callable[[], Sequence[float]],
-        speed: float = 0.6,
-        omega_max: float = 1.2,
-        tolerance: float = 0.12,
-    ) -> None:
-        self.path = np.asarray(path, dtype=np.float64)
-        self.pose = pose
-        self.speed = speed
-        self.omega_max = omega_max
-        self.tolerance = tolerance
-        self.i = 1
-        self.done = threading.Event()
-
-    def __call__(self, t: float) -> tuple[float, float]:
-        if self.i >= len(self.path):
-            self.done.set()
-            return (0.0, 0.0)
-        x, y, th = self.pose()
-        tx, ty = self.path[self.i]
-        d = math.hypot(tx - x, ty - y)
-        if d < self.tolerance:
-            self.i += 1
-            return self(t)
-        err = wrap_angle(math.atan2(ty - y, tx - x) - th)
-        w = max(-self.omega_max, min(self.omega_max, 2.5 * err))
-        v = self.speed * max(0.0, math.cos(err)) ** 4 * min(1.0, d / 0.4 + 0.3)
-        if self.i == len(self.path) - 1:  # brake in time to stop on the last waypoint
-            v = min(v, 0.7 * math.sqrt(2.0 * 1.0 * d) + 0.05)
-        return (v, w)
+        if loc.status is not Status.LOST:
+            loc.reset(loc.pose, loc.covariance, Status.LOST)
+        attach(loc)
+    if on_localizer is not None:
+        on_localizer(loc)
+    return loc
 
 
 def check_outputs(
@@ -365,13 +349,17 @@ def check_outputs(
         raise RunError(str(e)) from None
 
 
-class _Outputs:
+class RunOutputs:
     """The run's output files, created only once the devices answered: the recording
     goes to a temporary file beside ``--record`` (so the handshake is in it) and replaces
-    ``--record`` at :meth:`commit`; ``--out`` is opened there too."""
+    ``--record`` at :meth:`commit`; ``--out`` is opened there too. ``mounting``: the
+    laser mounting (x m, y m, yaw rad in the robot frame) the run uses, kept in the
+    recording's header so that a replay finds the scans where the run did."""
 
-    def __init__(self, out: str | Path | None, record: str | Path | None) -> None:
-        from icploc.drivers.recording import Recorder
+    def __init__(
+        self, out: str | Path | None, record: str | Path | None, mounting: Sequence[float]
+    ) -> None:
+        from icploc.drivers.recording import Recorder, mounting_header
 
         self.out = Path(out) if out is not None else None
         self.record = Path(record) if record is not None else None
@@ -381,7 +369,7 @@ class _Outputs:
         if self.record is not None:
             self._tmp = self.record.with_name(f".{self.record.name}.{os.getpid()}.partial")
             try:
-                self.rec = Recorder(self._tmp)
+                self.rec = Recorder(self._tmp, header=mounting_header(mounting))
             except OSError as e:
                 raise RunError(f"--record {self.record}: {e.strerror or e}") from None
 
@@ -420,7 +408,7 @@ class _Outputs:
 
 
 @contextmanager
-def _devices(
+def open_devices(
     laser_port: str,
     base_port: str | None,
     *,
@@ -508,28 +496,17 @@ def run_hardware(
     inputs["base port"] = base_port
     check_outputs({"--out": out, "--record": record}, inputs)
 
-    # a live loop must not stall on a lost check (a global search): run them in the back
-    cfg = (config or LocalizerConfig()).replace(localizer={"lost_check": "background"})
+    cfg = config or LocalizerConfig()
     try:
         m = Map.load(map_path)
     except (OSError, ValueError) as e:
         raise RunError(str(e)) from None
-    start = initial_pose or cfg.localizer.initial_pose
-    loc = Localizer(m, cfg, initial_pose=start)
-    if start is None:
-        # no pose given: start lost and localize globally (multi-hypothesis, verified lock)
-        from icploc.relocalize import attach
-
-        if loc.status is not Status.LOST:
-            loc.reset(loc.pose, loc.covariance, Status.LOST)
-        attach(loc)
-    if on_localizer is not None:  # hooks: icploc.state (--state), icploc.mcap_export (--mcap)
-        on_localizer(loc)
-    outputs = _Outputs(out, record)
+    loc = start_localizer(m, cfg, initial_pose or cfg.localizer.initial_pose, on_localizer)
+    outputs = RunOutputs(out, record, cfg.scan.mounting)
     res: LiveResult | None = None
     try:
-        with _devices(laser_port, base_port, laser_baud=laser_baud, recorder=outputs.rec,
-                      reconnect_timeout=reconnect_timeout) as (laser, bot):  # fmt: skip
+        with open_devices(laser_port, base_port, laser_baud=laser_baud, recorder=outputs.rec,
+                          reconnect_timeout=reconnect_timeout) as (laser, bot):  # fmt: skip
             outputs.commit()
             res = run_live(loc, laser, bot, duration=duration, on_estimate=on_estimate,
                            tum=outputs.tum)  # fmt: skip
@@ -537,129 +514,3 @@ def run_hardware(
         outputs.close(res)
     assert res is not None
     return res
-
-
-def run_simulated(
-    world: Any = None,
-    path: NDArray[np.float64] | None = None,
-    *,
-    config: Any = None,
-    map_: Any = None,
-    speed: float = 0.6,
-    laser_baud: int = 500000,
-    laser_noise: float = 0.01,
-    encoder_noise: Any = None,
-    seed: int = 0,
-    out: str | Path | None = None,
-    record: str | Path | None = None,
-    timeout: float = 120.0,
-    on_estimate: Callable[[Estimate], None] | None = None,
-    global_start: bool = False,
-    on_localizer: Callable[[Localizer], None] | None = None,
-    reconnect_timeout: float = 60.0,
-    on_session: Callable[[Any], None] | None = None,
-    config_path: str | Path | None = None,
-) -> tuple[LiveResult, list[tuple[float, Pose]]]:
-    """The live path against the PLS and PowerBot simulators on pseudo-terminals, in real
-    time: the base drives ``path`` (default: the lab random walk) by pure pursuit. Returns
-    the live result and the simulator's truth ``(stamp, robot pose)`` per generated scan.
-    ``global_start``: the localizer is not told where the robot starts and localizes
-    globally (multi-hypothesis search, lock verified over the next scans).
-
-    The simulated ports can be unplugged and plugged back
-    (``session.laser_runner.unplug()`` / ``replug()``, likewise ``base_runner``), or the
-    devices silenced (``session.laser.vanish()`` / ``revive()``): ``on_session(session)``
-    is called once the drivers are connected, e.g. to schedule such faults."""
-    from icploc import worlds
-    from icploc.config import LocalizerConfig
-    from icploc.maps import Map
-    from icploc.sim.robot import EncoderNoise
-    from icploc.sim.session import SimSession
-
-    world = world if world is not None else worlds.lab()
-    path = path if path is not None else worlds.lab_random_walk()
-    start = (float(path[0, 0]), float(path[0, 1]), float(world.start[2]))
-    sess_holder: list[Any] = []
-    plan = PursuitPlan(path, lambda: sess_holder[0].robot.pose, speed=speed)
-    enc = encoder_noise or EncoderNoise(relative_std=0.01, left_scale=1.004, right_scale=0.997)
-    inputs: dict[str, str | Path | None] = {"config": config_path}
-    if isinstance(map_, (str, Path)):
-        for i, p in enumerate(map_inputs(map_)):
-            inputs["map" if i == 0 else "map image"] = p
-    check_outputs({"--out": out, "--record": record}, inputs)
-    sess = SimSession(
-        world,
-        start_pose=start,
-        plan=plan,
-        realtime=True,
-        laser_noise_std=laser_noise,
-        encoder_noise=enc,
-        laser_max_range=8.0,
-        seed=seed,
-        unpluggable=True,
-    )
-    sess_holder.append(sess)
-    cfg = config or LocalizerConfig()
-    cfg = cfg.replace(
-        scan={
-            "laser_x": sess.laser_offset[0],
-            "laser_y": sess.laser_offset[1],
-            "laser_theta": sess.laser_offset[2],
-        },
-        localizer={"lost_check": "background"},  # as on the robot (run_hardware)
-    )
-    try:
-        m = (
-            (Map.load(map_) if isinstance(map_, (str, Path)) else map_)
-            if map_ is not None
-            else Map.from_lines(world.lines)
-        )
-    except (OSError, ValueError) as e:
-        raise RunError(str(e)) from None
-    loc = Localizer(m, cfg, initial_pose=None if global_start else start)
-    if global_start:
-        from icploc.relocalize import attach
-
-        if loc.status is not Status.LOST:
-            loc.reset(loc.pose, loc.covariance, Status.LOST)
-        attach(loc)
-    if on_localizer is not None:  # hooks: icploc.state (--state), icploc.mcap_export (--mcap)
-        on_localizer(loc)
-    t_end = [math.inf]
-
-    def finished() -> bool:
-        now = clock.now()
-        if plan.done.is_set() and t_end[0] == math.inf:
-            t_end[0] = now + 0.5  # let the robot come to a stop
-        return now >= t_end[0]
-
-    outputs = _Outputs(out, record)
-    result: LiveResult | None = None
-    try:
-        with sess:
-            # the simulators power up at 9600 Bd: probe that first (a reconnect after a
-            # power cycle then finds the scanner at once)
-            bauds = tuple(dict.fromkeys((9600, laser_baud, 38400, 19200, 500000)))
-            with _devices(sess.laser_port, sess.base_port, laser_baud=laser_baud,
-                          recorder=outputs.rec, reconnect_timeout=reconnect_timeout,
-                          connect_baudrates=bauds) as (laser, bot):  # fmt: skip
-                outputs.commit()
-                if on_session is not None:
-                    on_session(sess)
-                # the odometry frame starts where the robot is: align it with the map
-                result = run_live(loc, laser, bot, duration=timeout, stop=finished,
-                                  on_estimate=on_estimate, tum=outputs.tum)  # fmt: skip
-            truth = [(t, p) for t, p, _ in sess.truth]
-    finally:
-        outputs.close(result)
-    assert result is not None
-    return result, truth
-
-
-def truth_at(
-    truth: list[tuple[float, Pose]], stamps: Sequence[float] | NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """(N, 3) true poses at ``stamps`` (the generated scan nearest in time:
-    :meth:`icploc.trajectory.Trajectory.at`)."""
-    t = Trajectory.from_poses([s for s, _ in truth], [q for _, q in truth])
-    return t.at(stamps, method="nearest", max_dt=math.inf)[0]

@@ -119,6 +119,7 @@ class ReplayResult:
             )
         if self.log_info is not None:
             parts.extend("log: " + d.strip() for d in self.log_info.damage_lines())
+            parts.extend("log: " + n for n in self.log_info.notes)
         if self.dropped_stamps:
             parts.append(f"log: dropped {self.dropped_stamps} message(s) with a non-finite stamp")
         cal = getattr(self.estimates[-1], "calibration", None) if self.estimates else None
@@ -220,6 +221,11 @@ def replay(
             opts["strict"] = True
         data = open_log(log, **opts)
         info = data.info
+        if info.format == "recorded":  # hook (sim): the laser mounting the recording carries
+            from icploc.logs.recorded import replay_config
+
+            cfg, mounting_note = replay_config(log, cfg, config is not None)
+            info.notes.append(mounting_note)
         scans = list(data.scans)
         odoms = list(data.odometry)
         per_scan = np.asarray(data.scan_odometry, dtype=np.float64).reshape(-1, 3)

@@ -3,21 +3,25 @@
 A recording is a small header followed by records ``(stamp, device, kind, bytes)``:
 the bytes a driver received (and sent) over its serial line, stamped on
 :func:`icploc.clock.now`. Replaying them through the same parsers reproduces a session
-without hardware (:mod:`icploc.logs.recorded`).
+without hardware (:mod:`icploc.logs.recorded`). ``icploc run`` writes the laser mounting
+the run used into the header (:func:`mounting_header`), so that a replay puts the scans
+where the run did (:func:`recorded_mounting`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
 from icploc.errors import FileFormatError
+from icploc.se2 import Pose
 
 MAGIC = b"ICPLRAW1"
 VERSION = 1
@@ -29,6 +33,10 @@ KIND_TX = 2  #: bytes sent to the device; stamp = just before the write
 
 #: Largest record payload a reader accepts (guards against a corrupt length field).
 MAX_RECORD = 1 << 24
+
+#: header key: the laser mounting of the run, ``[x m, y m, yaw rad]`` of the laser in the
+#: robot frame (``scan.laser_x``, ``laser_y``, ``laser_theta`` of the config)
+MOUNTING = "laser_mounting"
 
 
 class RecordingFormatError(FileFormatError):
@@ -205,3 +213,32 @@ def iter_records(path: str | os.PathLike[str]) -> Iterator[Record]:
             if len(data) < n:
                 return
             yield Record(stamp, dev, kind, data)
+
+
+def mounting_header(mounting: Sequence[float]) -> dict[str, Any]:
+    """The header entry that records the laser mounting (x m, y m, yaw rad)."""
+    return {MOUNTING: [float(v) for v in mounting]}
+
+
+def recorded_mounting(path: str | os.PathLike[str]) -> Pose | None:
+    """The laser mounting (x m, y m, yaw rad) the recording's header carries; None for a
+    recording made before recordings carried it. A malformed value is a
+    :class:`RecordingFormatError` naming the file."""
+    with open(path, "rb") as f:
+        try:
+            hdr = read_header(f)
+        except RecordingFormatError as e:
+            raise RecordingFormatError(f"{path}: {e}") from None
+    if MOUNTING not in hdr:
+        return None
+    v = hdr[MOUNTING]
+    if (
+        not isinstance(v, list)
+        or len(v) != 3
+        or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        or not all(math.isfinite(x) for x in v)
+    ):
+        raise RecordingFormatError(
+            f"{path}: header field {MOUNTING!r} must be three finite numbers [x, y, yaw], got {v!r}"
+        )
+    return (float(v[0]), float(v[1]), float(v[2]))

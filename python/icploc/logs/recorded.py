@@ -4,13 +4,15 @@ The bytes each driver received are fed, with their recorded stamps, through the 
 parsers the live drivers use (:mod:`icploc.drivers.sick_protocol`,
 :mod:`icploc.drivers.arcos_protocol`), so a real session re-runs without hardware and
 produces the same :class:`~icploc.types.Scan` and :class:`~icploc.types.Odometry`
-objects, merged in time order.
+objects, merged in time order. :func:`replay_config` puts the scans where the run did:
+at the laser mounting the recording carries.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import heapq
+import math
 import os
 from collections.abc import Iterator
 from typing import Any
@@ -23,12 +25,13 @@ from icploc.drivers.recording import (
     RecordingFormatError,
     is_recording,
     iter_records,
+    recorded_mounting,
 )
 from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format, scan_span
-from icploc.se2 import compose
+from icploc.se2 import Pose, compose
 from icploc.types import Odometry, Scan
 
-__all__ = ["RecordingFormatError", "is_recorded", "load_recorded", "read_recorded"]
+__all__ = ["RecordingFormatError", "is_recorded", "load_recorded", "read_recorded", "replay_config"]
 
 
 def is_recorded(path: str | os.PathLike[str]) -> bool:
@@ -168,3 +171,28 @@ def _info_from(path: str, scans: list[Scan], odoms: list[Odometry]) -> LogInfo:
 
 
 register_format("recorded", is_recorded, load_recorded, (".icpraw",), order=30)
+def _mm(p: Pose) -> str:
+    return f"x {p[0]:+.3f} m, y {p[1]:+.3f} m, yaw {math.degrees(p[2]):+.1f} deg"
+
+
+def replay_config(path: str | os.PathLike[str], config: Any, config_given: bool) -> tuple[Any, str]:
+    """The config to replay the recording ``path`` with, and a note for the summary that
+    says where the laser mounting came from. The mounting the recording carries is used
+    unless ``config_given`` (a config file) sets another, non-zero one, which then wins; a
+    recording made before recordings carried the mounting keeps the config's, and the note
+    says so (not silently: a laser 0.25 m ahead of the centre shifts every scan)."""
+    configured: Pose = tuple(config.scan.mounting)  # type: ignore[assignment]
+    rec = recorded_mounting(path)
+    if rec is None:
+        how = "the config's" if any(configured) else "none (the laser at the robot's centre)"
+        return config, (
+            f"the recording holds no laser mounting (made before recordings carried it): "
+            f"using {how}, {_mm(configured)}; if the laser sat elsewhere, give it in --config "
+            "(scan.laser_x, scan.laser_y, scan.laser_theta)"
+        )
+    if config_given and any(configured) and configured != rec:
+        return config, (
+            f"laser mounting from the config, {_mm(configured)}; the recording says {_mm(rec)}"
+        )
+    cfg = config.replace(scan={"laser_x": rec[0], "laser_y": rec[1], "laser_theta": rec[2]})
+    return cfg, f"laser mounting from the recording: {_mm(rec)}"

@@ -8,6 +8,11 @@ An *engine* (:class:`~icploc.sim.pls_device.PLSDevice`,
 bytes due on the line now. The :class:`DeviceRunner` owns time: in real-time mode it
 paces writes at the byte time of the engine's current baud rate and sleeps until the
 next scheduled output; in test mode it writes as fast as the host reads.
+
+Both engines send a periodic stream (the PLS its measured values in streaming mode, the
+PowerBot its SIPs once opened): :class:`PeriodicStream` times it, and
+:class:`StreamingEngine` is the engine half they share (replies and stream frames on the
+line, fault injection, vanishing, the device's simulated time).
 """
 
 from __future__ import annotations
@@ -20,10 +25,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from icploc import clock
 from icploc.sim.pty import LineSettings, PtyPair
+
+if TYPE_CHECKING:
+    from icploc.sim.robot import DiffDriveRobot
 
 
 @dataclass
@@ -121,6 +129,150 @@ class Engine(Protocol):
     def receive(self, data: bytes, now: float) -> None: ...
     def output(self, now: float, line_idle: bool) -> bytes: ...
     def next_due(self, now: float) -> float | None: ...
+
+
+class PeriodicStream:
+    """The timing of a device's periodic stream: while :attr:`on`, a frame every
+    ``period`` s in real-time mode (never more than one at a time on the line), or one
+    each time the line is idle in test mode; and the device's simulated time."""
+
+    def __init__(self, period: float, realtime: bool) -> None:
+        self.period = period
+        self.realtime = realtime
+        self.reset()
+
+    def reset(self) -> None:
+        """Power-on: off, nothing sent, the clock not started."""
+        self.on = False
+        self.index = 0  #: frames built so far (in test mode they count simulated time)
+        self._t0: float | None = None  # host time of the first frame after (re)starting
+        self._next = 0.0  # real-time mode: when the next frame is due
+        self._robot_offset: float | None = None  # test mode: robot time - sim time
+
+    def restart_clock(self) -> None:
+        """The next frame starts the simulated time afresh (real-time mode)."""
+        self._t0 = None
+
+    def due(self, now: float, line_idle: bool, pending: bool) -> bool:
+        """True if a frame goes out now: the stream is on, the line idle, no reply
+        ``pending``, and (real time) its time has come. The caller builds it and then
+        calls :meth:`sent`."""
+        if not (self.on and line_idle and not pending):
+            return False
+        if self._t0 is None:
+            self._t0 = now
+            self._next = now
+        return not self.realtime or now >= self._next
+
+    def sent(self, now: float) -> None:
+        if self.realtime:
+            self._next = max(self._next + self.period, now)
+
+    def next_due(self, scheduled: float | None) -> float | None:
+        """The earlier of ``scheduled`` (the next reply) and the next frame."""
+        if self.on and self.realtime:
+            return self._next if scheduled is None else min(scheduled, self._next)
+        return scheduled
+
+    def sim_time(self, now: float) -> float:
+        """Simulated time (s): since the stream (re)started in real-time mode; the frame
+        count times the period in test mode."""
+        if self.realtime:
+            return 0.0 if self._t0 is None else now - self._t0
+        return self.index * self.period
+
+    def robot_time(self, robot: DiffDriveRobot, now: float, t: float) -> float:
+        """The robot's simulated time at ``now`` (sim time ``t``): the shared host clock in
+        real-time mode; in test mode the device's own sim time, offset to where the robot
+        was when this device started streaming."""
+        if self.realtime:
+            return robot.clock_time(now)
+        if self._robot_offset is None:
+            self._robot_offset = robot.time - t
+        return t + self._robot_offset
+
+
+def stream_alias(attr: str, doc: str) -> Any:
+    """An engine attribute that is its stream's ``attr`` (``PLSDevice.streaming`` is
+    ``stream.on``), readable and settable."""
+
+    def get(self: Any) -> Any:
+        return getattr(self.stream, attr)
+
+    def put(self: Any, value: Any) -> None:
+        setattr(self.stream, attr, value)
+
+    return property(get, put, doc=doc)
+
+
+class StreamingEngine:
+    """The engine half both device simulators share: replies queued on an
+    :class:`OutputSchedule`, a :class:`PeriodicStream`, fault injection on every frame,
+    vanishing and coming back. A subclass provides ``faults``, ``realtime``,
+    ``schedule``, ``stream``, ``_baud``, :meth:`power_on`, :meth:`_stream_frame` (the next
+    stream frame, as built) and :meth:`_mark` (whether the frame it logged last went out
+    intact)."""
+
+    faults: Faults
+    realtime: bool
+    schedule: OutputSchedule
+    stream: PeriodicStream
+    _baud: int
+
+    def power_on(self) -> None:
+        raise NotImplementedError
+
+    def _stream_frame(self, now: float) -> bytes:
+        raise NotImplementedError
+
+    def _mark(self, intact: bool) -> None:
+        raise NotImplementedError
+
+    def _tick(self, now: float) -> None:
+        """Called before every output poll (the PowerBot's watchdog)."""
+
+    @property
+    def baudrate(self) -> int:
+        return self._baud
+
+    def vanish(self) -> None:
+        self.faults.vanished = True
+
+    def revive(self, power_cycle: bool = True) -> None:
+        """Come back; with ``power_cycle`` in the power-on state."""
+        if power_cycle:
+            self.power_on()
+        self.faults.vanished = False
+
+    def sim_time(self, now: float) -> float:
+        return self.stream.sim_time(now)
+
+    def output(self, now: float, line_idle: bool) -> bytes:
+        if self.faults.vanished:
+            return b""
+        self._tick(now)
+        out = self.schedule.pop_due(now)
+        if out:
+            return out
+        if self.stream.due(now, line_idle, len(self.schedule) > 0):
+            data = self._mangled(self._stream_frame(now))
+            self.stream.sent(now)
+            return data
+        return b""
+
+    def next_due(self, now: float) -> float | None:
+        return self.stream.next_due(self.schedule.next_due())
+
+    def _mangled(self, frame: bytes) -> bytes:
+        """``frame`` after fault injection (the log notes whether it went out intact)."""
+        mangled, intact = self.faults.mangle(frame)
+        self._mark(intact)
+        return mangled
+
+    def _send(self, now: float, delay: float, data: bytes, action: Callable[[], None] | None = None) -> None:
+        """Queue ``data`` ``delay`` s from now (real-time mode; plus any late-reply fault)."""
+        d = (delay if self.realtime else 0.0) + self.faults.late_reply
+        self.schedule.add(now + d, data, action)
 
 
 class Transport(Protocol):

@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.drivers import sick_protocol as sp
-from icploc.sim.device import Faults, OutputSchedule
+from icploc.sim.device import Faults, OutputSchedule, PeriodicStream, StreamingEngine, stream_alias
 from icploc.sim.robot import DiffDriveRobot
 
 #: ranges (m) at the scan's beam angles, given simulated time (s)
@@ -39,7 +39,7 @@ class B0Record:
 
 
 @dataclass
-class PLSDevice:
+class PLSDevice(StreamingEngine):
     """Protocol engine of a PLS (``variant="pls"``) or LMS 2xx (``variant="lms"``)."""
 
     source: ScanSource | None = None
@@ -67,6 +67,7 @@ class PLSDevice:
         self.status = 0x00 if self.variant == "pls" else 0x10
         self.parser = sp.TelegramParser(device_side=True)
         self.schedule = OutputSchedule()
+        self.stream = PeriodicStream(self.scan_period, self.realtime)
         self.b0_log: list[B0Record] = []
         self.host_telegrams: list[sp.Telegram] = []
         self.naks_sent = 0
@@ -78,19 +79,14 @@ class PLSDevice:
         self._baud = 9600
         self.installation = False
         self.mode = sp.MODE_ON_REQUEST
-        self.streaming = False
         self.fov_deg = 180
         self.resolution_cdeg = 50
-        self.scan_index = 0
-        self._next_scan = 0.0
-        self._t0: float | None = None
-        self._robot_offset: float | None = None  # test mode: robot time - sim time
+        self.stream.reset()
         self.schedule.clear()
         self.parser.reset()
 
-    @property
-    def baudrate(self) -> int:
-        return self._baud
+    streaming = stream_alias("on", "Streaming measured values (mode 0x24).")
+    scan_index = stream_alias("index", "Scans built so far (streamed or on request).")
 
     @property
     def parity(self) -> str:
@@ -108,15 +104,6 @@ class PLSDevice:
         half = math.radians(self.fov_deg) / 2
         return np.linspace(-half, half, self.n_values())
 
-    def vanish(self) -> None:
-        self.faults.vanished = True
-
-    def revive(self, power_cycle: bool = True) -> None:
-        """Come back; with ``power_cycle`` in the power-on state (9600 Bd, not streaming)."""
-        if power_cycle:
-            self.power_on()
-        self.faults.vanished = False
-
     # -- engine interface
 
     def receive(self, data: bytes, now: float) -> None:
@@ -132,56 +119,21 @@ class PLSDevice:
             if isinstance(ev, sp.Telegram):
                 self._handle(ev, now)
 
-    def output(self, now: float, line_idle: bool) -> bytes:
-        if self.faults.vanished:
-            return b""
-        out = self.schedule.pop_due(now)
-        if out:
-            return out
-        if self.streaming and line_idle and not len(self.schedule):
-            if self._t0 is None:
-                self._t0 = now
-                self._next_scan = now
-            if not self.realtime or now >= self._next_scan:
-                frame = self._b0_frame(now)
-                mangled, intact = self.faults.mangle(frame)
-                if self.keep_b0_log:
-                    self.b0_log[-1].intact = intact
-                if self.realtime:
-                    self._next_scan = max(self._next_scan + self.scan_period, now)
-                return mangled
-        return b""
-
-    def next_due(self, now: float) -> float | None:
-        nd = self.schedule.next_due()
-        if self.streaming and self.realtime:
-            nd = self._next_scan if nd is None else min(nd, self._next_scan)
-        return nd
-
     # -- internals
 
-    def sim_time(self, now: float) -> float:
-        if self.realtime:
-            return 0.0 if self._t0 is None else now - self._t0
-        return self.scan_index * self.scan_period
+    def _stream_frame(self, now: float) -> bytes:
+        return self._b0_frame(now)
 
-    def robot_time(self, now: float, t: float) -> float:
-        """The robot's simulated time at ``now`` (sim time ``t``): the shared host clock in
-        real-time mode; in test mode the scan's sim time, offset to where the robot was
-        when this device started scanning."""
-        assert self.robot is not None
-        if self.realtime:
-            return self.robot.clock_time(now)
-        if self._robot_offset is None:
-            self._robot_offset = self.robot.time - t
-        return t + self._robot_offset
+    def _mark(self, intact: bool) -> None:
+        if self.keep_b0_log:
+            self.b0_log[-1].intact = intact
 
     def _sample(self, now: float, t: float) -> NDArray[np.float64]:
         assert self.source is not None
         if self.robot is None:
             return np.asarray(self.source(t), dtype=np.float64)
         with self.robot.lock:  # the base thread moves the robot too
-            self.robot.advance_to(self.robot_time(now, t))
+            self.robot.advance_to(self.stream.robot_time(self.robot, now, t))
             return np.asarray(self.source(t), dtype=np.float64)
 
     def _b0_frame(self, now: float) -> bytes:
@@ -205,12 +157,6 @@ class PLSDevice:
         self.scan_index += 1
         return frame
 
-    def _send(
-        self, now: float, delay: float, data: bytes, action: Callable[[], None] | None = None
-    ) -> None:
-        d = (delay if self.realtime else 0.0) + self.faults.late_reply
-        self.schedule.add(now + d, data, action)
-
     def _reply(self, now: float, delay: float, code: int, data: bytes = b"",
                action: Callable[[], None] | None = None) -> None:  # fmt: skip
         tel = sp.build_telegram(code, data, address=0x80 | self.address, status=self.status)
@@ -233,11 +179,7 @@ class PLSDevice:
         if cmd == sp.CMD_MODE and data:
             self._mode(data[0], data[1:], now)
         elif cmd == sp.CMD_MEASURED and data[:1] == b"\x01":
-            frame = self._b0_frame(now)
-            mangled, intact = f.mangle(frame)
-            if self.keep_b0_log:
-                self.b0_log[-1].intact = intact
-            self._send(now, self.reply_delay, mangled)
+            self._send(now, self.reply_delay, self._mangled(self._b0_frame(now)))
         elif cmd == sp.CMD_RESET:
             self.streaming = False
 
@@ -287,8 +229,8 @@ class PLSDevice:
             self.installation = False
 
             def _go() -> None:
-                self.streaming = True
-                self._t0 = None
+                self.stream.on = True
+                self.stream.restart_clock()
 
             self.mode = mode
             self._reply(now, delay, sp.REPLY_MODE, b"\x00", _go)

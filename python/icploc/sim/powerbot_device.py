@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from icploc.drivers import arcos_protocol as ap
-from icploc.sim.device import Faults, OutputSchedule
+from icploc.sim.device import Faults, OutputSchedule, PeriodicStream, StreamingEngine, stream_alias
 from icploc.sim.robot import DiffDriveRobot
 
 #: (v m/s, w rad/s) the robot should follow at simulated time t, or None for host commands
@@ -43,7 +43,7 @@ class SipRecord:
 
 
 @dataclass
-class PowerBotDevice:
+class PowerBotDevice(StreamingEngine):
     robot: DiffDriveRobot = field(default_factory=DiffDriveRobot)
     params: ap.RobotParams = ap.POWERBOT
     name: str = "PowerBot"
@@ -63,6 +63,7 @@ class PowerBotDevice:
     def __post_init__(self) -> None:
         self.parser = ap.PacketParser()
         self.schedule = OutputSchedule()
+        self.stream = PeriodicStream(self.sip_period, self.realtime)
         self.sip_log: list[SipRecord] = []
         self.commands: list[ap.Command] = []
         self.watchdog_trips = 0
@@ -74,20 +75,15 @@ class PowerBotDevice:
     def power_on(self) -> None:
         self._baud = 9600
         self.sync_state = 0  # next expected SYNC number; 3 = connected
-        self.sips_on = False
         self.robot.enabled = False
         self.robot.stop()
         self._saved_cmd = (0.0, 0.0)
-        self.sip_index = 0
-        self._t0: float | None = None
-        self._robot_offset: float | None = None  # test mode: robot time - sim time
-        self._next_sip = 0.0
+        self.stream.reset()
         self.schedule.clear()
         self.parser.reset()
 
-    @property
-    def baudrate(self) -> int:
-        return self._baud
+    sips_on = stream_alias("on", "Sending SIPs (after OPEN).")
+    sip_index = stream_alias("index", "SIPs sent so far.")
 
     @property
     def parity(self) -> str:
@@ -101,14 +97,6 @@ class PowerBotDevice:
     def connected(self) -> bool:
         return self.sync_state == 3
 
-    def vanish(self) -> None:
-        self.faults.vanished = True
-
-    def revive(self, power_cycle: bool = True) -> None:
-        if power_cycle:
-            self.power_on()
-        self.faults.vanished = False
-
     # -- engine interface
 
     def receive(self, data: bytes, now: float) -> None:
@@ -117,57 +105,25 @@ class PowerBotDevice:
         for pkt in self.parser.feed(data, now):
             self._handle(pkt, now)
 
-    def output(self, now: float, line_idle: bool) -> bytes:
-        if self.faults.vanished:
-            return b""
-        self._check_watchdog(now)
-        out = self.schedule.pop_due(now)
-        if out:
-            return out
-        if self.sips_on and line_idle and not len(self.schedule):
-            if self._t0 is None:
-                self._t0 = now
-                self._next_sip = now
-            if not self.realtime or now >= self._next_sip:
-                t = self.sim_time(now)
-                with self.robot.lock:  # the laser thread moves the robot too
-                    self._advance(now, t)
-                    frame = self._sip_frame(t)
-                mangled, intact = self.faults.mangle(frame)
-                if self.keep_log:
-                    self.sip_log[-1].intact = intact
-                if self.realtime:
-                    self._next_sip = max(self._next_sip + self.sip_period, now)
-                return mangled
-        return b""
-
-    def next_due(self, now: float) -> float | None:
-        nd = self.schedule.next_due()
-        if self.sips_on and self.realtime:
-            nd = self._next_sip if nd is None else min(nd, self._next_sip)
-        return nd
-
     # -- internals
 
-    def sim_time(self, now: float) -> float:
-        if self.realtime:
-            return 0.0 if self._t0 is None else now - self._t0
-        return self.sip_index * self.sip_period
+    def _tick(self, now: float) -> None:
+        self._check_watchdog(now)
 
-    def robot_time(self, now: float, t: float) -> float:
-        """The robot's simulated time for this device at ``now`` (sim time ``t``): the
-        shared host clock in real-time mode; in test mode the device's own sim time,
-        offset to where the robot was when this device started reporting."""
-        if self.realtime:
-            return self.robot.clock_time(now)
-        if self._robot_offset is None:
-            self._robot_offset = self.robot.time - t
-        return t + self._robot_offset
+    def _stream_frame(self, now: float) -> bytes:
+        t = self.sim_time(now)
+        with self.robot.lock:  # the laser thread moves the robot too
+            self._advance(now, t)
+            return self._sip_frame(t)
+
+    def _mark(self, intact: bool) -> None:
+        if self.keep_log:
+            self.sip_log[-1].intact = intact
 
     def _advance(self, now: float, t: float) -> None:
         """Bring the robot to the time of this SIP (the laser simulator may have moved it
         part of the way already), then let the plan set the commands that follow it."""
-        self.robot.advance_to(self.robot_time(now, t))
+        self.robot.advance_to(self.stream.robot_time(self.robot, now, t))
         if self.plan is not None:
             cmd = self.plan(t)
             if cmd is not None:
@@ -222,10 +178,6 @@ class PowerBotDevice:
         self.sip_index += 1
         return frame
 
-    def _send(self, now: float, delay: float, data: bytes) -> None:
-        d = (delay if self.realtime else 0.0) + self.faults.late_reply
-        self.schedule.add(now + d, data)
-
     def _handle(self, pkt: ap.Packet, now: float) -> None:
         f = self.faults
         if f.nak_storm > 0:  # ARCOS has no NAK: a storm of lost commands
@@ -279,7 +231,7 @@ class PowerBotDevice:
             r.stop()
             self.sips_on = False
             self.sync_state = 0
-            self._t0 = None
+            self.stream.restart_clock()
         elif n == ap.ENABLE:
             r.enabled = bool(iarg)
         elif n == ap.VEL:

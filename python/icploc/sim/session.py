@@ -2,17 +2,16 @@
 simulator driven by one world and one robot, in background threads.
 
 >>> from icploc.sim.session import SimSession
->>> from icploc.sim.world import World
+>>> from icploc.sim.scenes import box
 >>> from icploc.drivers.sick import PLS
 >>> from icploc.drivers.powerbot import PowerBot
->>> with SimSession(World.box(10, 8), start_pose=(2, 2, 0),            # doctest: +SKIP
+>>> with SimSession(box(10, 8), start_pose=(2, 2, 0),                 # doctest: +SKIP
 ...                 plan=waypoint_plan([(5, 0.4, 0.0), (3, 0.0, 0.5)])) as sim:
 ...     with PLS(sim.laser_port) as laser, PowerBot(sim.base_port) as bot:
 ...         for scan in laser.scans(): ...
 
-The world may be an :class:`icploc.sim.world.World` (``scan(pose, angles, max_range,
-noise_std, rng, t)``) or any object with the ``ranges(sensor_pose, angles, max_range,
-t=, rng=, noise=)`` method of :class:`icploc.worlds.World`.
+The laser sees the :class:`icploc.sim.world.World` (any of :mod:`icploc.sim.scenes`).
+``icploc sim serve`` runs a session until Ctrl-C and prints its two ports.
 
 A velocity ``plan`` (``t -> (v, w)``) moves the robot by itself, overriding host
 velocity commands (like a joystick); without a plan the robot obeys the PowerBot
@@ -26,7 +25,6 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +36,7 @@ from icploc.sim.device import DeviceRunner, Faults
 from icploc.sim.pls_device import PLSDevice
 from icploc.sim.powerbot_device import PowerBotDevice, VelocityPlan
 from icploc.sim.robot import DiffDriveRobot, EncoderNoise, RobotGeometry
+from icploc.sim.world import World
 
 
 class SimSession:
@@ -46,7 +45,7 @@ class SimSession:
 
     def __init__(
         self,
-        world: Any,
+        world: World,
         *,
         start_pose: Sequence[float] = (0.0, 0.0, 0.0),
         plan: VelocityPlan | None = None,
@@ -118,18 +117,8 @@ class SimSession:
     def _scan(self, t: float) -> NDArray[np.float64]:
         pose = self.robot.pose
         lp = compose(pose, self.laser_offset)
-        w = self.world
-        if hasattr(w, "scan"):
-            r = w.scan(lp, self._angles, self.laser_max_range, self.laser_noise_std, self._rng, t=t)
-        else:
-            r = w.ranges(
-                lp,
-                self._angles,
-                self.laser_max_range,
-                t=t,
-                rng=self._rng,
-                noise=self.laser_noise_std,
-            )
+        r = self.world.ranges(lp, self._angles, self.laser_max_range, t=t, rng=self._rng,
+                              noise=self.laser_noise_std)  # fmt: skip
         with self._lock:
             self.truth.append((clock.now(), pose, lp))
         return np.asarray(r, dtype=np.float64)
@@ -168,41 +157,3 @@ class SimSession:
             stamps = np.array([t for t, _, _ in self.truth])
             i = int(np.argmin(np.abs(stamps - stamp)))
             return self.truth[i][1]
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``python -m icploc.sim.session``: run a simulated PLS + PowerBot in a 10 x 8 m room
-    (with walking people) until Ctrl-C, printing the two ports to open."""
-    import argparse
-    import time
-
-    from icploc.sim.powerbot_device import waypoint_plan
-    from icploc.sim.world import World
-
-    p = argparse.ArgumentParser(description=main.__doc__)
-    p.add_argument("--people", type=int, default=2)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--fast", action="store_true", help="test mode: as fast as the host reads")
-    p.add_argument(
-        "--drive",
-        action="store_true",
-        help="follow a built-in square plan instead of host commands",
-    )
-    a = p.parse_args(argv)
-    world = World.box(10.0, 8.0)
-    world.add_random_people(a.people, seed=a.seed)
-    plan = waypoint_plan([(8.0, 0.5, 0.0), (3.14, 0.0, 0.5)] * 4) if a.drive else None
-    with SimSession(
-        world, start_pose=(1.5, 1.5, 0.0), plan=plan, realtime=not a.fast, seed=a.seed
-    ) as sim:
-        print(f"laser (SICK PLS):  {sim.laser_port}")
-        print(f"base  (PowerBot):  {sim.base_port}")
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
-
-
-if __name__ == "__main__":
-    main()
