@@ -1080,6 +1080,14 @@ class Localizer:
             hypotheses=step.hypotheses,
         )
 
+    # -- start refinement: a thin wrapper of icploc.startrefine (--refine-start) ----------
+    def refine_start(self, config: Any = None, **kw: Any) -> Any:
+        """Refine the current pose from the next stationary scans, with a verdict
+        (:func:`icploc.startrefine.attach`)."""
+        from icploc.startrefine import attach
+
+        return attach(self, config, **kw)
+
     # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
     def save_state(self, path: str | os.PathLike[str]) -> Any:
         """Save the last tracking pose and covariance to ``path``, atomically."""
