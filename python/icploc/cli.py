@@ -217,6 +217,14 @@ def replay(
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
     ] = False,
+    refine_start: Annotated[
+        bool,
+        typer.Option(
+            "--refine-start",
+            help="Refine the initial pose from the first scans while the robot stands still; "
+            "prints the verdict (refined / ambiguous / rejected / moved)",
+        ),
+    ] = False,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -236,7 +244,8 @@ def replay(
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
         map_cache=False if no_cache else None,
     )  # fmt: skip
-    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
+    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
+                       tell=typer.echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip
     kw["on_localizer"] = hooks.on_localizer
     try:
         if progress and sys.stdout.isatty():
@@ -299,6 +308,14 @@ def run_cmd(
         float,
         typer.Option(help="Give up on a vanished device after this many seconds (exit 1)"),
     ] = 60.0,
+    refine_start: Annotated[
+        bool,
+        typer.Option(
+            "--refine-start",
+            help="Refine the initial pose from the first scans while the robot stands still; "
+            "prints the verdict (refined / ambiguous / rejected / moved)",
+        ),
+    ] = False,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate).
 
@@ -324,7 +341,8 @@ def run_cmd(
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
-    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else ())
+    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else (),
+                       refine_start=refine_start, tell=typer.echo)  # fmt: skip
 
     def show(e):  # type: ignore[no-untyped-def]
         hooks.observe(e)
