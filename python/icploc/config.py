@@ -179,6 +179,10 @@ class ScanSection(_Section):
     laser_theta: float = 0.0
     #: fewer usable beams than this and the scan is not matched at all
     min_points: int = 20
+    #: several lasers, merged into one correction (:mod:`icploc.multilaser`): a list of
+    #: {name, frame, x, y, yaw, upside_down, time_offset, port, baud}; empty: one laser at
+    #: laser_x / laser_y / laser_theta
+    lasers: Any = ()
 
     def validate(self) -> None:
         if self.min_range < 0.0 or self.max_range < 0.0:
@@ -191,6 +195,10 @@ class ScanSection(_Section):
             raise ConfigError("scan.max_range_margin must be in (0, 1]")
         if self.min_points < 3:
             raise ConfigError("scan.min_points must be >= 3")
+        if self.lasers != ():  # several lasers: checked by icploc.multilaser
+            from icploc.multilaser import check_lasers
+
+            self.lasers = check_lasers(self.lasers, self.mounting)
 
     @property
     def mounting(self) -> tuple[float, float, float]:
