@@ -285,7 +285,10 @@ def replay(
 @app.command("run")
 def run_cmd(
     map_path: Annotated[Path | None, typer.Option("--map", help="Map file")] = None,
-    laser: Annotated[str | None, typer.Option("--laser", help="Laser serial port (PLS)")] = None,
+    laser: Annotated[
+        list[str] | None,
+        typer.Option("--laser", help="Laser serial port (PLS); repeat it for several lasers (scan.lasers)"),
+    ] = None,
     base: Annotated[str | None, typer.Option("--base", help="Base serial port (PowerBot)")] = None,
     simulate: Annotated[
         bool, typer.Option("--simulate", help="Use the device simulators on ptys")
@@ -336,7 +339,7 @@ def run_cmd(
         raise typer.BadParameter(seconds, param_hint="--reconnect-timeout")
     if baud not in (9600, 19200, 38400, 500000):
         raise typer.BadParameter("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
-    if not simulate and (map_path is None or laser is None):
+    if not simulate and (map_path is None or not laser):
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
@@ -360,11 +363,11 @@ def run_cmd(
                                             reconnect_timeout=reconnect_timeout, config_path=config,
                                             on_localizer=hooks.on_localizer)  # fmt: skip
         else:
-            assert map_path is not None and laser is not None
-            res = live.run_hardware(map_path, laser, base, config=cfg, config_path=config, initial_pose=pose,
+            assert map_path is not None and laser
+            res = live.run_hardware(map_path, laser[0], base, config=cfg, config_path=config, initial_pose=pose,
                                     out=out, record=record, laser_baud=baud, duration=duration,
                                     reconnect_timeout=reconnect_timeout, on_estimate=show,
-                                    on_localizer=hooks.on_localizer)  # fmt: skip
+                                    on_localizer=hooks.on_localizer, extra_lasers=laser[1:])  # fmt: skip
     except live.RunError as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(e.exit_code) from None
