@@ -138,6 +138,16 @@ def test_a_robot_that_moves_before_the_refinement_converged_stops_it() -> None:
     assert r.verdict.pose == truth and loc.status is not Status.LOST
 
 
+def test_the_moved_verdict_says_how_far_the_odometry_moved() -> None:
+    truth = (4.0, 5.0, 0.3)
+    loc = _localizer(ROOM, truth, 0.2, 0.1)
+    r = loc.refine_start()
+    scans = _scans(ROOM, truth, 2)
+    loc.update(scans[0], (0.0, 0.0, 0.0))
+    loc.update(scans[1], (0.10, 0.0, 0.0))
+    assert r.verdict is not None and "the odometry moved 0.100 m" in r.verdict.reason
+
+
 def test_refine_start_needs_a_pose() -> None:
     loc = Localizer(Map.from_lines(ROOM))  # no initial pose: lost
     with pytest.raises(ValueError, match="no pose to refine"):

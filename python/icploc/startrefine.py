@@ -270,8 +270,9 @@ class StartRefinement:
         if self.verdict is not None:
             return est
         odom = est.odometry
-        if self._moved(odom, est):
-            return self._decide_moved(est)
+        moved = self._moved(odom, est)
+        if moved:
+            return self._decide_moved(est, moved)
         if points.shape[0] >= self.localizer.config.scan.min_points:
             if self._odom0 is None:
                 self._odom0 = odom
@@ -291,21 +292,25 @@ class StartRefinement:
             self.localizer.review = None
 
     # -- steps --------------------------------------------------------------------------
-    def _moved(self, odom: Pose | None, est: Estimate) -> bool:
+    def _moved(self, odom: Pose | None, est: Estimate) -> str:
+        """How the robot moved since the first scan ("" while it stands still)."""
         c = self.config
         if not self._scans:
-            return False
+            return ""
         if odom is not None and self._odom0 is not None:
             d = between(self._odom0, odom)
-            return math.hypot(d[0], d[1]) > c.still_distance or abs(d[2]) > c.still_angle
+            dist, turn = math.hypot(d[0], d[1]), abs(d[2])
+            if dist > c.still_distance or turn > c.still_angle:
+                return f"the odometry moved {dist:.3f} m / {math.degrees(turn):.1f} deg"
+            return ""
         z = est.measurement
         if z is None or not self._fits:
-            return False
+            return ""
         f = self._fits[0]
-        return (
-            math.hypot(z[0] - f[0], z[1] - f[1]) > c.still_fit_distance
-            or abs(wrap_angle(z[2] - f[2])) > c.still_fit_angle
-        )
+        dist, turn = math.hypot(z[0] - f[0], z[1] - f[1]), abs(wrap_angle(z[2] - f[2]))
+        if dist > c.still_fit_distance or turn > c.still_fit_angle:
+            return f"without odometry, the scans' fits moved {dist:.3f} m / {math.degrees(turn):.1f} deg"
+        return ""
 
     def _glob(self) -> Any:
         """The localizer's global localizer (its grids built once), else a new one."""
@@ -455,13 +460,13 @@ class StartRefinement:
                 return q
         return None
 
-    def _decide_moved(self, est: Estimate) -> Estimate:
+    def _decide_moved(self, est: Estimate, how: str) -> Estimate:
         n = len(self._scans)
         v = StartVerdict(
             verdict="moved",
             reason=(
-                f"the robot moved after {n} stationary scan(s), before the refinement "
-                "converged; the start is not refined (tracking goes on from the given pose)"
+                f"{how} before the refinement converged; the start is not refined "
+                "(tracking goes on from the given pose)"
             ),
             given=self.given,
             pose=self.given,
