@@ -81,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     per_log: list[str] = []
     skipped: dict[str, int] = {}
     ref_shift: list[float] = []
+    refine_times: list[float] = []
     t_all = time.perf_counter()
     for path in ev.find_logs(ev.DATA, names):
         log = rl.read_flaser(path)
@@ -137,12 +138,15 @@ def main(argv: list[str] | None = None) -> int:
                         loc.reset(given, cov)
                         ref_ = loc.refine_start() if method == "refine" else None
                         e = None
+                        t0 = time.perf_counter()
                         for j in range(args.repeat):
                             scan = Scan(float(j) * 0.2, r, angles, max_range=mr)
                             e = loc.update(scan, (0.0, 0.0, 0.0))
                             if ref_ is not None and ref_.verdict is not None:
                                 break
                         assert e is not None
+                        if method == "refine":
+                            refine_times.append(time.perf_counter() - t0)
                         if method == "plain":
                             tracking = e.status is Status.TRACKING
                             right = _ok(e.pose, truth)
@@ -170,7 +174,9 @@ def main(argv: list[str] | None = None) -> int:
         ))  # fmt: skip
         print(per_log[-1] + f" (starts skipped: {skipped.get(name, 0)})", flush=True)
     print(f"\nall logs ({time.perf_counter() - t_all:.0f} s); starts skipped (no map fix there): "
-          f"{sum(skipped.values())}; map fix vs reference: median {np.median(ref_shift) * 100:.1f} cm")  # fmt: skip
+          f"{sum(skipped.values())}; map fix vs reference: median {np.median(ref_shift) * 100:.1f} cm; "
+          f"refinement time per start (to the verdict, incl. the first global grid build): median "
+          f"{np.median(refine_times) * 1000:.0f} ms, p95 {np.percentile(refine_times, 95) * 1000:.0f} ms")  # fmt: skip
     for (kind, method), v in sorted(tally.items()):
         n = sum(v.values())
         parts = ", ".join(f"{o} {c} ({c / n:.0%})" for o, c in sorted(v.items()))
