@@ -29,7 +29,8 @@ source has delivered a scan, when one source delivers its next scan first (its r
 higher), or when a source has been silent for ``max_wait`` s of scan time: a dead scanner
 leaves the others' rounds, it does not stop the run. :func:`merge_stream` does this for a
 replay's time-ordered stream; :class:`MergedLasers` for live drivers (``icploc run``
-with several ``--laser`` ports).
+with several ``--laser`` ports); :func:`simulated_laser` adds a second simulated PLS to a
+:class:`icploc.sim.session.SimSession` robot.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ __all__ = [
     "merge_stream",
     "mounts",
     "open_lasers",
+    "simulated_laser",
 ]
 
 #: the frame of a merged scan
@@ -540,3 +542,33 @@ def run_merged(
             return run_live(localizer, merged, base, **run_kw)
     except LaserPortError as e:
         raise RunError(str(e)) from None
+
+
+def simulated_laser(session: Any, mount: LaserMount, *, seed: int = 0, name: str = "pls-2") -> Any:
+    """One more simulated PLS on the robot of an :class:`icploc.sim.session.SimSession`,
+    mounted at ``mount`` and sampling the session's world (its noise and range): a
+    :class:`icploc.sim.device.DeviceRunner` to start (``with``) and open by its ``port``.
+    The session's own laser stays the first one."""
+    from icploc.se2 import compose
+    from icploc.sim.device import DeviceRunner
+    from icploc.sim.pls_device import PLSDevice
+
+    rng = np.random.default_rng(seed + 101)
+    realtime = bool(session.laser.realtime)
+    dev = PLSDevice(realtime=realtime, robot=session.robot, max_range=session.laser_max_range)
+    angles = dev.beam_angles()
+    # an upside-down scanner's beam at angle a of its own points at -a in the robot's frame
+    look = -angles if mount.upside_down else angles
+    world = session.world
+
+    def source(t: float) -> NDArray[np.float64]:
+        sensor = compose(session.robot.pose, mount.mounting)
+        mr, noise = session.laser_max_range, session.laser_noise_std
+        if hasattr(world, "scan"):
+            r = world.scan(sensor, look, mr, noise, rng, t=t)
+        else:
+            r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
+        return np.asarray(r, dtype=np.float64)
+
+    dev.source = source
+    return DeviceRunner(dev, realtime=realtime, name=name)
