@@ -279,3 +279,66 @@ def test_run_refuses_a_recording_of_several_lasers(tmp_path: Path) -> None:
     with pytest.raises(live.RunUsageError, match="--record holds one laser"):
         live.run_hardware(m, "/dev/null", None, config=LocalizerConfig.from_dict(TWO),
                           extra_lasers=["/dev/zero"], record=tmp_path / "r.icpraw")  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def driving_two_pls() -> dict[str, Any]:
+    """A simulated PowerBot driving 5 m down a corridor with its own PLS in front and a
+    second simulated PLS facing back (icploc.multilaser.simulated_laser), localized live
+    through MergedLasers; the error against the simulator's truth (interpolated)."""
+    from icploc import clock, live
+    from icploc.drivers.powerbot import PowerBot
+    from icploc.localizer import Localizer
+    from icploc.multilaser import localizer_config, open_lasers, simulated_laser
+    from icploc.sim.session import SimSession
+    from icploc.sim.world import World
+
+    walls = sim.corridor(12.0)
+    holder: list[Any] = []
+    plan = live.PursuitPlan(np.array([[2.0, 0.0], [7.0, 0.0]]), lambda: holder[0].robot.pose, speed=0.6)
+    sess = SimSession(World(walls), start_pose=(2.0, 0.0, 0.0), plan=plan, laser_max_range=8.0, seed=0)
+    holder.append(sess)
+    front = LaserMount("front", "front", x=sess.laser_offset[0])
+    cfg = LocalizerConfig.from_dict({"scan": {"lasers": [front.to_dict(), REAR.to_dict()]}})
+    loc = Localizer(Map.from_lines(walls), localizer_config(cfg), initial_pose=(2.0, 0.0, 0.0))
+    end = [math.inf]
+
+    def finished() -> bool:
+        now = clock.now()
+        if plan.done.is_set() and end[0] == math.inf:
+            end[0] = now + 0.5
+        return now >= end[0]
+
+    with sess, simulated_laser(sess, REAR) as rear:
+        with open_lasers([sess.laser_port, rear.port], [38400, 38400], reconnect_timeout=5.0,
+                         connect_baudrates=(9600, 38400)) as drivers:  # fmt: skip
+            bot = PowerBot(sess.base_port)
+            bot.connect()
+            try:
+                merged = MergedLasers(drivers, mounts(cfg), cfg, loc.odometry)
+                res = live.run_live(loc, merged, bot, duration=30.0, stop=finished)
+            finally:
+                bot.close()
+        truth = [(t, p) for t, p, _ in sess.truth]
+    ts = np.array([t for t, _ in truth])
+    ps = np.array([p for _, p in truth])
+    st = np.array([e.stamp for e in res.estimates])
+    err = np.hypot(np.array([e.x for e in res.estimates]) - np.interp(st, ts, ps[:, 0]),
+                   np.array([e.y for e in res.estimates]) - np.interp(st, ts, ps[:, 1]))  # fmt: skip
+    return {"res": res, "err": err, "points": [e.num_points for e in res.estimates]}
+
+
+@pytest.mark.slow
+def test_driving_with_two_pls_merges_both_lasers(driving_two_pls: dict[str, Any]) -> None:
+    assert np.median(driving_two_pls["points"]) > 361  # one PLS gives 361 beams
+
+
+@pytest.mark.slow
+def test_driving_with_two_pls_stays_on_the_truth(driving_two_pls: dict[str, Any]) -> None:
+    assert np.median(driving_two_pls["err"]) < 0.01
+
+
+@pytest.mark.slow
+def test_driving_with_two_pls_keeps_tracking(driving_two_pls: dict[str, Any]) -> None:
+    res = driving_two_pls["res"]
+    assert sum(e.status.value == "tracking" for e in res.estimates) >= 0.8 * len(res.estimates)
