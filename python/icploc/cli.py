@@ -289,6 +289,14 @@ def replay(
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
     ] = False,
+    refine_start: Annotated[
+        bool,
+        typer.Option(
+            "--refine-start",
+            help="Refine the initial pose from the first scans while the robot stands still; "
+            "prints the verdict (refined / ambiguous / rejected / moved)",
+        ),
+    ] = False,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -308,7 +316,8 @@ def replay(
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
         map_cache=False if no_cache else None,
     )  # fmt: skip
-    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
+    hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
+                       tell=typer.echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip
     kw["on_localizer"] = hooks.on_localizer
     try:
         if progress and sys.stdout.isatty():
@@ -348,7 +357,10 @@ def replay(
 @app.command("run")
 def run_cmd(
     map_path: Annotated[Path | None, typer.Option("--map", help="Map file")] = None,
-    laser: Annotated[str | None, typer.Option("--laser", help="Laser serial port (PLS)")] = None,
+    laser: Annotated[
+        list[str] | None,
+        typer.Option("--laser", help="Laser serial port (PLS); repeat it for several lasers (scan.lasers)"),
+    ] = None,
     base: Annotated[str | None, typer.Option("--base", help="Base serial port (PowerBot)")] = None,
     simulate: Annotated[
         bool, typer.Option("--simulate", help="Use the device simulators on ptys")
@@ -375,6 +387,14 @@ def run_cmd(
         float,
         typer.Option(help="Give up on a vanished device after this long, exit 1 (s)"),
     ] = 60.0,
+    refine_start: Annotated[
+        bool,
+        typer.Option(
+            "--refine-start",
+            help="Refine the initial pose from the first scans while the robot stands still; "
+            "prints the verdict (refined / ambiguous / rejected / moved)",
+        ),
+    ] = False,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate).
 
@@ -399,14 +419,15 @@ def run_cmd(
         raise typer.BadParameter(seconds, param_hint="--reconnect-timeout")
     if baud not in (9600, 19200, 38400, 500000):
         raise typer.BadParameter("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
-    if not simulate and (map_path is None or laser is None):
+    if not simulate and (map_path is None or not laser):
         raise typer.BadParameter("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     if global_start and pose is not None:
         raise typer.BadParameter("--global and --initial-pose contradict each other: give one", param_hint="--global")
     # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
-    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else ())
+    hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else (),
+                       refine_start=refine_start, tell=typer.echo)  # fmt: skip
 
     def show(e):  # type: ignore[no-untyped-def]
         hooks.observe(e)
@@ -426,11 +447,11 @@ def run_cmd(
                                        reconnect_timeout=reconnect_timeout, config_path=config,
                                        on_localizer=hooks.on_localizer)  # fmt: skip
         else:
-            assert map_path is not None and laser is not None
-            res = live.run_hardware(map_path, laser, base, config=cfg, config_path=config, initial_pose=pose,
+            assert map_path is not None and laser
+            res = live.run_hardware(map_path, laser[0], base, config=cfg, config_path=config, initial_pose=pose,
                                     out=out, record=record, laser_baud=baud, duration=duration,
                                     reconnect_timeout=reconnect_timeout, on_estimate=show,
-                                    on_localizer=hooks.on_localizer)  # fmt: skip
+                                    on_localizer=hooks.on_localizer, extra_lasers=laser[1:])  # fmt: skip
     except live.RunError as e:
         typer.secho(f"error: {e}", fg="red", err=True)
         raise typer.Exit(e.exit_code) from None

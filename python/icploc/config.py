@@ -267,6 +267,23 @@ class ScanSection(Section):
     laser_y: float = _f(0.0, "laser mounting in the robot base frame: y", "m")
     laser_theta: float = _f(0.0, "laser mounting in the robot base frame: yaw", "rad")
     min_points: int = _f(20, "fewer usable beams than this and the scan is not matched", ge=3)
+    lasers: Any = _f(
+        (),
+        "several lasers merged into one correction (icploc.multilaser): a list of {name, "
+        "frame, x, y, yaw, upside_down, time_offset, port, baud}; empty: one laser at "
+        "laser_x / laser_y / laser_theta",
+    )
+
+    @field_validator("lasers", mode="after")
+    @classmethod
+    def _lasers(cls, v: Any, info: ValidationInfo) -> Any:
+        if v == () or v is None:
+            return ()
+        from icploc.multilaser import check_lasers
+
+        d = info.data
+        single = (d.get("laser_x", 0.0), d.get("laser_y", 0.0), d.get("laser_theta", 0.0))
+        return check_lasers(v, single)
 
     @model_validator(mode="after")
     def _check(self) -> ScanSection:
@@ -857,6 +874,8 @@ def _config_error(e: ValidationError, cls: type[Section] | None) -> ConfigError:
     if t == "value_error":  # a model validator's "key: problem"
         msg = str(ctx.get("error", err["msg"]))
         key, sep, problem = msg.partition(": ")
+        if sep and key.startswith(f"{loc[0]}."):  # the message names its field already
+            return ConfigError(msg, field=key)
         if sep and key.isidentifier():
             return ConfigError(f"{loc[0]}.{key}: {problem}", field=f"{loc[0]}.{key}")
         return ConfigError(f"{where}: {msg}", field=where)

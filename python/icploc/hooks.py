@@ -1,5 +1,6 @@
 """The optional per-run extras of ``icploc replay`` / ``icploc run`` in one object:
-``--mcap FILE`` (:mod:`icploc.mcap_export`) and ``--state FILE`` (:mod:`icploc.state`).
+``--mcap FILE`` (:mod:`icploc.mcap_export`), ``--state FILE`` (:mod:`icploc.state`) and
+``--refine-start`` (:mod:`icploc.startrefine`).
 
 The commands pass :meth:`RunHooks.on_localizer` to the function that builds the
 Localizer, :meth:`RunHooks.observe` every estimate, and call :meth:`RunHooks.close` at
@@ -20,7 +21,11 @@ class RunHooks:
     """``mcap``: record the run there. ``state``: restore the pose saved there (checked on
     the first scan) unless ``restore`` is False (an explicit initial pose), and save the
     last tracking pose there every ``state_every`` s of scan time and at the end.
-    ``warn(message)`` reports what the run should tell the user (default: ignore)."""
+    ``refine_start``: refine the start pose from the first stationary scans
+    (:mod:`icploc.startrefine`; not with a restored state, which is checked on its own);
+    the verdict goes to ``tell`` (refined) or ``warn`` (anything else) and stays in
+    :attr:`start_verdict`. ``warn(message)`` reports what the run should tell the user
+    (default: ignore)."""
 
     def __init__(
         self,
@@ -31,8 +36,13 @@ class RunHooks:
         state_every: float = 1.0,
         warn: Callable[[str], None] | None = None,
         inputs: tuple[str | Path, ...] = (),
+        refine_start: bool = False,
+        tell: Callable[[str], None] | None = None,
     ) -> None:
         self.warn = warn or (lambda _m: None)
+        self.tell = tell or (lambda _m: None)
+        self.refine_start = refine_start
+        self.start_verdict: Any = None
         self.recorder: Any = None
         self.saver: Any = None
         self.check: Any = None
@@ -53,6 +63,11 @@ class RunHooks:
             self._mcap = Path(mcap)
 
     def on_localizer(self, loc: Localizer) -> None:
+        restored = self._state is not None and self._restore and self._state.exists()
+        if self.refine_start and not restored:
+            loc.refine_start(on_verdict=self._verdict)
+        elif self.refine_start:
+            self.warn(f"--refine-start: not with the pose restored from {self._state} (it is checked on its own)")
         if self._mcap is not None:
             from icploc.mcap_export import McapRecorder, attach
 
@@ -68,6 +83,10 @@ class RunHooks:
                 except StateError as e:
                     self.warn(f"{e}; localizing without it")
             self.saver = StateSaver(loc, self._state, every=self._state_every, on_error=self.warn)
+
+    def _verdict(self, v: Any) -> None:
+        self.start_verdict = v
+        (self.tell if v.verdict == "refined" else self.warn)(v.summary())
 
     def observe(self, e: Estimate) -> None:
         if self.check is not None and self.check.verdict and not self._told:

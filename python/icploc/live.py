@@ -468,6 +468,7 @@ def run_hardware(
     reconnect_timeout: float = 60.0,
     on_estimate: Callable[[Estimate], None] | None = None,
     on_localizer: Callable[[Localizer], None] | None = None,
+    extra_lasers: Sequence[str] = (),
 ) -> LiveResult:
     """Open the PLS (and the PowerBot), localize until ``duration`` or Ctrl-C; write the
     trajectory (TUM) to ``out`` and the raw bytes of both devices to ``record``. Without an
@@ -476,14 +477,28 @@ def run_hardware(
     Checks first (:class:`RunError` / :class:`RunUsageError`, nothing opened or written
     yet): the ports, the outputs against the inputs (map, map image, ``config_path``,
     ports). A device that does not come back within ``reconnect_timeout`` s ends the run
-    (``error`` in the result; the files stay complete)."""
+    (``error`` in the result; the files stay complete). ``extra_lasers``: the ports of more
+    PLS (``scan.lasers`` in the config gives every laser's mounting; :mod:`icploc.multilaser`
+    merges their scans)."""
     from icploc.config import LocalizerConfig
     from icploc.drivers.ports import PortError, check_port
     from icploc.maps import Map
 
-    if base_port is not None and base_port == laser_port:
-        raise RunUsageError(f"--laser and --base are the same port ({laser_port})")
-    for role, port in (("laser (--laser)", laser_port), ("base (--base)", base_port)):
+    cfg0 = config or LocalizerConfig()
+    several = bool(extra_lasers) or bool(cfg0.scan.lasers)  # hook: icploc.multilaser
+    if several:
+        from icploc import multilaser
+
+        try:
+            ports = multilaser.live_ports(cfg0, [laser_port, *extra_lasers])
+        except ValueError as e:
+            raise RunUsageError(str(e)) from None
+        if record is not None and len(ports) > 1:
+            raise RunUsageError("--record holds one laser; not with several lasers (scan.lasers)")
+        laser_port, extra_lasers = ports[0], ports[1:]
+    if base_port is not None and base_port in (laser_port, *extra_lasers):
+        raise RunUsageError(f"--laser and --base are the same port ({base_port})")
+    for role, port in (("laser (--laser)", laser_port), *((f"laser {i + 2} (--laser)", p) for i, p in enumerate(extra_lasers)), ("base (--base)", base_port)):  # fmt: skip
         if port is not None:
             try:
                 check_port(port, role)
@@ -493,6 +508,8 @@ def run_hardware(
     for i, p in enumerate(map_inputs(map_path)[1:]):
         inputs[f"map image{'' if i == 0 else f' {i + 1}'}"] = p
     inputs["laser port"] = laser_port
+    for i, port in enumerate(extra_lasers):
+        inputs[f"laser port {i + 2}"] = port
     inputs["base port"] = base_port
     check_outputs({"--out": out, "--record": record}, inputs)
 
@@ -501,15 +518,21 @@ def run_hardware(
         m = Map.load(map_path)
     except (OSError, ValueError) as e:
         raise RunError(str(e)) from None
-    loc = start_localizer(m, cfg, initial_pose or cfg.localizer.initial_pose, on_localizer)
+    lcfg = multilaser.localizer_config(cfg) if several else cfg
+    loc = start_localizer(m, lcfg, initial_pose or cfg.localizer.initial_pose, on_localizer)
     outputs = RunOutputs(out, record, cfg.scan.mounting)
     res: LiveResult | None = None
     try:
         with open_devices(laser_port, base_port, laser_baud=laser_baud, recorder=outputs.rec,
                           reconnect_timeout=reconnect_timeout) as (laser, bot):  # fmt: skip
             outputs.commit()
-            res = run_live(loc, laser, bot, duration=duration, on_estimate=on_estimate,
-                           tum=outputs.tum)  # fmt: skip
+            if several:  # hook: the lasers' scans merged into one (icploc.multilaser)
+                res = multilaser.run_merged(loc, cfg, laser, bot, extra_lasers, laser_baud=laser_baud,
+                                            reconnect_timeout=reconnect_timeout, duration=duration,
+                                            on_estimate=on_estimate, tum=outputs.tum)  # fmt: skip
+            else:
+                res = run_live(loc, laser, bot, duration=duration, on_estimate=on_estimate,
+                               tum=outputs.tum)  # fmt: skip
     finally:
         outputs.close(res)
     assert res is not None

@@ -335,6 +335,9 @@ class Localizer:
         #: the kidnap checks' verdicts so far (at most 100): "", "unsure", "suspect"
         #: (elsewhere, to be re-checked), "elsewhere" (declared lost), "refuted" (a lock)
         self.kidnap_verdicts: list[str] = []
+        #: hook: called after every update with (scan, points, estimate), returns the
+        #: estimate to report (:mod:`icploc.startrefine` while it refines the start)
+        self.review: Callable[[Scan, NDArray[np.float64], Estimate], Estimate] | None = None
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         self.pose: Pose
         self.covariance: NDArray[np.float64]
@@ -423,6 +426,8 @@ class Localizer:
             est = self._update_lost(scan, pts, pred, pred_cov, odom, t0)
         else:
             est = self._update_tracking(scan, pts, pred, pred_cov, odom, t0)
+        if self.review is not None:  # hook: icploc.startrefine
+            est = self.review(scan, pts, est)
         self._counters.scans += 1
         self._counters.status_counts[est.status.value] += 1
         self.last_estimate = est
@@ -1073,6 +1078,14 @@ class Localizer:
             calibration=self.calibration.factors,
             hypotheses=step.hypotheses,
         )
+
+    # -- start refinement: a thin wrapper of icploc.startrefine (--refine-start) ----------
+    def refine_start(self, config: Any = None, **kw: Any) -> Any:
+        """Refine the current pose from the next stationary scans, with a verdict
+        (:func:`icploc.startrefine.attach`)."""
+        from icploc.startrefine import attach
+
+        return attach(self, config, **kw)
 
     # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
     def save_state(self, path: str | os.PathLike[str]) -> Any:

@@ -214,11 +214,14 @@ def replay(
     info = None
     dropped_stamps = 0
     if isinstance(log, (str, Path)):
+        from icploc.logs import detect_format as open_log_format
         from icploc.logs import open_log
 
         opts = dict(log_options or {})
         if strict:
             opts["strict"] = True
+        if cfg.scan.lasers and open_log_format(log) == "carmen":  # hook: icploc.multilaser
+            opts.setdefault("rear_laser", True)
         data = open_log(log, **opts)
         info = data.info
         if info.format == "recorded":  # hook (sim): the laser mounting the recording carries
@@ -277,7 +280,12 @@ def replay(
 
     m = load_map(map_, map_cache)
     t1 = time.perf_counter()
-    loc = Localizer(m, cfg, initial_pose=initial_pose)
+    if cfg.scan.lasers:  # hook: several lasers merged into one scan (icploc.multilaser)
+        from icploc.multilaser import localizer_config
+
+        loc = Localizer(m, localizer_config(cfg), initial_pose=initial_pose)
+    else:
+        loc = Localizer(m, cfg, initial_pose=initial_pose)
     if initial_pose is None:
         from icploc.relocalize import attach
 
@@ -313,8 +321,13 @@ def replay(
 
         from icploc.logs import merge_in_time
 
+        stream: Any = merge_in_time(scans, odoms)
+        if cfg.scan.lasers:  # hook: icploc.multilaser
+            from icploc.multilaser import merge_stream
+
+            stream = merge_stream(stream, cfg)
         try:
-            run(loc, merge_in_time(scans, odoms), each)
+            run(loc, stream, each)
         except KeyboardInterrupt:
             interrupted = True
     finally:

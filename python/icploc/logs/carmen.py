@@ -1,9 +1,10 @@
-"""CARMEN text logs (``.log`` or ``.log.gz``): ``FLASER``, ``ROBOTLASER1``, ``RAWLASER1``, ``ODOM``.
+"""CARMEN text logs (``.log`` or ``.log.gz``): ``FLASER``, ``RLASER``, ``ROBOTLASER1``, ``RAWLASER1``, ``ODOM``.
 
 Message layouts (whitespace separated; the last three tokens of every message are
 ``ipc_timestamp ipc_hostname logger_timestamp``; we use ``ipc_timestamp``)::
 
     FLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ts host logger_ts
+    RLASER n r_1 .. r_n x y theta odom_x odom_y odom_theta ts host logger_ts
     ROBOTLASER1 type start fov res max_range accuracy remission_mode n r_1 .. r_n
                 m rem_1 .. rem_m laser_x laser_y laser_theta robot_x robot_y robot_theta
                 tv rv forward_safety side_safety turn_axis ts host logger_ts
@@ -16,6 +17,15 @@ Message layouts (whitespace separated; the last three tokens of every message ar
 is the pose the log reports for the laser (the SLAM-corrected pose in the Radish
 "corrected" logs) and ``odom_*`` the odometry; ``ROBOTLASER1`` gives the laser pose and
 the robot pose. Both are kept: :attr:`LogData.truth_poses` holds the reported pose per scan.
+
+``RLASER`` is the rear laser, laid out as ``FLASER`` (its readings in its own frame, its
+``x y theta`` the pose the log reports for it). It is read with ``rear_laser=True`` (a
+replay with several lasers configured, :mod:`icploc.multilaser`); by default its lines
+are skipped and counted, and a note says so. Scans carry their source in
+:attr:`~icploc.types.Scan.frame`: ``front_laser`` (``FLASER``), ``rear_laser``
+(``RLASER``), ``laser`` (``ROBOTLASER1`` / ``RAWLASER1``); the ``PARAM``s
+``robot_frontlaser_offset`` / ``robot_rearlaser_offset`` (m along the robot's x axis)
+are reported in :attr:`LogInfo.notes` when a rear laser is read.
 
 Parsing is whole-file and vectorised: lines are grouped by message type and beam count and
 each group is converted to one float matrix at once (pandas' C parser when pandas is
@@ -206,32 +216,32 @@ def _count(path: str, lineno: int, what: str, tok: str) -> int:
     return v
 
 
-def _exact_flaser(path: str, lineno: int, line: str) -> list[float]:
+def _exact_flaser(path: str, lineno: int, line: str, kind: str = "FLASER") -> list[float]:
     t = line.split()
     if len(t) < 2:
-        raise LogFormatError(path, "FLASER: truncated line (no beam count)", lineno)
-    n = _count(path, lineno, "FLASER beam count", t[1])
+        raise LogFormatError(path, f"{kind}: truncated line (no beam count)", lineno)
+    n = _count(path, lineno, f"{kind} beam count", t[1])
     if n == 0:
-        raise LogFormatError(path, "FLASER: zero beams", lineno)
+        raise LogFormatError(path, f"{kind}: zero beams", lineno)
     need = 2 + n + 6 + 1
     if len(t) < need:
         raise LogFormatError(
             path,
-            f"FLASER: truncated line: {n} readings + 6 pose values + timestamp need "
+            f"{kind}: truncated line: {n} readings + 6 pose values + timestamp need "
             f"{need} tokens, got {len(t)}",
             lineno,
         )
     if len(t) > need + 2:
         raise LogFormatError(
-            path, f"FLASER: {len(t)} tokens, expected {need + 2} for {n} readings", lineno
+            path, f"{kind}: {len(t)} tokens, expected {need + 2} for {n} readings", lineno
         )
-    _check_tail(path, lineno, "FLASER", t, need)
+    _check_tail(path, lineno, kind, t, need)
     _check_not_short(
-        path, lineno, "FLASER", t, 2, need, f"{n} readings, 6 pose values and a timestamp"
+        path, lineno, kind, t, 2, need, f"{n} readings, 6 pose values and a timestamp"
     )
     vals = [float(n)]
     for k in range(2, need):
-        what = f"FLASER reading {k - 1}" if k < 2 + n else "FLASER pose/timestamp"
+        what = f"{kind} reading {k - 1}" if k < 2 + n else f"{kind} pose/timestamp"
         vals.append(_num(path, lineno, what, t[k]))
     return vals
 
@@ -425,23 +435,28 @@ class _LaserBlock:
     odom: NDArray[np.float64]  # (rows, 3) odometry / robot pose
     velocity: NDArray[np.float64] | None  # (rows, 2)
     max_range: float  # nan: unknown (FLASER), decided later
+    frame: str = "laser"  # the Scan.frame of its scans
 
 
 def _flaser_block(
-    path: str, lines: list[str], n: int, idx: list[int], fov: float, damage: Damage
-) -> _LaserBlock:
-    m, idx = _parse_group(path, lines, idx, n + 8, _exact_flaser, damage)
+    path: str, lines: list[str], n: int, idx: list[int], fov: float, damage: Damage,
+    kind: str = "FLASER",
+) -> _LaserBlock:  # fmt: skip
+    def exact(p: str, ln: int, line: str) -> list[float]:
+        return _exact_flaser(p, ln, line, kind)
+
+    m, idx = _parse_group(path, lines, idx, n + 8, exact, damage)
     bad = m[:, 0] != n
     if bad.any() and damage.strict:
         r = int(np.flatnonzero(bad)[0])
-        _exact_flaser(path, idx[r] + 1, lines[idx[r]])
-        raise LogFormatError(path, "FLASER: beam count and values disagree", idx[r] + 1)
-    m, idx = _drop_rows(path, m, idx, bad, "FLASER: beam count and values disagree", damage)
+        exact(path, idx[r] + 1, lines[idx[r]])
+        raise LogFormatError(path, f"{kind}: beam count and values disagree", idx[r] + 1)
+    m, idx = _drop_rows(path, m, idx, bad, f"{kind}: beam count and values disagree", damage)
     if damage.strict:
-        _check_finite(path, m, slice(n + 1, n + 8), idx, "FLASER pose or timestamp")
+        _check_finite(path, m, slice(n + 1, n + 8), idx, f"{kind} pose or timestamp")
     m, idx = _drop_rows(
         path, m, idx, ~np.isfinite(m[:, n + 1 : n + 7]).all(axis=1),
-        "FLASER pose or odometry is not finite", damage,
+        f"{kind} pose or odometry is not finite", damage,
     )  # fmt: skip
     return _LaserBlock(
         idx=idx,
@@ -452,6 +467,7 @@ def _flaser_block(
         odom=m[:, n + 4 : n + 7].copy(),
         velocity=None,
         max_range=math.nan,
+        frame="rear_laser" if kind == "RLASER" else "front_laser",
     )
 
 
@@ -611,6 +627,7 @@ def read_carmen(
     stuck_beams: bool = True,
     strict: bool = False,
     max_bytes: int = MAX_LOG_BYTES,
+    rear_laser: bool = False,
 ) -> LogData:
     """Read a CARMEN log into memory.
 
@@ -630,6 +647,8 @@ def read_carmen(
     beam, counted in :attr:`LogInfo.invalid_readings`; a non-finite stamp is repaired like a
     missing one. ``strict=True`` raises :class:`LogFormatError` at the first of these
     instead. ``max_bytes``: the file (decompressed) may hold at most this many bytes.
+    ``rear_laser``: also read the ``RLASER`` scans (frame ``rear_laser``; see the module
+    docstring); else they are skipped and counted.
     """
     spath = os.fspath(path)
     if odometry not in ("auto", "odom", "laser", "none"):
@@ -641,6 +660,7 @@ def read_carmen(
     lines = text.split("\n")  # not splitlines(): \x85, \x0c ... in garbage are no line breaks
 
     flaser: dict[int, list[int]] = {}
+    rlaser: dict[int, list[int]] = {}
     robot: list[int] = []
     raw: list[int] = []
     odom_idx: list[int] = []
@@ -651,17 +671,17 @@ def read_carmen(
         if not t or (t[0][0] == "#" and not _CONTROL.search(line)):
             continue  # a comment (one holding control characters is garbage: dropped below)
         kind = t[0]
-        if kind == "FLASER":
+        if kind == "FLASER" or (kind == "RLASER" and rear_laser):
             try:
                 if len(t) < 2:
-                    raise LogFormatError(spath, "FLASER: truncated line (no beam count)", i + 1)
-                n = _count(spath, i + 1, "FLASER beam count", t[1])
+                    raise LogFormatError(spath, f"{kind}: truncated line (no beam count)", i + 1)
+                n = _count(spath, i + 1, f"{kind} beam count", t[1])
                 if n == 0:
-                    raise LogFormatError(spath, "FLASER: zero beams", i + 1)
+                    raise LogFormatError(spath, f"{kind}: zero beams", i + 1)
             except LogFormatError as e:
                 damage.drop(e)
                 continue
-            flaser.setdefault(n, []).append(i)
+            (flaser if kind == "FLASER" else rlaser).setdefault(n, []).append(i)
         elif kind == "ODOM":
             odom_idx.append(i)
         elif kind == "ROBOTLASER1":
@@ -680,6 +700,10 @@ def read_carmen(
         fb = _flaser_block(spath, lines, n, idx, fov, damage)
         if fb.idx:
             blocks.append(fb)
+    for n, idx in sorted(rlaser.items()):  # the rear laser: a FLASER of its own
+        fb = _flaser_block(spath, lines, n, idx, fov, damage, "RLASER")
+        if fb.idx:
+            blocks.append(fb)
     flaser_blocks = list(blocks)
     if robot:
         blocks.extend(_rawlaser_blocks(spath, lines, robot, True, damage))
@@ -687,6 +711,17 @@ def read_carmen(
         blocks.extend(_rawlaser_blocks(spath, lines, raw, False, damage))
 
     notes: list[str] = []
+    if rlaser:
+        offs = [f"{k} {params[k]}" for k in ("robot_frontlaser_offset", "robot_rearlaser_offset") if k in params]
+        notes.append(
+            f"{sum(len(v) for v in rlaser.values())} RLASER (rear laser) scans read, frame 'rear_laser'"
+            + (f" (PARAM {', '.join(offs)})" if offs else "")
+        )
+    elif skipped.get("RLASER"):
+        notes.append(
+            f"{skipped['RLASER']} RLASER (rear laser) scans not read; configure scan.lasers "
+            "to use them (icploc.multilaser)"
+        )
     rb = [b for b in blocks[len(flaser_blocks) :] if b.velocity is not None]
     if rb:
         lp = np.concatenate([b.reported for b in rb])
@@ -846,6 +881,7 @@ def read_carmen(
                 flags=flags_blocks[bi][j],
                 seq=seq,
                 max_range=b.max_range if math.isfinite(b.max_range) else math.inf,
+                frame=b.frame,
             )
         )
     truth_st = np.array([r[0] for r in rows], dtype=np.float64)
@@ -955,7 +991,8 @@ def write_carmen(
     ``poses`` (N, 3): the pose reported with each scan (FLASER ``x y theta`` /
     ROBOTLASER1 laser pose), zeros by default; ``scan_odometry`` (N, 3): the odometry
     written with each scan, ``poses`` by default. ``fmt``: ``"FLASER"`` (the scan angles
-    must follow the FLASER convention for their beam count) or ``"ROBOTLASER1"`` (evenly
+    must follow the FLASER convention for their beam count; a scan of frame ``rear_laser``
+    is written as ``RLASER``) or ``"ROBOTLASER1"`` (evenly
     spaced angles of any span). No-return beams are written as ``no_return`` (default: the
     scan's finite max range, else 81.91). ``precision``: decimals for readings (None: exact).
     Lines are written in time order (odometry first on equal stamps).
@@ -985,7 +1022,8 @@ def write_carmen(
                     "use fmt='ROBOTLASER1'"
                 )
             flaser_max = nr if flaser_max is None else min(flaser_max, nr)
-            line = f"FLASER {n} {rs} {ps} {os_} {st} {hostname} {st}"
+            kind = "RLASER" if s.frame == "rear_laser" else "FLASER"  # the rear laser's own
+            line = f"{kind} {n} {rs} {ps} {os_} {st} {hostname} {st}"
         else:
             a0 = float(s.angles[0])
             res = float(s.angles[1] - s.angles[0]) if n > 1 else 0.0
@@ -1011,7 +1049,7 @@ def write_carmen(
     entries.sort(key=lambda e: (e[0], e[1]))
     out = [
         "# CARMEN log written by icploc",
-        "# message formats defined: PARAM ODOM FLASER ROBOTLASER1",
+        "# message formats defined: PARAM ODOM FLASER RLASER ROBOTLASER1",
     ]
     if flaser_max is not None:
         out.append(f"PARAM {MAX_RANGE_PARAM} {flaser_max!r} {hostname} 0")
