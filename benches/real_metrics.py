@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from icploc.trajectory import pose_errors
 from numpy.typing import NDArray
 
 __all__ = ["FALSE_TRACKING_M", "map_fit", "summarise"]
@@ -17,11 +18,7 @@ FALSE_TRACKING_M = 0.5
 
 
 def position_errors(est: NDArray[np.float64], ref: NDArray[np.float64]) -> NDArray[np.float64]:
-    est = np.asarray(est, dtype=np.float64).reshape(-1, 3)
-    ref = np.asarray(ref, dtype=np.float64).reshape(-1, 3)
-    if est.shape != ref.shape:
-        raise ValueError(f"{len(est)} estimates for {len(ref)} reference poses")
-    e = np.hypot(est[:, 0] - ref[:, 0], est[:, 1] - ref[:, 1])
+    e, _ = pose_errors(est, ref)
     # a non-finite estimate is as wrong as can be: it counts, it is not dropped
     return np.where(np.isfinite(e), e, np.inf)
 

@@ -11,9 +11,10 @@ from typer.testing import CliRunner
 
 @pytest.mark.slow
 def test_demo_quick_end_to_end(tmp_path: Path) -> None:
+    import numpy as np
     from icploc.demo import run_demo
 
-    results = run_demo(tmp_path, quick=True, people=3, seed=1)
+    results = run_demo(tmp_path, quick=True, people=3, seed=1)  # the three at once, as a user
     assert [r.name for r in results] == ["random_walk", "circles", "glass"]
     for r in results:
         s = r.summary()
@@ -21,10 +22,12 @@ def test_demo_quick_end_to_end(tmp_path: Path) -> None:
         assert s["distance_m"] > 5.0
         # through the real drivers, with glass and people: millimetres, not centimetres
         assert s["median_error_m"] < 0.006, s
-        # (max: a scan stamped late by a starved host is compared with the truth of a later
-        # moment; at 1.5 m/s 20 ms are 3 cm, so the bound leaves room for a loaded CI box)
-        assert s["max_error_m"] < 0.05, s
-        assert s["max_heading_error_deg"] < 0.5, s
+        # (not the max: a scan stamped late by a starved host is compared with the truth of
+        # a later moment, at 1.5 m/s and 1.2 rad/s 30 ms are 4.5 cm and 2°, so single scans
+        # of a loaded CI box say nothing; a localization going wrong is off for many scans)
+        assert s["p95_error_m"] < 0.01, s
+        assert float(np.mean(r.errors > 0.02)) < 0.03, s
+        assert float(np.percentile(r.heading_errors_deg, 95)) < 0.5, s
         # and much better than the drifting odometry
         assert s["localized_end_error_m"] < 0.02
         assert s["odometry_end_error_m"] > 2 * s["localized_end_error_m"]

@@ -330,3 +330,27 @@ def test_odometry_trajectory_starts_at_the_first_estimate(sim_run: dict) -> None
     res = replay(items, Map.load(sim_run["map"]), initial_pose=sim_run["frames"][0].truth)
     odo = res.odometry_trajectory()
     assert np.allclose(odo.poses[0], res.estimates[0].pose)
+
+
+def test_a_non_finite_estimate_is_left_out_of_the_score_and_the_plot(
+    sim_run: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Should the localizer ever hand out a NaN pose, the replay still scores and draws
+    the rest instead of dying at the end."""
+    import dataclasses
+
+    from icploc.localizer import Localizer
+
+    real = Localizer.update
+    calls = [0]
+
+    def update(self, scan):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        e = real(self, scan)
+        return dataclasses.replace(e, pose=(math.nan, e.pose[1], e.pose[2])) if calls[0] == 50 else e
+
+    monkeypatch.setattr(Localizer, "update", update)
+    res = replay(_write("carmen", sim_run), sim_run["map"], initial_pose=sim_run["frames"][0].truth,
+                 truth=sim_run["truth"], plot=tmp_path / "p.png")  # fmt: skip
+    assert res.evaluation is not None
+    assert (res.evaluation.ate.n, (tmp_path / "p.png").exists()) == (len(sim_run["scans"]) - 1, True)

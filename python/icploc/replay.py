@@ -86,14 +86,26 @@ class ReplayResult:
         return np.array([e.stamp for e in self.estimates], dtype=np.float64)
 
     @property
+    def finite(self) -> NDArray[np.bool_]:
+        """Which estimates have a finite stamp and pose (all of them, unless the localizer
+        failed its promise; a non-finite one cannot be scored or drawn)."""
+        return np.isfinite(self.stamps) & np.isfinite(self.poses).all(axis=1)
+
+    @property
     def trajectory(self) -> Trajectory:
-        """The estimates as a :class:`~icploc.trajectory.Trajectory` (one pose per scan)."""
-        return Trajectory(self.stamps, self.poses)
+        """The estimates as a :class:`~icploc.trajectory.Trajectory`: one pose per scan
+        (the :attr:`finite` ones)."""
+        ok = self.finite
+        return Trajectory(self.stamps[ok], self.poses[ok])
 
     def odometry_trajectory(self) -> Trajectory:
         """The odometry of the localized scans, started at the first estimate's pose (how
         far dead reckoning alone would have gone, in the map frame)."""
-        ests = [e for e in self.estimates if e.odometry is not None]
+        ests = [
+            e
+            for e in self.estimates
+            if e.odometry is not None and np.isfinite(e.stamp) and np.isfinite(e.odometry).all()
+        ]
         if not ests:
             return Trajectory.empty()
         odo = Trajectory(
@@ -364,7 +376,7 @@ def replay(
             truth=truth_tr,
             odometry=res.odometry_trajectory(),
             localized=res.trajectory,
-            status=[e.status for e in got],
+            status=[e.status for e, ok in zip(got, res.finite, strict=True) if ok],
             errors=res.evaluation.ate if res.evaluation is not None else None,
             title=Path(res.log).name,
         )
