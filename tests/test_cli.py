@@ -380,37 +380,40 @@ def test_log_info_prints_each_log_and_one_error_line_per_bad_one(tmp_path: Path)
     from icploc.types import Scan
 
     good = tmp_path / "a.log"
-    scans = [Scan(stamp=t, ranges=np.ones(180), angles=flaser_angles(180), max_range=8.0) for t in (1.0, 2.0)]
+    scans = [
+        Scan(stamp=t, ranges=np.ones(180), angles=flaser_angles(180), max_range=8.0)
+        for t in (1.0, 2.0)
+    ]
     write_carmen(good, scans, [])
     bad = tmp_path / "bad.log"
     bad.write_text("FLASER 3 1 2\n")
     r = runner.invoke(app, ["log", "info", str(good), str(bad), "--strict"])
-    assert (r.exit_code, "2 × 180 beams" in r.stdout, f"{bad}:1: FLASER: truncated" in r.stderr) == (
+    assert (
+        r.exit_code,
+        "2 × 180 beams" in r.stdout,
+        f"{bad}:1: FLASER: truncated" in r.stderr,
+    ) == (
         1,
         True,
         True,
     )
 
 
-def _all_commands() -> list[tuple[str, object]]:
-    import click
+def _all_commands() -> list[tuple[str, Any]]:
     import typer
-    from icploc.cli import _register
 
     _register()
-    root = typer.main.get_command(app)
-    out: list[tuple[str, object]] = []
+    out: list[tuple[str, Any]] = []
 
-    def walk(cmd: click.Command, path: str) -> None:
-        if isinstance(cmd, click.Group):
-            for name in cmd.list_commands(click.Context(cmd)):
-                sub = cmd.get_command(click.Context(cmd), name)
-                assert sub is not None
-                walk(sub, f"{path} {name}")
+    def walk(cmd: Any, path: str) -> None:
+        if hasattr(cmd, "list_commands"):
+            ctx = typer.Context(cmd)
+            for name in cmd.list_commands(ctx):
+                walk(cmd.get_command(ctx, name), f"{path} {name}")
         else:
             out.append((path.strip(), cmd))
 
-    walk(root, "")
+    walk(typer.main.get_command(app), "")
     return out
 
 
@@ -418,21 +421,37 @@ def _all_commands() -> list[tuple[str, object]]:
 _UNIT = r"\((?:[^()]*\b(?:m|rad|deg|s|Hz|Bd|count|0-1|an integer|dots per inch)\b[^()]*)\)$"
 
 
+def _numeric_options() -> list[tuple[str, Any]]:
+    from typing import get_args
+
+    found = []
+    for name, cmd in _all_commands():
+        for p in cmd.params:
+            ann = p.type_descriptor.annotation
+            if p.param_type_name == "option" and (
+                ann in (int, float) or set(get_args(ann)) & {int, float}
+            ):
+                found.append((f"{name} {p.opts[0]}", p))
+    return found
+
+
+def test_the_cli_has_numeric_options_in_many_commands() -> None:
+    names = {n.rsplit(" ", 1)[0] for n, _ in _numeric_options()}
+    assert {"replay", "run", "demo", "map build", "map show", "map convert", "batch"} <= names
+
+
 def test_every_numeric_option_says_its_unit() -> None:
     import re
 
-    import click
-
-    missing = []
-    for name, cmd in _all_commands():
-        for p in cmd.params:  # type: ignore[attr-defined]
-            numeric = isinstance(p.type, (click.types.FloatParamType, click.types.IntParamType))
-            if isinstance(p, click.Option) and numeric and not re.search(_UNIT, p.help or ""):
-                missing.append(f"{name} {p.opts[0]}: {p.help!r}")
+    missing = [
+        f"{n}: {p.help!r}" for n, p in _numeric_options() if not re.search(_UNIT, p.help or "")
+    ]
     assert missing == []
 
 
-@pytest.mark.parametrize("command", [["replay"], ["map", "build"], ["log", "info"], ["config", "check"]])
+@pytest.mark.parametrize(
+    "command", [["replay"], ["map", "build"], ["log", "info"], ["config", "check"]]
+)
 def test_help_shows_plain_argument_names_and_no_bool_type(command: list[str]) -> None:
     r = runner.invoke(app, [*command, "--help"], env={"COLUMNS": "200"})
     usage = next(ln for ln in r.stdout.splitlines() if "Usage:" in ln)

@@ -138,3 +138,19 @@ def test_global_relocalization_coarsens_on_the_typed_error_only(
     g = relocalize.GlobalRelocalization.deferred()
     assert g.ready(MapIndex(np.array([[0.0, 0.0], [10.0, 10.0]])))
     assert tried == pytest.approx([0.05, 0.1, 0.2])
+
+
+def test_the_core_errors_are_icploc_errors_too() -> None:
+    from icploc import _core
+
+    got = [
+        issubclass(c, IcplocError)
+        for c in (
+            _core.IcpError,
+            _core.InvalidInputError,
+            _core.EmptyMapError,
+            _core.GridTooLargeError,
+            _core.InvalidConfigError,
+        )
+    ]
+    assert (got, issubclass(_core.InvalidConfigError, ValueError)) == ([True] * 5, True)

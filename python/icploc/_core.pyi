@@ -10,9 +10,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from typing_extensions import Self, final
 
+from icploc.errors import IcplocError
+
 __version__: str
 
-class IcpError(Exception):
+class IcpError(IcplocError):
     """Base class of every error raised by the ICP core."""
 
 class InvalidInputError(IcpError, ValueError):

@@ -12,11 +12,12 @@ input, ``RuntimeError`` / ``OSError`` for a device), so ``except ValueError`` st
     ├── DeviceError                    a laser / base / port misbehaves
     │     SickError, PowerBotError, PortError (OSError), SickProtocolError,
     │     ArcosProtocolError (ValueError)
-    └── UsageError (ValueError)        arguments that contradict each other (CLI)
+    ├── UsageError (ValueError)        arguments that contradict each other (CLI)
+    └── IcpError                       the Rust core's (icploc._core): InvalidInputError,
+          EmptyMapError, GridTooLargeError, InvalidConfigError (all ValueError)
 
-The Rust core's own errors (``icploc.IcpError`` and its subclasses) are not here: the
-private binding raises them, the Python layers turn bad input into the classes above.
-This module imports nothing of icploc (every module may import it).
+This module imports nothing of icploc (every module may import it; the binding makes its
+``IcpError`` a subclass of :class:`IcplocError` when it is imported).
 """
 
 from __future__ import annotations

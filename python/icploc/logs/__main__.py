@@ -8,21 +8,19 @@ import sys
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``icploc log info`` with ``argv``; returns the exit code."""
-    import click
     import typer
 
     from icploc.cli import app
 
     args = sys.argv[1:] if argv is None else list(argv)
-    cmd = typer.main.get_command(app)
+    root = typer.main.get_command(app)
+    group = root.get_command(typer.Context(root), "log")  # type: ignore[attr-defined]
+    cmd = group.get_command(typer.Context(group), "info")
     try:
-        rv = cmd.main(["log", "info", *args], prog_name="python -m icploc.logs", standalone_mode=False)
-    except click.ClickException as e:
-        e.show()
-        return e.exit_code
-    except click.exceptions.Exit as e:
-        return e.exit_code
-    return rv if isinstance(rv, int) else 0
+        cmd.main(args, prog_name="python -m icploc.logs")
+    except SystemExit as e:  # click's standalone mode ends every run with one
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    return 0
 
 
 if __name__ == "__main__":

@@ -23,13 +23,7 @@ use icploc_core::{IcpError as CoreError, Pose2};
 mod global;
 mod maps;
 
-pyo3::create_exception!(
-    icploc._core,
-    IcpError,
-    PyException,
-    "Base class of every error raised by the ICP core."
-);
-
+static ICP_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static EMPTY_MAP: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INVALID_CONFIG: PyOnceLock<Py<PyType>> = PyOnceLock::new();
@@ -50,12 +44,34 @@ fn make_class(
     Ok(cls.cast_into::<PyType>()?.unbind())
 }
 
+/// `IcpError`, the base of the core's errors: under `icploc.errors.IcplocError`, the one
+/// error root of the package (a plain `Exception` if that module cannot be imported).
+fn icp_error(py: Python<'_>) -> &Py<PyType> {
+    ICP_ERROR.get_or_init(py, || {
+        let root = py
+            .import("icploc.errors")
+            .and_then(|m| m.getattr("IcplocError"))
+            .and_then(|c| Ok(c.cast_into::<PyType>()?))
+            .unwrap_or_else(|_| py.get_type::<PyException>());
+        make_class(
+            py,
+            "IcpError",
+            vec![root],
+            "Base class of every error raised by the ICP core.",
+        )
+        .expect("creating IcpError")
+    })
+}
+
 fn invalid_input(py: Python<'_>) -> &Py<PyType> {
     INVALID_INPUT.get_or_init(py, || {
         make_class(
             py,
             "InvalidInputError",
-            vec![py.get_type::<IcpError>(), py.get_type::<PyValueError>()],
+            vec![
+                icp_error(py).bind(py).clone(),
+                py.get_type::<PyValueError>(),
+            ],
             "An input array has the wrong shape or dtype, holds NaN/inf, or has too few points.",
         )
         .expect("creating InvalidInputError")
@@ -88,7 +104,10 @@ fn invalid_config(py: Python<'_>) -> &Py<PyType> {
         make_class(
             py,
             "InvalidConfigError",
-            vec![py.get_type::<IcpError>(), py.get_type::<PyValueError>()],
+            vec![
+                icp_error(py).bind(py).clone(),
+                py.get_type::<PyValueError>(),
+            ],
             "A configuration value is out of range (e.g. a non-positive threshold).",
         )
         .expect("creating InvalidConfigError")
@@ -102,7 +121,7 @@ fn to_py(py: Python<'_>, e: CoreError) -> PyErr {
         CoreError::EmptyMap => empty_map(py),
         CoreError::GridTooLarge { .. } => grid_too_large(py),
         CoreError::InvalidConfig { .. } => invalid_config(py),
-        CoreError::Internal(_) => return IcpError::new_err(msg),
+        CoreError::Internal(_) => icp_error(py),
         _ => invalid_input(py),
     };
     PyErr::from_type(cls.bind(py).clone(), msg)
@@ -1017,7 +1036,7 @@ fn parse_floats<'py>(py: Python<'py>, text: &str) -> PyResult<Bound<'py, PyArray
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
-    m.add("IcpError", py.get_type::<IcpError>())?;
+    m.add("IcpError", icp_error(py).bind(py))?;
     m.add("InvalidInputError", invalid_input(py).bind(py))?;
     m.add("EmptyMapError", empty_map(py).bind(py))?;
     m.add("GridTooLargeError", grid_too_large(py).bind(py))?;
