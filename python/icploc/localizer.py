@@ -109,6 +109,8 @@ class Estimate:
     calibration: tuple[float, float, float] = (1.0, 1.0, 0.0)
     #: while lost: the recovery's ranked hypotheses (the pose itself stays dead-reckoned)
     hypotheses: tuple[Candidate, ...] = ()
+    #: False: the scan was outside the mapped area, the pose coasted (:mod:`icploc.outside`)
+    mapped: bool = True
 
     @property
     def x(self) -> float:
@@ -335,6 +337,8 @@ class Localizer:
         #: the kidnap checks' verdicts so far (at most 100): "", "unsure", "suspect"
         #: (elsewhere, to be re-checked), "elsewhere" (declared lost), "refuted" (a lock)
         self.kidnap_verdicts: list[str] = []
+        #: the outside-the-map monitor (:func:`icploc.outside.attach`), None: off
+        self.outside: Any = None
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         self.pose: Pose
         self.covariance: NDArray[np.float64]
@@ -419,10 +423,14 @@ class Localizer:
         odom = self._odometry_at(scan.stamp, odometry)
         pred, pred_cov = self._predict(odom)
         pts = prepare_scan(scan, self.config, self._trig)
-        if self.status is Status.LOST:
+        hook = self.outside  # icploc.outside: a scan outside the map is coasted there
+        est = None if hook is None else hook.before(self, scan, pts, pred, pred_cov, odom, t0)
+        if est is None and self.status is Status.LOST:
             est = self._update_lost(scan, pts, pred, pred_cov, odom, t0)
-        else:
+        elif est is None:
             est = self._update_tracking(scan, pts, pred, pred_cov, odom, t0)
+        if hook is not None:
+            est = hook.after(self, est, pts)
         self._counters.scans += 1
         self._counters.status_counts[est.status.value] += 1
         self.last_estimate = est
