@@ -167,8 +167,13 @@ def patch_layout(map_: Any) -> tuple[float, tuple[float, float]]:
 
 
 def patch_outputs(path: str | os.PathLike[str]) -> dict[str, Path]:
-    """The files ``--map-patch PATH`` writes (for the output checks made before a run)."""
+    """The files ``--map-patch PATH`` writes (for the output checks made before a run);
+    :class:`icploc.outputs.OutputError` unless PATH is a ``.yaml``."""
+    from icploc.outputs import OutputError
+
     p = Path(path)
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        raise OutputError(f"--map-patch {p}: a map patch is a map_server .yaml file")
     return {"--map-patch": p, "--map-patch image": p.with_suffix(".pgm")}
 
 

@@ -77,6 +77,17 @@ class OutsideConfig:
     margin: float = 0.2
     #: cell size of the mapped-area mask of a map without a grid [m]
     resolution: float = 0.1
+    #: the re-entry watch also tries poses within this many sigmas of the dead-reckoned
+    #: one (at most ``probe_radius`` metres): a drifted pose must not hide the map
+    probe_sigmas: float = 3.0
+    probe_radius: float = 5.0
+    #: ... and at least this far [m] (long dead reckoning drifts more than its covariance
+    #: says: real odometry errors are systematic)
+    probe_min_radius: float = 1.0
+    #: scans a re-entry candidate must stay put (by odometry) before it locks
+    reentry_confirm: int = 2
+    #: scans of the local re-entry search before the localizer's own recovery takes over
+    reentry_local_scans: int = 10
 
     def validate(self) -> OutsideConfig:
         if not (0.0 < self.exit_share < self.enter_share <= 1.0):
@@ -86,7 +97,10 @@ class OutsideConfig:
             )
         if self.confirm_scans < 1:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
-        for k in ("reach", "margin", "resolution"):
+        if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
+            raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
+        for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
+                  "probe_min_radius"):  # fmt: skip
             v = getattr(self, k)
             if not (math.isfinite(v) and v >= 0.0) or (k == "resolution" and v <= 0.0):
                 raise ValueError(f"outside: {k} must be a finite number >= 0, got {v!r}")
@@ -161,6 +175,18 @@ class MappedArea:
         out[inside] = ~self.known[ci[:, 1], ci[:, 0]]
         return out
 
+    def best_share(self, points: NDArray[np.float64], poses: NDArray[np.float64]) -> float:
+        """The lowest unmapped share of ``points`` over ``poses`` (K, 3) (nan without
+        points); every fourth point is used."""
+        p = points[::4] if points.shape[0] >= 40 else points
+        if p.shape[0] == 0:
+            return float("nan")
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        x = poses[:, 0:1] + c * p[:, 0] - s * p[:, 1]
+        y = poses[:, 1:2] + s * p[:, 0] + c * p[:, 1]
+        un = self.unmapped(np.column_stack([x.ravel(), y.ravel()])).reshape(len(poses), -1)
+        return float(un.mean(axis=1).min())
+
     def unmapped_share(self, points: NDArray[np.float64], pose: Pose) -> float:
         """Share of robot-frame ``points`` that end on unmapped space seen from ``pose``
         (nan without points)."""
@@ -174,6 +200,111 @@ class MappedArea:
             ]
         )
         return float(self.unmapped(xy).mean())
+
+
+def _probe_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> NDArray[np.float64]:
+    """Poses within ``probe_sigmas`` of ``pose`` (at most ``probe_radius``): a 9 x 9 grid
+    of positions times three headings; (K, 3) with ``pose`` first."""
+    sxy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
+    sth = math.sqrt(max(float(cov[2, 2]), 0.0))
+    r = min(max(cfg.probe_sigmas * sxy, cfg.probe_min_radius), cfg.probe_radius)
+    dth = min(cfg.probe_sigmas * sth, math.pi)
+    g = np.linspace(-r, r, 9) if r > 0.05 else np.zeros(1)
+    h = np.array([0.0, -dth, dth]) if dth > 0.01 else np.zeros(1)
+    dx, dy, dt = np.meshgrid(g, g, h, indexing="ij")
+    out = np.column_stack([pose[0] + dx.ravel(), pose[1] + dy.ravel(), pose[2] + dt.ravel()])
+    return np.vstack([np.asarray(pose, dtype=np.float64)[None, :], out])
+
+
+class ReentryRecovery:
+    """The recovery (:class:`icploc.recovery.Recovery`) a localizer uses while it comes
+    back into the map: first a verified local search around the dead-reckoned pose over
+    its whole uncertainty (the probe poses ranked by the share of beams that end on map
+    walls, the best few refined by ICP and verified by the localizer; a pose that stays
+    put by odometry for ``reentry_confirm`` scans locks), then — after
+    ``reentry_local_scans`` scans without a lock — the localizer's own recovery (global)."""
+
+    def __init__(
+        self,
+        fallback: Any,
+        index: Any,
+        hit_distance: float,
+        config: OutsideConfig,
+        *,
+        starts: int = 4,
+    ) -> None:
+        self.fallback = fallback
+        self.index = index
+        self.hit_distance = hit_distance
+        self.config = config
+        self.confirm = config.reentry_confirm
+        self.local_scans = config.reentry_local_scans
+        self.starts = starts
+        self._leader: Pose | None = None
+        self._streak = 0
+        self.scans = 0
+
+    def reset(self) -> None:
+        self._leader, self._streak, self.scans = None, 0, 0
+        self.fallback.reset()
+
+    def __getattr__(self, name: str) -> Any:  # check_pose and the like: the fallback's
+        if name == "fallback":
+            raise AttributeError(name)
+        return getattr(self.fallback, name)
+
+    def _ranked(self, view: Any, points: NDArray[np.float64]) -> list[Pose]:
+        poses = _probe_poses(view.pose, view.covariance, self.config)
+        p = points[:: max(1, points.shape[0] // 45)]
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        x = poses[:, 0:1] + c * p[:, 0] - s * p[:, 1]
+        y = poses[:, 1:2] + s * p[:, 0] + c * p[:, 1]
+        d, _ = self.index.nearest(np.ascontiguousarray(np.column_stack([x.ravel(), y.ravel()])))
+        hit = (np.asarray(d).reshape(len(poses), -1) < self.hit_distance).mean(axis=1)
+        order = np.argsort(-hit, kind="stable")
+        out: list[Pose] = [(float(poses[0, 0]), float(poses[0, 1]), float(poses[0, 2]))]
+        for i in order:
+            q = (float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2]))
+            if all(math.hypot(q[0] - o[0], q[1] - o[1]) > 0.5 for o in out):
+                out.append(q)
+            if len(out) >= self.starts:
+                break
+        return out
+
+    def recover(self, view: Any, points: NDArray[np.float64]) -> Any:
+        from icploc.recovery import Candidate, RecoveryStep
+        from icploc.se2 import compose, wrap_angle
+
+        self.scans += 1
+        if self.scans > self.local_scans:
+            return self.fallback.recover(view, points)
+        if self._leader is not None and view.motion is not None:
+            self._leader = compose(self._leader, view.motion)
+        best = None
+        for start in self._ranked(view, points):
+            ok, res, pose = view.verify(points, start)
+            if ok and res is not None:
+                best = (pose, res)
+                break
+        if best is None:
+            self._leader, self._streak = None, 0
+            return RecoveryStep("searching")
+        pose, res = best
+        lead = self._leader
+        if (
+            lead is not None
+            and math.hypot(pose[0] - lead[0], pose[1] - lead[1]) <= 0.15
+            and abs(wrap_angle(pose[2] - lead[2])) <= math.radians(5.0)
+        ):
+            self._streak += 1
+        else:
+            self._streak = 1
+        self._leader = pose
+        hyp = (Candidate(pose, float(res.inlier_ratio), float(res.inlier_ratio), True),)
+        if self._streak >= self.confirm:
+            self._leader, self._streak = None, 0
+            return RecoveryStep("locked", hyp, lock=pose, result=res)
+        return RecoveryStep("confirming", hyp)
 
 
 @dataclass
@@ -222,6 +353,8 @@ class OutsideMonitor:
         self.stretches: list[Stretch] = []
         self.last_share = float("nan")
         self._below = 0
+        self._above = 0
+        self._fallback: Any = None  #: the localizer's own recovery while re-entering
         self._reentry_start: int | None = None
         self._last_pose: Pose | None = None
         self._last_odom: Pose | None = None
@@ -256,23 +389,37 @@ class OutsideMonitor:
             )
             self.state = "outside"
             self._below = 0
-        elif self.state == "reentering":
-            if known and share >= cfg.enter_share:
-                self.state = "outside"  # out again before the lock: coast on
-                self._below = 0
-                self._reentry_start = None
-            else:
+            return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
+        # outside or re-entering: is there a pose within the dead reckoning's uncertainty
+        # where the scan lands on the map?
+        best = share
+        if known and share > cfg.exit_share:
+            best = min(share, self.area.best_share(pts, _probe_poses(pred, pred_cov, cfg)))
+        if self.state == "reentering":
+            # the recovery searches on until no pose near the dead reckoning lands on the map
+            self._above = self._above + 1 if known and best >= cfg.enter_share else 0
+            if self._above < cfg.confirm_scans:
                 return None
-        else:  # outside
-            self._below = self._below + 1 if known and share <= cfg.exit_share else 0
-            if self._below >= cfg.confirm_scans:
-                # the scan explains the map again: lost at the dead-reckoned pose, so the
-                # recovery searches around it first (then globally)
-                self.state = "reentering"
-                self._reentry_start = k
-                loc.pose, loc.covariance = pred, pred_cov
-                loc.declare_lost()
-                return None
+            self.state = "outside"  # out again before the lock: coast on
+            self._below = 0
+            self._reentry_start = None
+            self._restore(loc)
+            loc.reset(pred, pred_cov, Status.DEGRADED)
+            return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
+        self._below = self._below + 1 if known and best <= cfg.exit_share else 0
+        if self._below >= cfg.confirm_scans:
+            # the scan explains the map again: lost at the dead-reckoned pose, so the
+            # recovery searches around it first (then globally)
+            self.state = "reentering"
+            self._above = 0
+            self._reentry_start = k
+            loc.pose, loc.covariance = pred, pred_cov
+            self._fallback = loc.recovery
+            loc.recovery = ReentryRecovery(
+                self._fallback, loc.index, loc.quality.hit_distance(), cfg
+            )
+            loc.declare_lost()
+            return None
         return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
 
     def after(self, loc: Localizer, est: Estimate, pts: NDArray[np.float64]) -> Estimate:
@@ -296,6 +443,7 @@ class OutsideMonitor:
                 st.scans.append((k, np.array(pts), est.pose))
             self.state = "inside"
             self._reentry_start = None
+            self._restore(loc)
         elif self.state == "reentering" and self.record and self.stretches:
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), est.pose))
         if est.status is not Status.LOST or est.reason == REASON:
@@ -303,6 +451,12 @@ class OutsideMonitor:
         if est.mapped != mapped:
             est = dataclasses.replace(est, mapped=mapped)
         return est
+
+    def _restore(self, loc: Localizer) -> None:
+        """Give the localizer its own recovery back (after a re-entry)."""
+        if self._fallback is not None:
+            loc.recovery = self._fallback
+            self._fallback = None
 
     def _coast(
         self,
