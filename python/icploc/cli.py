@@ -217,6 +217,12 @@ def replay(
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
     ] = False,
+    partial_map: Annotated[
+        bool, typer.Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
+    ] = False,
+    map_patch: Annotated[
+        Path | None, typer.Option("--map-patch", help="With --partial-map: write what the laser saw outside the map as a map_server grid (YAML + PGM); merge it with 'icploc map merge'")
+    ] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -234,7 +240,7 @@ def replay(
     kw: dict[str, Any] = dict(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
-        map_cache=False if no_cache else None,
+        map_cache=False if no_cache else None, partial_map=partial_map, map_patch=map_patch,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path))  # --mcap (icploc.hooks)
     kw["on_localizer"] = hooks.on_localizer
