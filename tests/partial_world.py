@@ -12,13 +12,14 @@ poses (ray casting: free, occupied and unknown cells), so the wing is unknown sp
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 from icploc.worlds import World, simulate  # the simulator (re-point here)
 from numpy.typing import NDArray
 
-__all__ = ["WING_BOX", "PartialRun", "building", "partial_run"]
+__all__ = ["WING_BOX", "PartialRun", "building", "localized", "partial_run", "wall_distance"]
 
 #: the wing (corridor beyond the door and its room): x0, y0, x1, y1
 WING_BOX = (14.0, -2.0, 30.0, 12.0)
@@ -86,3 +87,26 @@ def partial_run(seed: int = 0, resolution: float = 0.05) -> tuple[PartialRun, ob
     m = Map.from_grid(g.occupied, g.resolution, g.origin, free=g.free, surface_offset=0.5)
     run = PartialRun(world, truth, items, [f.scan for f in frames], first)
     return run, m
+
+
+@functools.lru_cache(maxsize=2)
+def localized(seed: int = 0, monitor: bool = True) -> tuple[PartialRun, object, list, object]:
+    """The run localized against its partial map from the true start (cached per test
+    session): (run, map, estimates, the localizer's outside monitor or None)."""
+    from icploc.localizer import Localizer, run
+    from icploc.outside import attach
+
+    r, m = partial_run(seed)
+    loc = Localizer(m, initial_pose=tuple(r.truth[0]))
+    mon = attach(loc, record=True) if monitor else None
+    ests = run(loc, r.items)
+    return r, m, ests, mon
+
+
+def wall_distance(world: World, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance of each point to the nearest wall of ``world``."""
+    a, b = world.walls[:, :2], world.walls[:, 2:]
+    ab = b - a
+    t = np.clip(((xy[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)
+    q = a + t[..., None] * ab
+    return np.hypot(xy[:, None, 0] - q[..., 0], xy[:, None, 1] - q[..., 1]).min(axis=1)

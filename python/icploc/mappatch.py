@@ -10,6 +10,10 @@ verified pose) and at the lock. :func:`patch_grid` ray-casts the scans at those 
 (free space along each beam, hits at its end; :func:`icploc.maps.build.build_grid`'s rules)
 into a grid aligned with the map's cells, :func:`write_patch` writes it as YAML + PGM.
 ``icploc map merge`` (:mod:`icploc.maps.merge`) puts it into the map.
+
+Before the correction the coasted chain is tightened by matching each scan against the
+stretch's own previous scans (:func:`refined_poses`; never against the map, whose walls
+are not there): the odometry steps become scan-matched steps where the walls allow.
 """
 
 from __future__ import annotations
@@ -29,14 +33,25 @@ if TYPE_CHECKING:
     from icploc.maps.build import BuiltGrid
     from icploc.outside import Stretch
 
-__all__ = ["PATCH_RESOLUTION", "corrected_poses", "grid_from_scans", "patch_grid", "write_patch"]
+__all__ = [
+    "PATCH_RESOLUTION",
+    "corrected_poses",
+    "grid_from_scans",
+    "patch_grid",
+    "refined_poses",
+    "write_patch",
+]
 
 #: cell size of a patch for a map without a grid [m] (a grid map's own resolution otherwise)
 PATCH_RESOLUTION = 0.05
 
 
 def corrected_poses(
-    start: Pose, coasted: Sequence[Pose], dead_reckoned_end: Pose, lock: Pose
+    start: Pose,
+    coasted: Sequence[Pose],
+    dead_reckoned_end: Pose,
+    lock: Pose,
+    trust: Sequence[float] | None = None,
 ) -> NDArray[np.float64]:
     """The coasted poses of a stretch corrected so its last pose is ``lock``.
 
@@ -44,13 +59,17 @@ def corrected_poses(
     (the last may already be the lock: ``dead_reckoned_end`` is what dead reckoning said
     there). Each odometry step gets a share of the heading error (its length plus a tenth
     of its turn, over the stretch's), the position error left then is spread by the motion
-    done so far. Returns (N, 3)."""
+    done so far. ``trust`` (per step, 0..1; default 0): a step's share is scaled by
+    ``1 - 0.9 trust`` (a scan-matched step drifts far less than an odometry one).
+    Returns (N, 3)."""
     pts = [tuple(map(float, p)) for p in coasted]
     if not pts:
         return np.zeros((0, 3))
     pts[-1] = tuple(map(float, dead_reckoned_end))
     steps = [between(a, b) for a, b in zip([start, *pts[:-1]], pts, strict=True)]
     w = np.array([math.hypot(u[0], u[1]) + 0.1 * abs(u[2]) for u in steps]) + 1e-9
+    if trust is not None:
+        w *= 1.0 - 0.9 * np.clip(np.asarray(trust, dtype=np.float64), 0.0, 1.0)
     w /= w.sum()
     e_th = wrap_angle(lock[2] - pts[-1][2])
     out = np.zeros((len(pts), 3))
@@ -64,14 +83,102 @@ def corrected_poses(
     return out
 
 
-def _stretch_poses(st: Stretch) -> NDArray[np.float64]:
-    coasted = [p for _, _, p in st.scans]
-    if st.lock_pose is None or st.correction is None or not coasted:
+def refined_poses(
+    start: Pose,
+    scans: Sequence[NDArray[np.float64]],
+    coasted: Sequence[Pose],
+    *,
+    keep: int = 5,
+    min_inliers: float = 0.6,
+    gate: float = 16.0,
+) -> tuple[list[Pose], list[float]]:
+    """The coasted poses re-chained by matching each scan against the stretch's own
+    previous ``keep`` scans (never the map). Each odometry step (its noise growing with
+    its length) is fused with the scan match (its covariance from the fit: a corridor
+    says nothing along itself) when the match converged, explains ``min_inliers`` of the
+    scan and agrees with the odometry within the chi-square ``gate``; otherwise the
+    odometry step stands. The drift left is small where walls constrain the scans; the
+    lock's correction then spreads it. Returns the poses and per step how much the scan
+    match tightened it (0: odometry alone .. 1)."""
+    from icploc._core import IcpConfig, IcpError, MapIndex, icp
+    from icploc.fusion import fuse, mahalanobis2, scan_covariance
+
+    cfg = IcpConfig(
+        window_search=False,
+        max_correspondence_distance=0.5,
+        min_correspondence_distance=0.1,
+    )
+    out: list[Pose] = []
+    trust: list[float] = []
+    prev: Pose = (float(start[0]), float(start[1]), float(start[2]))
+    prev_c: Pose = prev
+    world: list[NDArray[np.float64]] = []
+    normals: list[NDArray[np.float64]] = []
+    for pts, c in zip(scans, coasted, strict=True):
+        c = (float(c[0]), float(c[1]), float(c[2]))
+        u = between(prev_c, c)
+        guess = compose(prev, u)
+        pose, t = guess, 0.0
+        if world and pts.shape[0] >= 20:
+            try:
+                res = icp(pts, MapIndex(np.concatenate(world), np.concatenate(normals)), guess, cfg)
+            except IcpError:
+                res = None
+            if res is not None and res.converged and res.inlier_ratio >= min_inliers:
+                z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
+                step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
+                sxy, sth = 0.01 + 0.02 * step, 0.003 + 0.03 * step
+                P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
+                R = scan_covariance(res.information, int(res.inliers), float(res.mse), 0.02, 5.0)
+                if mahalanobis2(guess, P, z, R) <= gate:
+                    pose, P2 = fuse(guess, P, z, R)
+                    t = float(np.clip(1.0 - math.sqrt(np.trace(P2) / np.trace(P)), 0.0, 1.0))
+        out.append(pose)
+        trust.append(t)
+        if pts.shape[0] >= 3:
+            co, si = math.cos(pose[2]), math.sin(pose[2])
+            w = np.column_stack(
+                [
+                    pose[0] + co * pts[:, 0] - si * pts[:, 1],
+                    pose[1] + si * pts[:, 0] + co * pts[:, 1],
+                ]
+            )
+            n, ok = _scan_normals(w)
+            world.append(w[ok])
+            normals.append(n[ok])
+            del world[:-keep], normals[:-keep]
+        prev, prev_c = pose, c
+    return out, trust
+
+
+def _scan_normals(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Unit normals of a scan's points (beam order) from their neighbours, and which points
+    have a usable one (neighbours close and on a line through the point)."""
+    d = w[2:] - w[:-2]
+    ln = np.hypot(d[:, 0], d[:, 1])
+    n = np.zeros_like(w)
+    ok = np.zeros(len(w), dtype=bool)
+    good = (ln > 1e-6) & (ln < 0.5)
+    n[1:-1][good] = np.column_stack([-d[good, 1], d[good, 0]]) / ln[good, None]
+    ok[1:-1] = good
+    return n, ok
+
+
+def _stretch_poses(st: Stretch, refine: bool = True) -> NDArray[np.float64]:
+    coasted: list[Pose] = [p for _, _, p in st.scans]
+    if not coasted:
+        return np.zeros((0, 3))
+    closed = st.lock_pose is not None and st.correction is not None
+    if closed and st.lock_pose is not None and st.correction is not None:
+        c, lock = st.correction, st.lock_pose
+        # what dead reckoning said at the lock
+        coasted[-1] = (lock[0] - c[0], lock[1] - c[1], wrap_angle(lock[2] - c[2]))
+    trust: list[float] | None = None
+    if refine:
+        coasted, trust = refined_poses(st.exit_pose, [pts for _, pts, _ in st.scans], coasted)
+    if not closed or st.lock_pose is None:
         return np.asarray(coasted, dtype=np.float64).reshape(-1, 3)
-    c = st.correction
-    lock = st.lock_pose
-    dr = (lock[0] - c[0], lock[1] - c[1], wrap_angle(lock[2] - c[2]))
-    return corrected_poses(st.exit_pose, coasted, dr, lock)
+    return corrected_poses(st.exit_pose, coasted, coasted[-1], st.lock_pose, trust)
 
 
 def grid_from_scans(
@@ -145,14 +252,16 @@ def patch_grid(
     resolution: float = PATCH_RESOLUTION,
     align: tuple[float, float] = (0.0, 0.0),
     mounting: Pose = (0.0, 0.0, 0.0),
+    refine: bool = True,
 ) -> BuiltGrid | None:
     """The recorded scans of ``stretches`` ray-cast at their corrected poses
-    (:func:`grid_from_scans`). None when no stretch recorded a scan."""
+    (:func:`grid_from_scans`; ``refine``: re-chained by :func:`refined_poses` first).
+    None when no stretch recorded a scan."""
     scans: list[NDArray[np.float64]] = []
     poses: list[NDArray[np.float64]] = []
     for st in stretches:
         scans.extend(pts for _, pts, _ in st.scans)
-        poses.extend(_stretch_poses(st))
+        poses.extend(_stretch_poses(st, refine))
     return grid_from_scans(scans, poses, resolution=resolution, align=align, mounting=mounting)
 
 
