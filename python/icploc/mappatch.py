@@ -121,7 +121,9 @@ def refined_poses(
         pose, t = guess, 0.0
         if world and pts.shape[0] >= 20:
             try:
-                res = icp(pts, MapIndex(np.concatenate(world), np.concatenate(normals)), guess, cfg)
+                res = icp(
+                    pts, MapIndex(np.concatenate(world), np.concatenate(normals), None), guess, cfg
+                )
             except IcpError:
                 res = None
             if res is not None and res.converged and res.inlier_ratio >= min_inliers:
