@@ -20,7 +20,9 @@ What is done (reusing benches/eval_real.py, seeded):
 * scores: inside the map = the first half: median / p95; *revisits* = second-half scans within
   1 m of a first-half reference position: share within 0.5 m; false ``tracking`` = scans
   ``tracking`` > 0.5 m off (MRPT has no status: every scan > 0.5 m off counts); for
-  icploc ``--partial-map`` also the stretches outside the map and the re-entry scans.
+  icploc ``--partial-map`` also the stretches outside the map, the re-entry scans and its
+  ``--map-patch``: the share of the patch's occupied cells within 10 / 20 cm of an
+  occupied cell of the full log's map at the reference poses.
 
 Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
 replay, partial map), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
@@ -77,7 +79,11 @@ def revisits(ref: NDArray[np.float64], keep: NDArray[np.int64], half: int) -> ND
 
 
 def run_icploc(
-    log_path: Path, map_yaml: Path, pose: tuple[float, float, float], partial: bool
+    log_path: Path,
+    map_yaml: Path,
+    pose: tuple[float, float, float],
+    partial: bool,
+    patch: Path | None = None,
 ) -> dict:
     from icploc.replay import replay
 
@@ -88,6 +94,7 @@ def run_icploc(
         map_yaml,
         initial_pose=pose,
         partial_map=partial,
+        map_patch=patch,
         on_localizer=lambda loc: got.setdefault("loc", loc),
     )
     out: dict[str, Any] = {
@@ -105,6 +112,23 @@ def run_icploc(
             for s in mon.stretches
         ]  # fmt: skip
     return out
+
+
+def patch_quality(patch: Path, full_map: Path) -> dict[str, Any]:
+    """The map patch's walls against the map of the whole log at the reference poses: per
+    occupied patch cell outside the partial map's walls, the distance to the nearest
+    occupied cell of the full map."""
+    from scipy.spatial import cKDTree
+
+    p = rg.read_map_server(patch)
+    f = rg.read_map_server(full_map)
+    d, _ = cKDTree(f.occupied_centres()).query(p.occupied_centres(), k=1)
+    return {
+        "patch_cells": int(len(d)),
+        "patch_wall_median_m": float(np.median(d)) if len(d) else None,
+        "patch_wall_within_0_1m": float(np.mean(d <= 0.1 + 1e-9)) if len(d) else None,
+        "patch_wall_within_0_2m": float(np.mean(d <= 0.2 + 1e-9)) if len(d) else None,
+    }
 
 
 def score(
@@ -168,9 +192,18 @@ def evaluate(
         row: dict[str, Any] = {"log": name, "method": m, "map_res_m": RES, "scans_in_log": n}
         try:
             if m.startswith("icploc"):
+                patch = cache / "partial" / f"{name}_patch.yaml" if m == "icploc" else None
+                if patch is not None:
+                    patch.unlink(missing_ok=True)
                 got = run_icploc(
-                    log_path, maps["full" if m == "icploc-full" else "partial"], pose, m == "icploc"
+                    log_path,
+                    maps["full" if m == "icploc-full" else "partial"],
+                    pose,
+                    m == "icploc",
+                    patch,
                 )
+                if patch is not None and patch.exists():
+                    got["patch"] = patch_quality(patch, maps["full"])
             elif m == "mrpt":
                 import real_mrpt
 
@@ -193,6 +226,8 @@ def evaluate(
         row["time_s"] = got.get("time_s")
         if "mapped" in got:
             row["outside_scans"] = int(np.sum(~np.asarray(got["mapped"])))
+        if "patch" in got:
+            row.update(got["patch"])
         if "stretches" in got:
             row["stretches"] = got["stretches"]
             ents = [s["reentry_scans"] for s in got["stretches"] if s["reentry_scans"] is not None]
@@ -213,16 +248,14 @@ def _pct(v: Any) -> str:
 
 HEADER = (
     "| log | method | scans | inside median cm | inside p95 cm | revisits | revisits within 0.5 m "
-    "| false tracking | lost | outside scans | re-entries (median scans) |\n"
-    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"
+    "| false tracking | lost | outside scans | re-entries (median scans) | patch walls within 10 / 20 cm |\n"
+    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"
 )
 
 
 def md_row(r: dict) -> str:
     if "scans" not in r:
-        return (
-            f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
-        )
+        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
     re_ = "–"
     if r.get("reentries") is not None:
         med = r.get("reentry_scans_median")
@@ -230,7 +263,14 @@ def md_row(r: dict) -> str:
     return (
         f"| {r['log']} | {r['method']} | {r['scans']} | {_cm(r['inside_median_m'])} | "
         f"{_cm(r['inside_p95_m'])} | {r['revisits']} | {_pct(r['revisits_within_0_5m'])} | "
-        f"{r['false_tracking']} | {_pct(r.get('lost_share'))} | {r.get('outside_scans', '–')} | {re_} |"
+        f"{r['false_tracking']} | {_pct(r.get('lost_share'))} | {r.get('outside_scans', '–')} | {re_} | "
+        + (
+            f"{_pct(r['patch_wall_within_0_1m'])} / {_pct(r['patch_wall_within_0_2m'])} "
+            f"of {r['patch_cells']}"
+            if r.get("patch_cells")
+            else "–"
+        )
+        + " |"
     )
 
 
