@@ -137,3 +137,17 @@ def test_no_match_and_no_search_runs_while_outside() -> None:
     _, _, ests, _ = localized()
     out = [x for x in ests if not x.mapped]
     assert [(x.iterations, x.hypotheses, x.measurement) for x in out] == [(0, (), None)] * len(out)
+
+
+def test_the_estimates_csv_says_a_scan_was_outside_the_map(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import csv
+
+    from icploc.localizer import Estimate, Status
+    from icploc.trajectory import EstimatesWriter
+
+    e = Estimate(1.0, (1.0, 2.0, 0.0), np.eye(3) * 1e-2, Status.DEGRADED, float("nan"), 0, 0.0,
+                 reason="outside_map", mapped=False)  # fmt: skip
+    with EstimatesWriter(tmp_path / "e.csv") as w:
+        w.write(e)
+    row = next(csv.DictReader((tmp_path / "e.csv").read_text().splitlines()))
+    assert [row["status"], row["reason"], row["mapped"]] == ["degraded", "outside_map", "0"]
