@@ -14,7 +14,9 @@ near, so :class:`OutsideMonitor` takes over the scan instead:
   ``confirm_scans`` scans in a row) the localizer is declared lost *at the dead-reckoned
   pose with its covariance*, so its recovery (:mod:`icploc.recovery`,
   :mod:`icploc.relocalize`) first searches locally around it, verifies, and only then
-  goes global. The scans from re-entry to the lock are counted per stretch.
+  goes global. The scans from re-entry to the lock are counted per stretch; they report
+  the dead-reckoned pose as ``degraded``, reason ``reentering`` (``lost`` once the
+  covariance is wider than ``localizer.lost_sigma_xy``).
 * **where the map is missing**: every stretch (first outside scan .. the re-entry lock)
   is kept in :attr:`OutsideMonitor.stretches`; with ``record=True`` also the scans' points
   and coasted poses, for :mod:`icploc.mappatch`.
@@ -54,6 +56,8 @@ __all__ = [
 
 #: the Estimate reason of a scan outside the map
 REASON = "outside_map"
+#: ... and of a scan back on the map, dead-reckoned while the re-entry search runs
+REENTERING = "reentering"
 
 
 @dataclass(frozen=True)
@@ -450,6 +454,12 @@ class OutsideMonitor:
             self._last_pose = est.pose
         if est.mapped != mapped:
             est = dataclasses.replace(est, mapped=mapped)
+        if self.state == "reentering" and est.status is Status.LOST:
+            # the dead-reckoned pose as outside the map, a search running around it: as
+            # sure as the coasted pose was (lost once its covariance is too wide)
+            sig = math.sqrt(max(float(est.covariance[0, 0] + est.covariance[1, 1]), 0.0))
+            if sig <= loc.config.localizer.lost_sigma_xy:
+                est = dataclasses.replace(est, status=Status.DEGRADED, reason=REENTERING)
         return est
 
     def _restore(self, loc: Localizer) -> None:
