@@ -221,7 +221,7 @@ def replay(
         bool, typer.Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
     ] = False,
     map_patch: Annotated[
-        Path | None, typer.Option("--map-patch", help="With --partial-map: write what the laser saw outside the map as a map_server grid (YAML + PGM); merge it with 'icploc map merge'")
+        Path | None, typer.Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
     ] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
