@@ -297,6 +297,12 @@ def replay(
             "prints the verdict (refined / ambiguous / rejected / moved)",
         ),
     ] = False,
+    partial_map: Annotated[
+        bool, typer.Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
+    ] = False,
+    map_patch: Annotated[
+        Path | None, typer.Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
+    ] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -314,7 +320,7 @@ def replay(
     kw: dict[str, Any] = dict(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
-        map_cache=False if no_cache else None,
+        map_cache=False if no_cache else None, partial_map=partial_map, map_patch=map_patch,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
                        tell=typer.echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip

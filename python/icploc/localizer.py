@@ -109,6 +109,8 @@ class Estimate:
     calibration: tuple[float, float, float] = (1.0, 1.0, 0.0)
     #: while lost: the recovery's ranked hypotheses (the pose itself stays dead-reckoned)
     hypotheses: tuple[Candidate, ...] = ()
+    #: False: the scan was outside the mapped area, the pose coasted (:mod:`icploc.outside`)
+    mapped: bool = True
 
     @property
     def x(self) -> float:
@@ -338,6 +340,8 @@ class Localizer:
         #: hook: called after every update with (scan, points, estimate), returns the
         #: estimate to report (:mod:`icploc.startrefine` while it refines the start)
         self.review: Callable[[Scan, NDArray[np.float64], Estimate], Estimate] | None = None
+        #: the outside-the-map monitor (:func:`icploc.outside.attach`), None: off
+        self.outside: Any = None
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         self.pose: Pose
         self.covariance: NDArray[np.float64]
@@ -422,10 +426,14 @@ class Localizer:
         odom = self._odometry_at(scan.stamp, odometry)
         pred, pred_cov = self._predict(odom)
         pts = prepare_scan(scan, self.config, self._trig)
-        if self.status is Status.LOST:
+        hook = self.outside  # icploc.outside: a scan outside the map is coasted there
+        est = None if hook is None else hook.before(self, scan, pts, pred, pred_cov, odom, t0)
+        if est is None and self.status is Status.LOST:
             est = self._update_lost(scan, pts, pred, pred_cov, odom, t0)
-        else:
+        elif est is None:
             est = self._update_tracking(scan, pts, pred, pred_cov, odom, t0)
+        if hook is not None:
+            est = hook.after(self, est, pts)
         if self.review is not None:  # hook: icploc.startrefine
             est = self.review(scan, pts, est)
         self._counters.scans += 1

@@ -58,6 +58,8 @@ class ReplayResult:
     dropped_stamps: int = 0
     #: the replay was stopped by Ctrl-C (the files hold every scan localized until then)
     interrupted: bool = False
+    #: more summary lines (icploc.outside: the stretches outside the map)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def scans(self) -> int:
@@ -141,6 +143,7 @@ class ReplayResult:
                 f"odometry calibration (learned): distance x{s_:.4f}, turns x{t_:.4f}, "
                 f"heading drift {math.degrees(d_):+.2f} deg/m"
             )
+        parts.extend(self.notes)
         if self.metrics:
             parts.append(
                 "vs truth: "
@@ -193,6 +196,8 @@ def replay(
     inputs: Sequence[str | Path] = (),
     on_localizer: Callable[[Localizer], None] | None = None,
     map_cache: bool | None = None,
+    partial_map: bool = False,
+    map_patch: str | Path | None = None,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -218,7 +223,12 @@ def replay(
         ins.extend(map_inputs(map_))
     if isinstance(truth, (str, Path)):
         ins.append(truth)
-    check_outputs({"--out": out, "--estimates": estimates, "--plot": plot}, ins)
+    outs: dict[str, Any] = {"--out": out, "--estimates": estimates, "--plot": plot}
+    if map_patch is not None:  # icploc.outside / icploc.mappatch: the map's missing parts
+        from icploc.mappatch import patch_outputs
+
+        outs.update(patch_outputs(map_patch))
+    check_outputs(outs, ins)
 
     cfg = config or LocalizerConfig()
     t0 = time.perf_counter()
@@ -306,6 +316,11 @@ def replay(
         attach(loc)
     if on_localizer is not None:  # hooks: icploc.mcap_export (--mcap)
         on_localizer(loc)
+    outside = None
+    if partial_map or map_patch is not None:
+        from icploc.outside import attach as attach_outside
+
+        outside = attach_outside(loc, record=map_patch is not None)
     n = len(scans)
     step = max(1, n // 200)
     got: list[Estimate] = []
@@ -367,6 +382,8 @@ def replay(
         res.evaluation = evaluate(res.trajectory, truth_tr)
         if res.evaluation is not None:
             res.metrics = res.evaluation.metrics()
+    if outside is not None:
+        outside.finish(res, m, map_patch)
     if plot is not None and got:
         from icploc.plotting import plot_run
 

@@ -328,7 +328,7 @@ class TumWriter(_RowWriter):
 ESTIMATE_COLUMNS = (
     "stamp", "x", "y", "theta", "status", "reason", "inlier_ratio",
     "cov_xx", "cov_xy", "cov_yy", "cov_tt", "cov_xt", "cov_yt",
-    "accepted", "iterations", "num_points", "degeneracy",
+    "accepted", "iterations", "num_points", "degeneracy", "mapped",
 )  # fmt: skip
 
 
@@ -353,6 +353,7 @@ class EstimatesWriter(_RowWriter):
                 f"{c[0][0]:.6g}", f"{c[0][1]:.6g}", f"{c[1][1]:.6g}", f"{c[2][2]:.6g}",
                 f"{c[0][2]:.6g}", f"{c[1][2]:.6g}",
                 int(bool(e.accepted)), int(e.iterations), int(e.num_points), f"{e.degeneracy:.4g}",
+                int(bool(getattr(e, "mapped", True))),  # 0: outside the map (icploc.outside)
             )
         )  # fmt: skip
         self.rows += 1

@@ -204,3 +204,27 @@ def build(
         f"{int(g.occupied.sum())} occupied, {int(g.free.sum())} free "
         f"({time.perf_counter() - t0:.1f} s)"
     )
+
+
+@map_app.command()
+def merge(
+    map_path: Path = typer.Argument(..., help="map_server map (.yaml) to extend"),
+    patch: Path = typer.Argument(..., help="map patch (.yaml; icploc replay --map-patch)"),
+    out: Path = typer.Option(..., "--out", "-o", help="merged map_server map to write (.yaml)"),
+) -> None:
+    """Merge a map patch into a map: cells the map knows keep its value, cells it does not
+    know (unknown, beyond its edge) take the patch's."""
+    from icploc.outputs import OutputError
+
+    from .merge import merge_files
+
+    try:
+        r = merge_files(map_path, patch, out)
+    except (MapError, OutputError, OSError) as e:
+        raise _fail(e) from e
+    h, w = r.occupied.shape
+    shift = f"; patch moved {r.shift * 100:.1f} cm onto the map's cells" if r.shift > 1e-6 else ""
+    typer.echo(
+        f"wrote {out}: {w} x {h} cells at {r.resolution} m; the patch added "
+        f"{r.added_occupied} occupied and {r.added_free} free cells{shift}"
+    )

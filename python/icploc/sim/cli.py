@@ -20,8 +20,8 @@ sim_app = typer.Typer(
 
 @sim_app.command("serve")
 def serve(
-    people: Annotated[int, typer.Option(min=0, help="People walking in the room")] = 2,
-    seed: Annotated[int, typer.Option(help="Seed of the people, the noise and the faults")] = 0,
+    people: Annotated[int, typer.Option(min=0, help="People walking in the room (count)")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed of the people, the noise and the faults (an integer)")] = 0,
     fast: Annotated[
         bool, typer.Option("--fast", help="Test mode: send as fast as the host reads, not in real time")
     ] = False,
@@ -30,7 +30,7 @@ def serve(
         typer.Option("--drive", help="Drive a built-in square plan instead of obeying host commands"),
     ] = False,
     duration: Annotated[
-        float | None, typer.Option(min=0.0, help="Stop after this many seconds (default: at Ctrl-C)")
+        float | None, typer.Option(min=0.0, help="Stop after this long (s; default: at Ctrl-C)")
     ] = None,
 ) -> None:
     """Run a simulated SICK PLS and PowerBot in a 10 m x 8 m room until Ctrl-C, printing

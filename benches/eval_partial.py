@@ -1,0 +1,313 @@
+r"""Partial maps on real data (issue 17): a map of the first half of a log, the whole log
+localized against it.
+
+Usage::
+
+    .venv/bin/python benches/eval_partial.py                  # aces, intel, freiburg-101
+    .venv/bin/python benches/eval_partial.py aces --methods icploc,icploc-plain,mrpt
+
+What is done (reusing benches/eval_real.py, seeded):
+
+* the radish corrected log's poses are the reference; raw odometry from the real error model
+  of benches/real_odometry.py (base ``good``); scans kept sparsely (0.5 m / 0.5 rad);
+* the **partial map**: a 10 cm map_server grid (benches/real_grid.py ray casting) from the
+  **first half**: every second kept scan there and the dense scans the localization does
+  not use (more than one scan from a localized one); the **full map** the same from the
+  whole log (for "the same figures as on a full map": compare the first half; in the
+  second half the full map holds every second localized scan's neighbour);
+* every method localizes the whole log from the first reference pose: the first half's
+  other kept scans, all kept scans of the second half;
+* scores: inside the map = the first half: median / p95; *revisits* = second-half scans within
+  1 m of a first-half reference position: share within 0.5 m; false ``tracking`` = scans
+  ``tracking`` > 0.5 m off (MRPT has no status: every scan > 0.5 m off counts); for
+  icploc ``--partial-map`` also the stretches outside the map, the re-entry scans and its
+  ``--map-patch``: the share of the patch's occupied cells within 10 / 20 cm of an
+  occupied cell of the full log's map at the reference poses.
+
+Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
+replay, partial map), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
+partial map; as eval_real runs it). Writes ``benches/results/partial.md`` / ``.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+import eval_real as er  # noqa: E402
+import real_grid as rg  # noqa: E402
+import real_logs as rl  # noqa: E402
+import real_odometry as ro  # noqa: E402
+
+DEFAULT_LOGS = ["aces", "intel", "freiburg-101"]
+METHODS = ["icploc", "icploc-plain", "icploc-full", "mrpt"]
+RES = 0.10
+REVISIT_M = 1.0
+GOOD_M = 0.5
+VERSION = "p1"
+
+
+def held_out(n: int, keep: NDArray[np.int64], stop: int, guard: int = 1) -> NDArray[np.int64]:
+    """Dense scans in [0, stop) more than ``guard`` scans from a kept (localized) one."""
+    near = np.zeros(n, dtype=bool)
+    for g in range(-guard, guard + 1):
+        i = keep + g
+        near[i[(i >= 0) & (i < n)]] = True
+    idx = np.arange(stop)
+    return idx[~near[:stop]]
+
+
+def revisits(ref: NDArray[np.float64], keep: NDArray[np.int64], half: int) -> NDArray[np.bool_]:
+    """Per kept scan: in the second half and within REVISIT_M of a first-half place."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(ref[:half, :2])
+    d, _ = tree.query(ref[keep, :2], k=1)
+    return (keep >= half) & (d <= REVISIT_M)
+
+
+def run_icploc(
+    log_path: Path,
+    map_yaml: Path,
+    pose: tuple[float, float, float],
+    partial: bool,
+    patch: Path | None = None,
+) -> dict:
+    from icploc.replay import replay
+
+    got: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    res = replay(
+        log_path,
+        map_yaml,
+        initial_pose=pose,
+        partial_map=partial,
+        map_patch=patch,
+        on_localizer=lambda loc: got.setdefault("loc", loc),
+    )
+    out: dict[str, Any] = {
+        "poses": [list(e.pose) for e in res.estimates],
+        "status": [e.status.value for e in res.estimates],
+        "mapped": [bool(getattr(e, "mapped", True)) for e in res.estimates],
+        "time_s": time.perf_counter() - t0,
+        "notes": list(res.notes),
+    }
+    mon = getattr(got["loc"], "outside", None)
+    if mon is not None:
+        out["stretches"] = [
+            {"start": s.start, "end": s.end, "outside_scans": s.outside_scans,
+             "reentry_scans": s.reentry_scans, "distance_m": s.distance}
+            for s in mon.stretches
+        ]  # fmt: skip
+    return out
+
+
+def patch_quality(patch: Path, full_map: Path) -> dict[str, Any]:
+    """The map patch's walls against the map of the whole log at the reference poses: per
+    occupied patch cell outside the partial map's walls, the distance to the nearest
+    occupied cell of the full map."""
+    from scipy.spatial import cKDTree
+
+    p = rg.read_map_server(patch)
+    f = rg.read_map_server(full_map)
+    d, _ = cKDTree(f.occupied_centres()).query(p.occupied_centres(), k=1)
+    return {
+        "patch_cells": int(len(d)),
+        "patch_wall_median_m": float(np.median(d)) if len(d) else None,
+        "patch_wall_within_0_1m": float(np.mean(d <= 0.1 + 1e-9)) if len(d) else None,
+        "patch_wall_within_0_2m": float(np.mean(d <= 0.2 + 1e-9)) if len(d) else None,
+    }
+
+
+def score(
+    est: NDArray[np.float64],
+    ref: NDArray[np.float64],
+    status: list[str] | None,
+    first: NDArray[np.bool_],
+    rev: NDArray[np.bool_],
+) -> dict[str, Any]:
+    e = np.hypot(est[:, 0] - ref[:, 0], est[:, 1] - ref[:, 1])
+    e = np.where(np.isfinite(e), e, np.inf)
+    claimed = np.ones(len(e), bool) if status is None else np.asarray(status) == "tracking"
+    return {
+        "scans": len(e),
+        "inside_median_m": float(np.median(e[first])),
+        "inside_p95_m": float(np.percentile(e[first], 95, method="higher")),
+        "second_half_median_m": float(np.median(e[~first])) if (~first).any() else None,
+        "revisits": int(rev.sum()),
+        "revisits_within_0_5m": float(np.mean(e[rev] <= GOOD_M)) if rev.any() else None,
+        "false_tracking": int(np.sum(claimed & (e > GOOD_M))),
+        "tracking_share": None if status is None else float(np.mean(claimed)),
+        "lost_share": None if status is None else float(np.mean(np.asarray(status) == "lost")),
+    }
+
+
+def evaluate(
+    path: Path, methods: list[str], cache: Path, seed: int, max_range: float
+) -> list[dict]:
+    name = path.name.replace("-corrected.log.gz", "")
+    log = rl.read_flaser(path)
+    ref = log.poses
+    n = len(log)
+    half = n // 2
+    kept = rl.sparsify(ref, distance=0.5, angle=0.5)
+    # the first half's kept scans alternate: localized / put in the map (the logs are
+    # sparse already: a map of the localized scans themselves would flatter)
+    k1, k2 = kept[kept < half], kept[kept >= half]
+    keep = np.concatenate([k1[::2], k2])
+    model = er.fit_bases(er.DATA)["good"]
+    odom = ro.apply_model(model, ref, seed=er._seed(seed, name, "good"))
+    stamps = er._stamps(log)
+    mr = min(max_range, log.no_return)
+    maps = {}
+    for kind, stop in (("partial", half), ("full", n)):
+        y = cache / "partial" / f"{name}_{kind}_{int(RES * 100)}cm_{VERSION}.yaml"
+        if not y.exists():
+            y.parent.mkdir(parents=True, exist_ok=True)
+            extra = k1[1::2] if kind == "partial" else np.concatenate([k1[1::2], k2[1::2]])
+            idx = np.union1d(held_out(n, keep, stop), extra)
+            grid = rg.rasterise(log.ranges[idx], log.angles, ref[idx], RES, mr)
+            rg.write_map_server(grid, y)
+        maps[kind] = y
+    log_path = cache / "partial" / f"{name}_good_s{seed}_{VERSION}.log"
+    if not log_path.exists():
+        rl.write_flaser(log_path, log.ranges[keep], odom[keep], stamps[keep])
+    pose = tuple(float(v) for v in ref[0])
+    first = keep < half
+    rev = revisits(ref, keep, half)
+    rows = []
+    for m in methods:
+        row: dict[str, Any] = {"log": name, "method": m, "map_res_m": RES, "scans_in_log": n}
+        try:
+            if m.startswith("icploc"):
+                patch = cache / "partial" / f"{name}_patch.yaml" if m == "icploc" else None
+                if patch is not None:
+                    patch.unlink(missing_ok=True)
+                got = run_icploc(
+                    log_path,
+                    maps["full" if m == "icploc-full" else "partial"],
+                    pose,
+                    m == "icploc",
+                    patch,
+                )
+                if patch is not None and patch.exists():
+                    got["patch"] = patch_quality(patch, maps["full"])
+            elif m == "mrpt":
+                import real_mrpt
+
+                if not real_mrpt.available():
+                    raise RuntimeError("MRPT tools not found (apt-get install mrpt-apps)")
+                work = cache / "work" / f"partial_{name}_{seed}"
+                got = real_mrpt.run_mrpt(
+                    work, log.ranges[keep], odom[keep], maps["partial"], pose, mr
+                )
+                got["status"] = None
+            else:
+                raise ValueError(f"unknown method {m}")
+        except Exception as e:  # noqa: BLE001 - one failing method must not hide the others
+            row["error"] = f"{type(e).__name__}: {e}"
+            rows.append(row)
+            print(f"  {name} {m}: {row['error']}", file=sys.stderr)
+            continue
+        est = np.asarray(got["poses"], dtype=np.float64).reshape(-1, 3)
+        row.update(score(est, ref[keep], got.get("status"), first, rev))
+        row["time_s"] = got.get("time_s")
+        if "mapped" in got:
+            row["outside_scans"] = int(np.sum(~np.asarray(got["mapped"])))
+        if "patch" in got:
+            row.update(got["patch"])
+        if "stretches" in got:
+            row["stretches"] = got["stretches"]
+            ents = [s["reentry_scans"] for s in got["stretches"] if s["reentry_scans"] is not None]
+            row["reentries"] = len(ents)
+            row["reentry_scans_median"] = float(np.median(ents)) if ents else None
+        rows.append(row)
+        print(md_row(row), flush=True)
+    return rows
+
+
+def _cm(v: Any) -> str:
+    return "–" if v is None else ("inf" if not math.isfinite(v) else f"{v * 100:.1f}")
+
+
+def _pct(v: Any) -> str:
+    return "–" if v is None else f"{v * 100:.0f} %"
+
+
+HEADER = (
+    "| log | method | scans | inside median cm | inside p95 cm | revisits | revisits within 0.5 m "
+    "| false tracking | lost | outside scans | re-entries (median scans) | patch walls within 10 / 20 cm |\n"
+    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"
+)
+
+
+def md_row(r: dict) -> str:
+    if "scans" not in r:
+        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
+    re_ = "–"
+    if r.get("reentries") is not None:
+        med = r.get("reentry_scans_median")
+        re_ = f"{r['reentries']} of {len(r['stretches'])} ({'–' if med is None else f'{med:g}'})"
+    return (
+        f"| {r['log']} | {r['method']} | {r['scans']} | {_cm(r['inside_median_m'])} | "
+        f"{_cm(r['inside_p95_m'])} | {r['revisits']} | {_pct(r['revisits_within_0_5m'])} | "
+        f"{r['false_tracking']} | {_pct(r.get('lost_share'))} | {r.get('outside_scans', '–')} | {re_} | "
+        + (
+            f"{_pct(r['patch_wall_within_0_1m'])} / {_pct(r['patch_wall_within_0_2m'])} "
+            f"of {r['patch_cells']}"
+            if r.get("patch_cells")
+            else "–"
+        )
+        + " |"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("logs", nargs="*", default=DEFAULT_LOGS)
+    ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-range", type=float, default=30.0)
+    ap.add_argument("--cache", type=Path, default=er.cache_dir())
+    ap.add_argument("--out-dir", type=Path, default=er.RESULTS)
+    a = ap.parse_args(argv)
+    methods = [m for m in a.methods.split(",") if m]
+    paths = er.find_logs(er.DATA, a.logs)
+    if not paths:
+        print(
+            f"no radish logs matching {a.logs} in {er.DATA / 'radish_corrected_logs'}",
+            file=sys.stderr,
+        )
+        return 2
+    print(HEADER)
+    rows: list[dict] = []
+    for p in paths:
+        rows += evaluate(p, methods, a.cache, a.seed, a.max_range)
+    a.out_dir.mkdir(parents=True, exist_ok=True)
+    table = "\n".join([HEADER, *(md_row(r) for r in rows)])
+    (a.out_dir / "partial.md").write_text(
+        "Partial maps (benches/eval_partial.py): a 10 cm map of each log's first half, the whole "
+        "log localized, raw odometry of the real error model (good), sparse scans.\n\n"
+        + table
+        + "\n"
+    )
+    (a.out_dir / "partial.json").write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

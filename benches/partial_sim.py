@@ -1,0 +1,65 @@
+"""The simulated building whose map lacks a wing (tests/partial_world.py), localized with
+and without the outside-the-map state; prints the false-tracking count, the errors inside
+the map and the map patch's walls against the true ones.
+
+    .venv/bin/python benches/partial_sim.py [--seed N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from partial_world import WING_BOX, partial_run, wall_distance  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args(argv)
+    from icploc.localizer import Localizer, run
+    from icploc.mappatch import patch_grid
+    from icploc.outside import attach
+
+    r, m = partial_run(a.seed)
+    for partial in (False, True):
+        loc = Localizer(m, initial_pose=tuple(r.truth[0]))
+        mon = attach(loc, record=True) if partial else None
+        ests = run(loc, r.items)
+        p = np.array([e.pose for e in ests])
+        e = np.hypot(p[:, 0] - r.truth[:, 0], p[:, 1] - r.truth[:, 1])
+        st = np.array([x.status.value for x in ests])
+        mapped = np.array([x.mapped for x in ests])
+        print(
+            f"{'--partial-map' if partial else 'plain'}: {len(ests)} scans, tracking > 0.5 m off: "
+            f"{int(np.sum((st == 'tracking') & (e > 0.5)))}, max error {e.max():.2f} m, "
+            f"scans reported inside the map: median {np.median(e[mapped]) * 100:.1f} cm, "
+            f"p95 {np.percentile(e[mapped], 95) * 100:.1f} cm; outside: {int((~mapped).sum())}"
+        )
+        if mon is None:
+            continue
+        for line in mon.summary_lines(len(ests)):
+            print("  " + line)
+        g = patch_grid(mon.stretches, resolution=float(m.resolution))
+        if g is None:
+            continue
+        occ = np.argwhere(g.occupied)
+        xy = np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution
+        x0, y0, x1, y1 = WING_BOX
+        box = (xy[:, 0] > x0 + 0.5) & (xy[:, 0] < x1 + 0.5) & (xy[:, 1] > y0 - 0.5) & (xy[:, 1] < y1 + 0.5)
+        d = wall_distance(r.world, xy[box])
+        print(
+            f"  patch: {len(d)} wall cells in the wing, distance to the true walls: median "
+            f"{np.median(d) * 100:.1f} cm, within 10 cm {np.mean(d <= 0.1) * 100:.0f} %, "
+            f"p95 {np.percentile(d, 95) * 100:.1f} cm, max {d.max() * 100:.1f} cm"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,576 @@
+"""Outside the map: recognise it from the scan, coast on odometry, come back in.
+
+Maps are rarely complete. When most of a scan's beams end in space the map knows nothing
+about (unknown cells of a map_server grid, or beyond the map's bounds; for a map of lines
+or points: far from every wall) while the localizer still believes its pose, the robot has
+left the mapped area. Matching there would pull the pose onto whatever walls happen to be
+near, so :class:`OutsideMonitor` takes over the scan instead:
+
+* **outside**: no scan matching and no global search; the pose is the odometry
+  prediction (calibrated by :mod:`icploc.calibration`, its covariance grown by the motion
+  model each scan). Status ``degraded`` (``lost`` once the covariance is wider than
+  ``localizer.lost_sigma_xy``), reason ``outside_map``, ``Estimate.mapped`` False.
+* **re-entry**: once the scan lands mostly on mapped space again (``exit_share``, for
+  ``confirm_scans`` scans in a row) the localizer is declared lost *at the dead-reckoned
+  pose with its covariance*, so its recovery (:mod:`icploc.recovery`,
+  :mod:`icploc.relocalize`) first searches locally around it, verifies, and only then
+  goes global. The scans from re-entry to the lock are counted per stretch; they report
+  the dead-reckoned pose as ``degraded``, reason ``reentering`` (``lost`` once the
+  covariance is wider than ``localizer.lost_sigma_xy``).
+* **where the map is missing**: every stretch (first outside scan .. the re-entry lock)
+  is kept in :attr:`OutsideMonitor.stretches`; with ``record=True`` also the scans' points
+  and coasted poses, for :mod:`icploc.mappatch`.
+
+A localizer gets a monitor with :func:`attach`; the :class:`~icploc.localizer.Localizer`
+calls :meth:`OutsideMonitor.before` ahead of its own matching and
+:meth:`OutsideMonitor.after` on every estimate (its ``outside`` hook).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icploc.se2 import Pose
+
+if TYPE_CHECKING:
+    from icploc.localizer import Estimate, Localizer
+    from icploc.types import Scan
+
+__all__ = [
+    "MappedArea",
+    "OutsideConfig",
+    "OutsideMonitor",
+    "Stretch",
+    "attach",
+    "stretch_lines",
+]
+
+#: the Estimate reason of a scan outside the map
+REASON = "outside_map"
+#: ... and of a scan back on the map, dead-reckoned while the re-entry search runs
+REENTERING = "reentering"
+
+
+@dataclass(frozen=True)
+class OutsideConfig:
+    """Settings of the outside-the-map state (one source of their defaults)."""
+
+    #: share of a scan's beams on unmapped space (at the predicted pose) that means outside
+    enter_share: float = 0.5
+    #: a lost localizer's dead-reckoned pose still counts (outside the map may begin lost:
+    #: the scan half unmapped contradicts the pose) while its sigma is at most this [m]
+    lost_sigma: float = 1.0
+    #: share at or below which the scan explains the map again (re-entry)
+    exit_share: float = 0.35
+    #: scans in a row below ``exit_share`` before re-entry starts
+    confirm_scans: int = 2
+    #: a beam ending farther than this from every mapped cell/point is unmapped [m] (maps
+    #: without free space: lines, points)
+    reach: float = 1.0
+    #: mapped cells of a grid are grown by this much before the test [m] (pose error, a
+    #: wall seen from the other side)
+    margin: float = 0.2
+    #: cell size of the mapped-area mask of a map without a grid [m]
+    resolution: float = 0.1
+    #: the re-entry watch also tries poses within this many sigmas of the dead-reckoned
+    #: one (at most ``probe_radius`` metres): a drifted pose must not hide the map
+    probe_sigmas: float = 3.0
+    probe_radius: float = 5.0
+    #: ... and at least this far [m] (long dead reckoning drifts more than its covariance
+    #: says: real odometry errors are systematic)
+    probe_min_radius: float = 1.0
+    #: scans a re-entry candidate must stay put (by odometry) before it locks
+    reentry_confirm: int = 2
+    #: scans of the local re-entry search before the localizer's own recovery takes over
+    reentry_local_scans: int = 10
+
+    def validate(self) -> OutsideConfig:
+        if not (0.0 < self.exit_share < self.enter_share <= 1.0):
+            raise ValueError(
+                "outside: need 0 < exit_share < enter_share <= 1, got "
+                f"exit_share={self.exit_share}, enter_share={self.enter_share}"
+            )
+        if self.confirm_scans < 1:
+            raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
+        if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
+            raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
+        for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
+                  "probe_min_radius"):  # fmt: skip
+            v = getattr(self, k)
+            if not (math.isfinite(v) and v >= 0.0) or (k == "resolution" and v <= 0.0):
+                raise ValueError(f"outside: {k} must be a finite number >= 0, got {v!r}")
+        return self
+
+
+def _dilate(mask: NDArray[np.bool_], r: int) -> NDArray[np.bool_]:
+    """``mask`` grown by a (2r+1)-square (box sums over cumulative sums)."""
+    if r <= 0:
+        return mask.copy()
+    out = mask.astype(np.int32)
+    for axis in (0, 1):
+        c = np.cumsum(out, axis=axis)
+        n = out.shape[axis]
+        pad_shape = list(out.shape)
+        pad_shape[axis] = 1
+        c = np.concatenate([np.zeros(pad_shape, dtype=c.dtype), c], axis=axis)
+        hi = np.clip(np.arange(n) + r + 1, 0, n)
+        lo = np.clip(np.arange(n) - r, 0, n)
+        out = np.take(c, hi, axis=axis) - np.take(c, lo, axis=axis)
+    return out > 0
+
+
+@dataclass
+class MappedArea:
+    """Where the map knows anything: a boolean mask ``known[iy, ix]`` of cells
+    ``resolution`` wide from ``origin`` (axis-aligned); everything beyond it is unmapped."""
+
+    known: NDArray[np.bool_]
+    resolution: float
+    origin: tuple[float, float]
+    yaw: float = 0.0
+
+    @classmethod
+    def of(cls, map_: Any, index: Any, config: OutsideConfig | None = None) -> MappedArea:
+        """The mapped area of a localizer's map: a grid's observed (free or occupied) cells
+        grown by ``margin``; otherwise cells within ``reach`` of a map point."""
+        cfg = config or OutsideConfig()
+        grid = getattr(map_, "grid", None)
+        free = getattr(map_, "free", None)
+        res = getattr(map_, "resolution", None)
+        if grid is not None and free is not None and res:
+            known = np.asarray(grid, dtype=bool) | np.asarray(free, dtype=bool)
+            r = int(math.ceil(cfg.margin / float(res) - 1e-9))
+            o = map_.origin
+            return cls(_dilate(known, r), float(res), (float(o[0]), float(o[1])), float(o[2]))
+        pts = np.asarray(index.points, dtype=np.float64).reshape(-1, 2)
+        if pts.shape[0] == 0:
+            raise ValueError("outside: the map holds no points")
+        res = cfg.resolution
+        lo = np.floor((pts.min(axis=0) - cfg.reach) / res) * res - res
+        hi = pts.max(axis=0) + cfg.reach + res
+        w, h = (int(math.ceil(v)) + 1 for v in (hi - lo) / res)
+        known = np.zeros((h, w), dtype=bool)
+        c = np.floor((pts - lo) / res).astype(np.int64)
+        known[c[:, 1], c[:, 0]] = True
+        return cls(
+            _dilate(known, int(math.ceil(cfg.reach / res))), res, (float(lo[0]), float(lo[1]))
+        )
+
+    def unmapped(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Per map-frame point: beyond the mask or in an unknown cell."""
+        q = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - np.asarray(self.origin)
+        if self.yaw:
+            c, s = math.cos(self.yaw), math.sin(self.yaw)
+            q = np.column_stack([c * q[:, 0] + s * q[:, 1], -s * q[:, 0] + c * q[:, 1]])
+        cell = np.floor(q / self.resolution).astype(np.int64)
+        h, w = self.known.shape
+        inside = (cell[:, 0] >= 0) & (cell[:, 0] < w) & (cell[:, 1] >= 0) & (cell[:, 1] < h)
+        out = np.ones(len(q), dtype=bool)
+        ci = cell[inside]
+        out[inside] = ~self.known[ci[:, 1], ci[:, 0]]
+        return out
+
+    def best_share(self, points: NDArray[np.float64], poses: NDArray[np.float64]) -> float:
+        """The lowest unmapped share of ``points`` over ``poses`` (K, 3) (nan without
+        points); every fourth point is used."""
+        p = points[::4] if points.shape[0] >= 40 else points
+        if p.shape[0] == 0:
+            return float("nan")
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        x = poses[:, 0:1] + c * p[:, 0] - s * p[:, 1]
+        y = poses[:, 1:2] + s * p[:, 0] + c * p[:, 1]
+        un = self.unmapped(np.column_stack([x.ravel(), y.ravel()])).reshape(len(poses), -1)
+        return float(un.mean(axis=1).min())
+
+    def unmapped_share(self, points: NDArray[np.float64], pose: Pose) -> float:
+        """Share of robot-frame ``points`` that end on unmapped space seen from ``pose``
+        (nan without points)."""
+        if points.shape[0] == 0:
+            return float("nan")
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        xy = np.column_stack(
+            [
+                pose[0] + c * points[:, 0] - s * points[:, 1],
+                pose[1] + s * points[:, 0] + c * points[:, 1],
+            ]
+        )
+        return float(self.unmapped(xy).mean())
+
+
+def _probe_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> NDArray[np.float64]:
+    """Poses within ``probe_sigmas`` of ``pose`` (at most ``probe_radius``): a 9 x 9 grid
+    of positions times three headings; (K, 3) with ``pose`` first."""
+    sxy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
+    sth = math.sqrt(max(float(cov[2, 2]), 0.0))
+    r = min(max(cfg.probe_sigmas * sxy, cfg.probe_min_radius), cfg.probe_radius)
+    dth = min(cfg.probe_sigmas * sth, math.pi)
+    g = np.linspace(-r, r, 9) if r > 0.05 else np.zeros(1)
+    h = np.array([0.0, -dth, dth]) if dth > 0.01 else np.zeros(1)
+    dx, dy, dt = np.meshgrid(g, g, h, indexing="ij")
+    out = np.column_stack([pose[0] + dx.ravel(), pose[1] + dy.ravel(), pose[2] + dt.ravel()])
+    return np.vstack([np.asarray(pose, dtype=np.float64)[None, :], out])
+
+
+class ReentryRecovery:
+    """The recovery (:class:`icploc.recovery.Recovery`) a localizer uses while it comes
+    back into the map: first a verified local search around the dead-reckoned pose over
+    its whole uncertainty (the probe poses ranked by the share of beams that end on map
+    walls, the best few refined by ICP and verified by the localizer; a pose that stays
+    put by odometry for ``reentry_confirm`` scans locks), then — after
+    ``reentry_local_scans`` scans without a lock — the localizer's own recovery (global)."""
+
+    def __init__(
+        self,
+        fallback: Any,
+        index: Any,
+        hit_distance: float,
+        config: OutsideConfig,
+        *,
+        starts: int = 4,
+    ) -> None:
+        self.fallback = fallback
+        self.index = index
+        self.hit_distance = hit_distance
+        self.config = config
+        self.confirm = config.reentry_confirm
+        self.local_scans = config.reentry_local_scans
+        self.starts = starts
+        self._leader: Pose | None = None
+        self._streak = 0
+        self.scans = 0
+
+    def reset(self) -> None:
+        self._leader, self._streak, self.scans = None, 0, 0
+        self.fallback.reset()
+
+    def __getattr__(self, name: str) -> Any:  # check_pose and the like: the fallback's
+        if name == "fallback":
+            raise AttributeError(name)
+        return getattr(self.fallback, name)
+
+    def _ranked(self, view: Any, points: NDArray[np.float64]) -> list[Pose]:
+        poses = _probe_poses(view.pose, view.covariance, self.config)
+        p = points[:: max(1, points.shape[0] // 45)]
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        x = poses[:, 0:1] + c * p[:, 0] - s * p[:, 1]
+        y = poses[:, 1:2] + s * p[:, 0] + c * p[:, 1]
+        d, _ = self.index.nearest(np.ascontiguousarray(np.column_stack([x.ravel(), y.ravel()])))
+        hit = (np.asarray(d).reshape(len(poses), -1) < self.hit_distance).mean(axis=1)
+        order = np.argsort(-hit, kind="stable")
+        out: list[Pose] = [(float(poses[0, 0]), float(poses[0, 1]), float(poses[0, 2]))]
+        for i in order:
+            q = (float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2]))
+            if all(math.hypot(q[0] - o[0], q[1] - o[1]) > 0.5 for o in out):
+                out.append(q)
+            if len(out) >= self.starts:
+                break
+        return out
+
+    def recover(self, view: Any, points: NDArray[np.float64]) -> Any:
+        from icploc.recovery import Candidate, RecoveryStep
+        from icploc.se2 import compose, wrap_angle
+
+        self.scans += 1
+        if self.scans > self.local_scans:
+            return self.fallback.recover(view, points)
+        if self._leader is not None and view.motion is not None:
+            self._leader = compose(self._leader, view.motion)
+        best = None
+        for start in self._ranked(view, points):
+            ok, res, pose = view.verify(points, start)
+            if ok and res is not None:
+                best = (pose, res)
+                break
+        if best is None:
+            self._leader, self._streak = None, 0
+            return RecoveryStep("searching")
+        pose, res = best
+        lead = self._leader
+        if (
+            lead is not None
+            and math.hypot(pose[0] - lead[0], pose[1] - lead[1]) <= 0.15
+            and abs(wrap_angle(pose[2] - lead[2])) <= math.radians(5.0)
+        ):
+            self._streak += 1
+        else:
+            self._streak = 1
+        self._leader = pose
+        hyp = (Candidate(pose, float(res.inlier_ratio), float(res.inlier_ratio), True),)
+        if self._streak >= self.confirm:
+            self._leader, self._streak = None, 0
+            return RecoveryStep("locked", hyp, lock=pose, result=res)
+        return RecoveryStep("confirming", hyp)
+
+
+@dataclass
+class Stretch:
+    """One stretch outside the map: from its first outside scan to the re-entry lock."""
+
+    start: int  #: index (scans processed by the localizer) of the first outside scan
+    start_stamp: float
+    exit_pose: Pose  #: the last pose before leaving (the coasting's origin)
+    end: int | None = None  #: index of the scan that locked again (None: not back yet)
+    end_stamp: float | None = None
+    #: scans from the start of re-entry (the scan explains the map again) to the lock
+    reentry_scans: int | None = None
+    outside_scans: int = 0  #: scans coasted outside the map
+    distance: float = 0.0  #: metres coasted (odometry)
+    max_sigma_xy: float = 0.0  #: the widest coasted position sigma
+    #: the re-lock's correction of the dead-reckoned pose (dx, dy, dtheta; map frame)
+    correction: Pose | None = None
+    lock_pose: Pose | None = None
+    #: with ``record``: per scan (index, points in the robot frame, coasted pose)
+    scans: list[tuple[int, NDArray[np.float64], Pose]] = field(default_factory=list, repr=False)
+
+    @property
+    def closed(self) -> bool:
+        return self.end is not None
+
+
+class OutsideMonitor:
+    """The outside-the-map state of one localizer (see the module docstring)."""
+
+    def __init__(
+        self,
+        area: MappedArea,
+        config: OutsideConfig | None = None,
+        *,
+        record: bool = False,
+        mounting: Pose = (0.0, 0.0, 0.0),
+    ) -> None:
+        self.area = area
+        self.config = (config or OutsideConfig()).validate()
+        self.record = record
+        self.mounting = mounting
+        #: "inside", "outside" (coasting) or "reentering" (lost at the dead-reckoned pose,
+        #: the recovery searching)
+        self.state = "inside"
+        self.stretches: list[Stretch] = []
+        self.last_share = float("nan")
+        self._below = 0
+        self._above = 0
+        self._fallback: Any = None  #: the localizer's own recovery while re-entering
+        self._reentry_start: int | None = None
+        self._last_pose: Pose | None = None
+        self._last_odom: Pose | None = None
+
+    # -- the localizer's hook --------------------------------------------------------------
+    def before(
+        self,
+        loc: Localizer,
+        scan: Scan,
+        pts: NDArray[np.float64],
+        pred: Pose,
+        pred_cov: NDArray[np.float64],
+        odom: Pose | None,
+        t0: float,
+    ) -> Estimate | None:
+        """Called before the localizer matches ``scan``: an Estimate when the scan is
+        outside the map (coasted), None to let the localizer go on."""
+        from icploc.localizer import Status
+
+        share = self.area.unmapped_share(pts, pred)
+        self.last_share = share
+        cfg = self.config
+        k = loc.scans_processed
+        known = share == share and pts.shape[0] >= loc.config.scan.min_points
+        if self.state == "inside":
+            if not known or share < cfg.enter_share:
+                return None
+            if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
+                return None
+            self.stretches.append(
+                Stretch(k, float(scan.stamp), self._last_pose if self._last_pose else pred)
+            )
+            self.state = "outside"
+            self._below = 0
+            return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
+        # outside or re-entering: is there a pose within the dead reckoning's uncertainty
+        # where the scan lands on the map?
+        best = share
+        if known and share > cfg.exit_share:
+            best = min(share, self.area.best_share(pts, _probe_poses(pred, pred_cov, cfg)))
+        if self.state == "reentering":
+            # the recovery searches on until no pose near the dead reckoning lands on the map
+            self._above = self._above + 1 if known and best >= cfg.enter_share else 0
+            if self._above < cfg.confirm_scans:
+                return None
+            self.state = "outside"  # out again before the lock: coast on
+            self._below = 0
+            self._reentry_start = None
+            self._restore(loc)
+            loc.reset(pred, pred_cov, Status.DEGRADED)
+            return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
+        self._below = self._below + 1 if known and best <= cfg.exit_share else 0
+        if self._below >= cfg.confirm_scans:
+            # the scan explains the map again: lost at the dead-reckoned pose, so the
+            # recovery searches around it first (then globally)
+            self.state = "reentering"
+            self._above = 0
+            self._reentry_start = k
+            loc.pose, loc.covariance = pred, pred_cov
+            self._fallback = loc.recovery
+            loc.recovery = ReentryRecovery(
+                self._fallback, loc.index, loc.quality.hit_distance(), cfg
+            )
+            loc.declare_lost()
+            return None
+        return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
+
+    def after(self, loc: Localizer, est: Estimate, pts: NDArray[np.float64]) -> Estimate:
+        """Called on every estimate: marks it, closes a stretch at the re-entry lock."""
+        from icploc.localizer import Status
+
+        mapped = self.state != "outside"
+        if self.state == "reentering" and est.reason == "relocalized":
+            st = self.stretches[-1]
+            k = loc.scans_processed
+            st.end, st.end_stamp = k, float(est.stamp)
+            st.reentry_scans = k - (self._reentry_start or k) + 1
+            st.lock_pose = est.pose
+            pred = est.prediction
+            st.correction = (
+                est.pose[0] - pred[0],
+                est.pose[1] - pred[1],
+                math.remainder(est.pose[2] - pred[2], 2 * math.pi),
+            )
+            if self.record:
+                st.scans.append((k, np.array(pts), est.pose))
+            self.state = "inside"
+            self._reentry_start = None
+            self._restore(loc)
+        elif self.state == "reentering" and self.record and self.stretches:
+            self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), est.pose))
+        if est.status is not Status.LOST or est.reason == REASON:
+            self._last_pose = est.pose
+        if est.mapped != mapped:
+            est = dataclasses.replace(est, mapped=mapped)
+        if self.state == "reentering" and est.status is Status.LOST:
+            # the dead-reckoned pose as outside the map, a search running around it: as
+            # sure as the coasted pose was (lost once its covariance is too wide)
+            sig = math.sqrt(max(float(est.covariance[0, 0] + est.covariance[1, 1]), 0.0))
+            if sig <= loc.config.localizer.lost_sigma_xy:
+                est = dataclasses.replace(est, status=Status.DEGRADED, reason=REENTERING)
+        return est
+
+    def _restore(self, loc: Localizer) -> None:
+        """Give the localizer its own recovery back (after a re-entry)."""
+        if self._fallback is not None:
+            loc.recovery = self._fallback
+            self._fallback = None
+
+    def _coast(
+        self,
+        loc: Localizer,
+        scan: Scan,
+        pts: NDArray[np.float64],
+        pred: Pose,
+        pred_cov: NDArray[np.float64],
+        odom: Pose | None,
+        t0: float,
+        share: float,
+    ) -> Estimate:
+        from icploc.localizer import Estimate, Status
+
+        st = self.stretches[-1]
+        st.outside_scans += 1
+        if odom is not None and self._last_odom is not None:
+            st.distance += math.hypot(odom[0] - self._last_odom[0], odom[1] - self._last_odom[1])
+        self._last_odom = odom
+        sig = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
+        st.max_sigma_xy = max(st.max_sigma_xy, sig)
+        if self.record:
+            st.scans.append((loc.scans_processed, np.array(pts), pred))
+        status = Status.LOST if sig > loc.config.localizer.lost_sigma_xy else Status.DEGRADED
+        loc.pose, loc.covariance = pred, pred_cov
+        loc.status = Status.DEGRADED  # the monitor keeps the scans; no recovery runs
+        return Estimate(
+            stamp=scan.stamp,
+            pose=pred,
+            covariance=pred_cov,
+            status=status,
+            inlier_ratio=float("nan"),
+            iterations=0,
+            time=time.perf_counter() - t0,
+            accepted=False,
+            reason=REASON,
+            prediction=pred,
+            odometry=odom,
+            num_points=pts.shape[0],
+            hit_ratio=1.0 - share,
+            calibration=loc.calibration.factors,
+            mapped=False,
+        )
+
+    # -- what happened ---------------------------------------------------------------------
+    def summary_lines(self, scans: int) -> list[str]:
+        """Lines for the replay summary: which stretches were outside the map."""
+        return stretch_lines(self.stretches, scans)
+
+    def finish(self, res: Any, map_: Any, patch: str | os.PathLike[str] | None) -> None:
+        """At the end of a replay: the stretches into its summary, the map patch written
+        (``icploc replay --map-patch``)."""
+        res.notes.extend(self.summary_lines(res.scans))
+        if patch is None:
+            return
+        from icploc.mappatch import write_patch
+
+        g = write_patch(patch, self.stretches, map_, mounting=self.mounting)
+        if g is None:
+            res.notes.append(f"map patch: nothing to write to {patch} (never outside the map)")
+            return
+        h, w = g.occupied.shape
+        res.notes.append(
+            f"map patch: {w} x {h} cells at {g.resolution} m from {g.scans_used} scans, "
+            f"{int(g.occupied.sum())} occupied; merge with: icploc map merge MAP {patch} --out OUT"
+        )
+        res.files["map_patch"] = Path(patch)
+
+
+def _believed(cov: NDArray[np.float64], sigma: float) -> bool:
+    """A position covariance no wider than ``sigma`` (the pose still means something)."""
+    return math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0)) <= sigma
+
+
+def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
+    """The replay summary's lines about the stretches outside the map."""
+    if not stretches:
+        return ["outside the map: never"]
+    n = sum(s.outside_scans for s in stretches)
+    share = n / scans if scans else 0.0
+    out = [
+        f"outside the map: {len(stretches)} stretch(es), {n} scans ({share:.1%}) coasted on "
+        "odometry (reason outside_map, mapped 0 in the estimates CSV)"
+    ]
+    for i, s in enumerate(stretches, 1):
+        back = (
+            f"back at scan {s.end} (t={s.end_stamp:.2f}) after {s.reentry_scans} re-entry "
+            f"scan(s), correction {math.hypot(s.correction[0], s.correction[1]):.2f} m "
+            f"{math.degrees(s.correction[2]):+.1f} deg"
+            if s.end is not None and s.correction is not None
+            else "not back in the map at the end"
+        )
+        out.append(
+            f"  {i}: scans {s.start}.. (t={s.start_stamp:.2f}), {s.outside_scans} outside, "
+            f"{s.distance:.1f} m coasted, sigma up to {s.max_sigma_xy:.2f} m; {back}"
+        )
+    return out
+
+
+def attach(
+    loc: Localizer, config: OutsideConfig | None = None, *, record: bool = False
+) -> OutsideMonitor:
+    """Give ``loc`` an outside-the-map monitor (its ``outside`` hook) and return it."""
+    area = MappedArea.of(loc.map, loc.index, config)
+    mon = OutsideMonitor(area, config, record=record, mounting=loc.config.scan.mounting)
+    loc.outside = mon
+    return mon

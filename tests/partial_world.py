@@ -1,0 +1,112 @@
+"""A simulated building whose map lacks a wing (tests of icploc.outside / icploc.mappatch).
+
+The simulator is imported here only (``sim`` is merging icploc.worlds into icploc.sim:
+re-point the two imports below and nothing else changes).
+
+The building: a main hall 14 m x 10 m with rooms, desks and pillars; a 2 m door in its
+east wall opens on a 6 m corridor to a wing (a 10 m x 12 m room with pillars). The robot
+tours the main hall, drives into the wing, tours it, comes back and tours the hall again.
+The map is built the way a real one is: from the scans of the first tour at the true
+poses (ray casting: free, occupied and unknown cells), so the wing is unknown space.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from icploc.sim import World, simulate  # the simulator (re-point here)
+from numpy.typing import NDArray
+
+__all__ = ["WING_BOX", "PartialRun", "building", "localized", "partial_run", "wall_distance"]
+
+#: the wing (corridor beyond the door and its room): x0, y0, x1, y1
+WING_BOX = (14.0, -2.0, 30.0, 12.0)
+
+
+def _rect(x0: float, y0: float, x1: float, y1: float) -> list[list[float]]:
+    return [[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]]
+
+
+def building() -> World:
+    w: list[list[float]] = []
+    # main hall, door in the east wall at y 4..6
+    w += [[0, 0, 14, 0], [0, 10, 14, 10], [0, 0, 0, 10], [14, 0, 14, 4], [14, 6, 14, 10]]
+    w += [[0, 6.5, 4, 6.5], [4, 6.5, 4, 8.5]]  # a room in the north-west corner
+    w += [[9, 10, 9, 7.5], [9, 7.5, 11, 7.5]]  # another in the north
+    w += _rect(5.0, 1.0, 6.5, 1.6) + _rect(10.5, 2.0, 11.1, 2.6) + _rect(6.0, 4.0, 6.4, 4.4)
+    # the wing: corridor x 14..20 (y 4..6), room x 20..30, y -2..12
+    w += [[14, 4, 20, 4], [14, 6, 20, 6]]
+    w += [[20, 4, 20, -2], [20, -2, 30, -2], [30, -2, 30, 12], [30, 12, 20, 12], [20, 12, 20, 6]]
+    w += _rect(23.0, 2.0, 23.6, 2.6) + _rect(26.5, 7.0, 27.3, 7.6) + [[24, 12, 24, 9.5]]
+    return World("building with a wing", np.array(w, dtype=np.float64), start=(2.0, 2.5, 0.0))
+
+
+HALL = [(2.0, 2.5), (8.5, 2.8), (12.5, 3.0), (12.5, 8.5), (7.0, 8.8), (2.5, 5.0), (2.0, 2.5)]
+INTO_WING = [(8.0, 5.0), (13.0, 5.0), (17.0, 5.0), (21.5, 5.0)]
+WING = [(22.5, 9.5), (28.5, 10.5), (28.5, 0.0), (24.5, 0.0), (21.5, 5.0)]
+BACK = [(17.0, 5.0), (13.0, 5.0), (9.0, 5.5)]
+
+
+def path() -> NDArray[np.float64]:
+    return np.array(HALL + HALL[1:] + INTO_WING + WING + BACK + HALL[1:], dtype=np.float64)
+
+
+@dataclass
+class PartialRun:
+    world: World
+    truth: NDArray[np.float64]  #: (N, 3) true poses per scan
+    items: list  #: time-ordered Scan / Odometry
+    scans: list
+    map_scans: int  #: the map was built from the first ``map_scans`` scans
+
+
+def partial_run(seed: int = 0, resolution: float = 0.05) -> tuple[PartialRun, object]:
+    """The run and the map of its first hall tour (an icploc Map, unknown wing)."""
+    from icploc.mappatch import grid_from_scans
+    from icploc.maps import Map
+
+    world = building()
+    frames = list(simulate(world, path(), start=(2.0, 2.5, 0.0), seed=seed))
+    truth = np.array([f.truth for f in frames])
+    items: list = []
+    for f in frames:
+        items += [f.odometry, f.scan]
+    # the map: the scans of the first hall tour (until the robot is back at the start)
+    d = np.hypot(truth[:, 0] - 2.0, truth[:, 1] - 2.5)
+    first = int(np.argmax((np.arange(len(d)) > 100) & (d < 0.3)))
+    pts = []
+    for f in frames[:first]:
+        r = np.asarray(f.scan.ranges)
+        ok = np.isfinite(r)
+        a = np.asarray(f.scan.angles)[ok]
+        pts.append(np.column_stack([r[ok] * np.cos(a), r[ok] * np.sin(a)]))
+    g = grid_from_scans(pts, truth[:first], resolution=resolution)
+    assert g is not None
+    m = Map.from_grid(g.occupied, g.resolution, g.origin, free=g.free, surface_offset=0.5)
+    run = PartialRun(world, truth, items, [f.scan for f in frames], first)
+    return run, m
+
+
+@functools.lru_cache(maxsize=2)
+def localized(seed: int = 0, monitor: bool = True) -> tuple[PartialRun, object, list, object]:
+    """The run localized against its partial map from the true start (cached per test
+    session): (run, map, estimates, the localizer's outside monitor or None)."""
+    from icploc.localizer import Localizer, run
+    from icploc.outside import attach
+
+    r, m = partial_run(seed)
+    loc = Localizer(m, initial_pose=tuple(r.truth[0]))
+    mon = attach(loc, record=True) if monitor else None
+    ests = run(loc, r.items)
+    return r, m, ests, mon
+
+
+def wall_distance(world: World, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance of each point to the nearest wall of ``world``."""
+    a, b = world.walls[:, :2], world.walls[:, 2:]
+    ab = b - a
+    t = np.clip(((xy[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)
+    q = a + t[..., None] * ab
+    return np.hypot(xy[:, None, 0] - q[..., 0], xy[:, None, 1] - q[..., 1]).min(axis=1)
