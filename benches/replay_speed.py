@@ -157,8 +157,8 @@ def cells_for(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
 
 def run_mrpt(cell: dict, tmp: Path) -> float:
     import numpy as np
-    import real_mrpt
     import real_logs as rl
+    import real_mrpt
 
     data = rl.read_flaser(Path(cell["log_path"]))
     got = real_mrpt.run_mrpt(
