@@ -26,6 +26,9 @@
 
 use std::collections::HashSet;
 
+/// Version of the cells' computation and storage order: saved cells are valid only for
+/// the version that made them (bump on any change to either).
+pub const FILL_VERSION: u32 = 1;
 /// A grid of tiles whose bounding box has at most this many times the most tiles a grid
 /// may have is filled as one box ([`fill_box`]: much faster), then copied into its tiles.
 const BOX_FILL_TILES: u64 = 2;
@@ -213,20 +216,41 @@ impl ClosestGrid {
         reach: f64,
         max_cells: usize,
     ) -> Result<Self, Unbuilt> {
-        Self::build_with(points, bounds, res, reach, max_cells, false)
+        Self::build_with(points, bounds, res, reach, max_cells, Fill::Compute)
+            .map(|g| g.expect("computed cells always fit"))
     }
 
-    /// [`ClosestGrid::build`]; `tiled` fills a full box tile by tile and then copies it to
-    /// row-major order (the general path; the tests check that [`fill_box`] gives the
-    /// same cells).
+    /// The grid [`ClosestGrid::build`] makes, with the cells of an earlier build of the
+    /// same points, resolution, reach and bound ([`ClosestGrid::cells`]) instead of
+    /// computing them. The layout is computed from the points as in `build`; `Ok(Err(why))`
+    /// when the cells do not fit it (another length, or an index that names no point).
+    pub(super) fn with_cells(
+        points: &[[f64; 2]],
+        bounds: [f64; 4],
+        res: f64,
+        reach: f64,
+        max_cells: usize,
+        cells: Vec<u32>,
+    ) -> Result<std::result::Result<Self, String>, Unbuilt> {
+        Self::build_with(points, bounds, res, reach, max_cells, Fill::Given(cells))
+    }
+
+    /// The cells (map point indices, `u32::MAX` for none) in storage order, for
+    /// [`ClosestGrid::with_cells`].
+    pub(super) fn cells(&self) -> &[u32] {
+        &self.cells
+    }
+
+    /// [`ClosestGrid::build`] with the cells filled as `fill` says (`Ok(Err(why))`: given
+    /// cells that do not fit the layout).
     fn build_with(
         points: &[[f64; 2]],
         bounds: [f64; 4],
         res: f64,
         reach: f64,
         max_cells: usize,
-        tiled: bool,
-    ) -> Result<Self, Unbuilt> {
+        fill: Fill,
+    ) -> Result<std::result::Result<Self, String>, Unbuilt> {
         let max_tiles = max_cells / TILE_CELLS;
         let tile_w = TILE as f64 * res;
         // every query within `margin` (per axis) of a point falls in a tile at most `k`
@@ -354,6 +378,30 @@ impl ClosestGrid {
             w * TILE as u64,
             h * TILE as u64,
         ];
+        let tiled = match fill {
+            Fill::Given(cells) => {
+                let want = match full {
+                    Some(_) => (b[2] * b[3]) as usize,
+                    None => keys.len() * TILE_CELLS,
+                };
+                if cells.len() != want {
+                    return Ok(Err(format!(
+                        "{} cells given, the layout has {want}",
+                        cells.len()
+                    )));
+                }
+                let n = points.len() as u32;
+                if let Some(i) = cells.iter().position(|&j| j != NONE && j >= n) {
+                    return Ok(Err(format!("cell {i} names point {} of {n}", cells[i])));
+                }
+                grid.cells = cells;
+                grid.full = full.map(|_| b);
+                return Ok(Ok(grid));
+            }
+            Fill::Compute => false,
+            #[cfg(test)]
+            Fill::Tiled => true,
+        };
         match full {
             Some(_) if !tiled => {
                 grid.cells = fill_box(points, bx, by, res, b, None);
@@ -399,7 +447,7 @@ impl ClosestGrid {
                 }
             }
         }
-        Ok(grid)
+        Ok(Ok(grid))
     }
 
     #[inline(always)]
@@ -722,6 +770,17 @@ impl ClosestGrid {
     }
 }
 
+/// How [`ClosestGrid::build_with`] fills the cells.
+enum Fill {
+    /// computed: a box of tiles at once ([`fill_box`]) when it is small enough, else tile by tile
+    Compute,
+    /// computed tile by tile ([`ClosestGrid::fill`]; the tests' reference for `fill_box`)
+    #[cfg(test)]
+    Tiled,
+    /// given (an earlier build's cells)
+    Given(Vec<u32>),
+}
+
 /// Squared distance from map point `j` to (qx, qy), written as everywhere in this module
 /// (the cells compare these values, so they must be the same expression).
 #[inline(always)]
@@ -1037,8 +1096,12 @@ mod tests {
     /// whether it is a full box.
     fn assert_same_fill(points: &[[f64; 2]], res: f64, reach: f64) -> bool {
         let b = bounds(points);
-        let rows = ClosestGrid::build_with(points, b, res, reach, 1 << 22, false).unwrap();
-        let tiles = ClosestGrid::build_with(points, b, res, reach, 1 << 22, true).unwrap();
+        let rows = ClosestGrid::build_with(points, b, res, reach, 1 << 22, Fill::Compute)
+            .unwrap()
+            .unwrap();
+        let tiles = ClosestGrid::build_with(points, b, res, reach, 1 << 22, Fill::Tiled)
+            .unwrap()
+            .unwrap();
         assert_eq!(rows.full, tiles.full);
         assert_eq!(rows.keys(), tiles.keys());
         assert_eq!(rows.cells.len(), tiles.cells.len());
