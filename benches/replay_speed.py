@@ -81,7 +81,13 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
             "replay_other": (c4 - c3) - res.load_time - res.localize_time,
         },
         # CPU seconds (user + system) of the same stages; log + loc together
-        "cpu": {"start": p0, "import": p1 - p0, "map": p2 - p1, "index": p3 - p2, "log+loc": p4 - p3},
+        "cpu": {
+            "start": p0,
+            "import": p1 - p0,
+            "map": p2 - p1,
+            "index": p3 - p2,
+            "log+loc": p4 - p3,
+        },
     }
     for p in got["poses"]:
         p[:] = [v if math.isfinite(v) else None for v in p]
@@ -188,7 +194,9 @@ def main(argv: list[str] | None = None) -> int:
         child(log, map_yaml, [float(v) for v in pose.split(",")], out,
               float(os.environ.get("REPLAY_SPEED_LAUNCHED", time.time())))  # fmt: skip
         return 0
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("names", nargs="*", default=["aces", "freiburg-101"])
     ap.add_argument("--bases", type=lambda s: s.split(","), default=["good", "bad"])
     ap.add_argument("--res", type=lambda s: [int(v) for v in s.split(",")], default=[10], help="cm")
@@ -208,7 +216,9 @@ def main(argv: list[str] | None = None) -> int:
         import real_mrpt
 
         if not real_mrpt.available():
-            print("MRPT tools not found (apt-get install mrpt-apps): no MRPT column", file=sys.stderr)
+            print(
+                "MRPT tools not found (apt-get install mrpt-apps): no MRPT column", file=sys.stderr
+            )
             a.mrpt = False
     ref = json.loads(a.check.read_text()) if a.check else None
     cpu_rows: list[str] = []
@@ -239,7 +249,9 @@ def main(argv: list[str] | None = None) -> int:
             n_all += n
             sps = n / got["wall"]
             msps = n / mrpt_s if a.mrpt else math.nan
-            cpu_rows.append(f"| {key} | " + " | ".join(f"{v * 1000:.0f}" for v in got["cpu"].values()) + " |")
+            cpu_rows.append(
+                f"| {key} | " + " | ".join(f"{v * 1000:.0f}" for v in got["cpu"].values()) + " |"
+            )
             print(f"| {key} | {n} | {got['cache']} | " + " | ".join(f"{got['t'][s] * 1000:.0f}" for s in STAGES)
                   + f" | {got['wall']:.3f} | {got['cpu']['total']:.3f} | {sps:,.0f} | {mrpt_s:.3f} | {msps:,.0f} | "
                   f"{sps / msps:.2f} | {same} |", flush=True)  # fmt: skip
@@ -248,13 +260,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| all ({k} processes) | {n_all} | | " + " | ".join(f"{tot[s] / k * 1000:.0f}" for s in STAGES)
               + f" | {tot_wall:.3f} | {tot_cpu:.3f} | {n_all / tot_wall:,.0f} | {tot_mrpt:.3f} | "
               f"{n_all / tot_mrpt:,.0f} | {(n_all / tot_wall) / (n_all / tot_mrpt):.2f} | |")  # fmt: skip
-        print("(the stage columns of 'all' are per-process means; MRPT columns are nan without MRPT)")
+        print(
+            "(the stage columns of 'all' are per-process means; MRPT columns are nan without MRPT)"
+        )
         print("\nCPU ms (user + system) per stage of each icploc process:\n")
         print("| cell | " + " | ".join(f"{k}" for k in rows[0][1]["cpu"]) + " |")
         print("|---|" + "---:|" * len(rows[0][1]["cpu"]))
         print("\n".join(cpu_rows))
         keys = list(rows[0][1]["cpu"])
-        print(f"| mean of {k} | " + " | ".join(f"{sum(r[1]['cpu'][c] for r in rows) / k * 1000:.0f}" for c in keys) + " |")
+        print(
+            f"| mean of {k} | "
+            + " | ".join(f"{sum(r[1]['cpu'][c] for r in rows) / k * 1000:.0f}" for c in keys)
+            + " |"
+        )
     if a.save:
         a.save.write_text(json.dumps({key: got for key, got, _m, _s in rows}))
     return 0
