@@ -207,10 +207,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--save", type=Path, help="write the poses and times (JSON)")
     ap.add_argument("--check", type=Path, help="compare the poses and status with a --save file")
     a = ap.parse_args(argv)
-    if a.compile and os.environ.get("PYTHONDONTWRITEBYTECODE"):
-        pkg = subprocess.run([a.python, "-c", "import icploc, os; print(os.path.dirname(icploc.__file__))"],
-                             capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
-        subprocess.run([a.python, "-m", "compileall", "-q", pkg], check=True, capture_output=True)
+    if a.compile:
+        from eval_real import compile_measured_package
+
+        compile_measured_package(a.python)
     cells = cells_for(a.names, a.bases, a.res)
     if a.mrpt:
         import real_mrpt
