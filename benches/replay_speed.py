@@ -201,6 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bases", type=lambda s: s.split(","), default=["good", "bad"])
     ap.add_argument("--res", type=lambda s: [int(v) for v in s.split(",")], default=[10], help="cm")
     ap.add_argument("--python", default=sys.executable, help="interpreter whose icploc is measured")
+    ap.add_argument("--before", metavar="PYTHON",
+                    help="also run this interpreter's icploc on every cell (e.g. the base commit's), "
+                    "interleaved, and report the speed-up from the same run")  # fmt: skip
     ap.add_argument("--no-mrpt", dest="mrpt", action="store_false")
     ap.add_argument("--cold", action="store_true", help="no prepared-map cache (ICPLOC_NO_CACHE=1)")
     ap.add_argument("--no-compile", dest="compile", action="store_false")
@@ -211,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         from eval_real import compile_measured_package
 
         compile_measured_package(a.python)
+        if a.before:
+            compile_measured_package(a.before)
     cells = cells_for(a.names, a.bases, a.res)
     if a.mrpt:
         import real_mrpt
@@ -222,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             a.mrpt = False
     ref = json.loads(a.check.read_text()) if a.check else None
     cpu_rows: list[str] = []
+    befores: list[tuple[str, int, dict, dict, float, int]] = []
     print("| cell | scans | cache | " + " | ".join(f"{s} ms" for s in STAGES)
           + " | icploc wall s | cpu s | scans/s | MRPT s | MRPT scans/s | icploc / MRPT | same as --check |")  # fmt: skip
     print("|---|---:|---|" + "---:|" * len(STAGES) + "---:|---:|---:|---:|---:|---:|---|")
@@ -233,7 +239,11 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(td)
         for cell in cells:
             key = f"{cell['log']} {cell['base']} {cell['res']} cm f{cell['fold']}"
+            old = run_icploc(a.before, cell, tmp, a.cold) if a.before else None
             got = run_icploc(a.python, cell, tmp, a.cold)
+            if old is not None:
+                d, ns = _same(got, old)
+                befores.append((key, cell["scans"], old, got, d, ns))
             mrpt_s = run_mrpt(cell, tmp) if a.mrpt else math.nan
             n = cell["scans"]
             same = "–"
@@ -272,6 +282,27 @@ def main(argv: list[str] | None = None) -> int:
             f"| mean of {k} | "
             + " | ".join(f"{sum(r[1]['cpu'][c] for r in rows) / k * 1000:.0f}" for c in keys)
             + " |"
+        )
+    if befores:
+        print(f"\nBefore ({a.before}) and after, the same cells in the same run (wall s / CPU s of the "
+              "whole process; poses compared):\n")  # fmt: skip
+        print("| cell | scans | before wall | after wall | before CPU | after CPU | speed-up wall | "
+              "speed-up CPU | MRPT wall | after / MRPT | before / MRPT | same poses |")  # fmt: skip
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+        mrpt_of = {key: m for key, _g, m, _s in rows}
+        tb = ta = cb = ca = tm = 0.0
+        for key, n, old, got, d, ns in befores:
+            m = mrpt_of[key]
+            tb, ta, tm = tb + old["wall"], ta + got["wall"], tm + m
+            cb, ca = cb + old["cpu"]["total"], ca + got["cpu"]["total"]
+            print(f"| {key} | {n} | {old['wall']:.3f} | {got['wall']:.3f} | {old['cpu']['total']:.3f} | "
+                  f"{got['cpu']['total']:.3f} | {old['wall'] / got['wall']:.2f} | "
+                  f"{old['cpu']['total'] / got['cpu']['total']:.2f} | {m:.3f} | {m / got['wall']:.2f} | "
+                  f"{m / old['wall']:.2f} | max diff {d:.2g}, status diffs {ns} |")  # fmt: skip
+        print(f"| all | {n_all} | {tb:.3f} | {ta:.3f} | {cb:.3f} | {ca:.3f} | {tb / ta:.2f} | {cb / ca:.2f} | "
+              f"{tm:.3f} | {tm / ta:.2f} | {tm / tb:.2f} | |")  # fmt: skip
+        print(
+            "('after / MRPT' is icploc's whole-process speed over MRPT's: MRPT time / icploc time)"
         )
     if a.save:
         a.save.write_text(json.dumps({key: got for key, got, _m, _s in rows}))
