@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import warnings
 from collections.abc import Iterable
 from pathlib import Path
@@ -92,6 +91,8 @@ def load_cached(key: str, source: str) -> Map | None:
 
 def store(key: str, m: Map) -> None:
     """Write ``m`` under ``key`` (atomically); a failure only warns (once)."""
+    import tempfile
+
     from .prepared import save_prepared
 
     d = cache_dir()
@@ -182,6 +183,8 @@ def store_index(
     got = grid_runs(index)
     if got is None:
         return
+    import tempfile
+
     values, lengths, res = got
     path = _index_path(entry, spacing, res)
     tmp = None
