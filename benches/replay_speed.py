@@ -304,6 +304,14 @@ def main(argv: list[str] | None = None) -> int:
         print(
             "('after / MRPT' is icploc's whole-process speed over MRPT's: MRPT time / icploc time)"
         )
+        keys = list(befores[0][2]["cpu"])
+        k = len(befores)
+        print("\nMean CPU ms per process and stage, before -> after:\n")
+        print("| stage | " + " | ".join(keys) + " |")
+        print("|---|" + "---:|" * len(keys))
+        for label, j in (("before", 2), ("after", 3)):
+            print(f"| {label} | " + " | ".join(
+                f"{sum(b[j]['cpu'][c] for b in befores) / k * 1000:.0f}" for c in keys) + " |")  # fmt: skip
     if a.save:
         a.save.write_text(json.dumps({key: got for key, got, _m, _s in rows}))
     return 0
