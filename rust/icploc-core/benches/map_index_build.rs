@@ -5,12 +5,15 @@
 //! The map: a 52 m × 52 m building of 4 m × 5 m rooms (walls sampled every 5 cm, as
 //! `Map.sample(0.05)` does, with a door gap in each wall, a little clutter), about the size
 //! of the real-data benchmark's aces map, whose grid is one full box of tiles; and a
-//! small 20 m × 12 m office wing. Run with `cargo bench -p icploc-core --bench map_index_build`.
+//! small 20 m × 12 m office wing. `kdtree+grid_from_runs`: the same index rebuilt from its
+//! grid's saved cells (`index::runs` + `MapIndex::with_cache_cells`, what a process does when
+//! the prepared-map cache holds them). Run with
+//! `cargo bench -p icploc-core --bench map_index_build`.
 
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use icploc_core::index::DEFAULT_CACHE_RESOLUTION;
+use icploc_core::index::{runs, DEFAULT_CACHE_RESOLUTION, MAX_CACHE_CELLS};
 use icploc_core::testkit::Rng;
 use icploc_core::MapIndex;
 
@@ -78,6 +81,23 @@ fn bench_build(c: &mut Criterion) {
                     MapIndex::new(p.clone(), Some(n.clone()))
                         .unwrap()
                         .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+                        .unwrap(),
+                )
+            })
+        });
+        let (values, lengths) = runs::encode(idx.cache_cells().expect("a grid"));
+        println!(
+            "{name}: {} runs of {} cells",
+            values.len(),
+            idx.cache_cells().map_or(0, |c| c.len())
+        );
+        g.bench_function("kdtree+grid_from_runs", |b| {
+            b.iter(|| {
+                let cells = runs::decode(&values, &lengths, MAX_CACHE_CELLS).unwrap();
+                black_box(
+                    MapIndex::new(p.clone(), Some(n.clone()))
+                        .unwrap()
+                        .with_cache_cells(DEFAULT_CACHE_RESOLUTION, cells)
                         .unwrap(),
                 )
             })
