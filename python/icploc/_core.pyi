@@ -450,3 +450,25 @@ def grid_visible(
     tolerance: float,
 ) -> NDArray[np.bool_]:
     """Which targets a sensor sees through a class grid (non-free cells block)."""
+
+# saving and restoring a MapIndex's closest-point grid (icploc.maps.cache)
+DEFAULT_CACHE_RESOLUTION: float
+"""Cell size (m) of the closest-point grid ``MapIndex(points, normals)`` builds by default."""
+GRID_FILL_VERSION: int
+"""Version of the grid cells' computation and order: saved cells are valid for it only."""
+
+def grid_runs(
+    index: MapIndex,
+) -> tuple[NDArray[np.uint32], NDArray[np.uint32], float] | None:
+    """``(values, lengths, resolution)``: the closest-point grid's cells as runs (None
+    without a grid)."""
+
+def index_from_grid_runs(
+    points: ArrayLike,
+    normals: ArrayLike | None,
+    resolution: float,
+    values: NDArray[np.uint32],
+    lengths: NDArray[np.uint32],
+) -> MapIndex:
+    """``MapIndex(points, normals, cache_resolution=resolution)`` with the grid cells that
+    ``grid_runs`` returned, not computed again; ``InvalidInputError`` when they do not fit."""

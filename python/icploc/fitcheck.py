@@ -22,13 +22,13 @@ incidence (a beam running along a wall stays within a cell of it for a while).
 from __future__ import annotations
 
 import math
-import statistics
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.median import median
 from icploc.se2 import Pose
 
 __all__ = ["FitCheck", "FitChecker", "MapQuality"]
@@ -74,12 +74,12 @@ class MapQuality:
 
     def _refresh(self) -> None:
         if len(self._rms) >= 10:
-            m = statistics.median(self._rms)
+            m = median(self._rms)
             self._sigma = min(max(m, 0.5 * self.prior), 2.0 * self.prior)
         else:
             self._sigma = self.prior
-        self._hit_ref = statistics.median(self._hit) if len(self._hit) >= 5 else 1.0
-        self._see_ref = statistics.median(self._see) if len(self._see) >= 5 else 0.0
+        self._hit_ref = median(self._hit) if len(self._hit) >= 5 else 1.0
+        self._see_ref = median(self._see) if len(self._see) >= 5 else 0.0
 
     @property
     def measured(self) -> bool:

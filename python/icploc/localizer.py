@@ -28,7 +28,6 @@ import bisect
 import dataclasses
 import math
 import os
-import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -43,6 +42,7 @@ from icploc.config import LocalizerConfig
 from icploc.fitcheck import FitCheck, FitChecker, MapQuality
 from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
 from icploc.kidnap import CheckVerdict, KidnapTrigger
+from icploc.median import median
 from icploc.motion import MotionModel
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
@@ -503,7 +503,7 @@ class Localizer:
             sth = math.sqrt(max(float(pred_cov[2, 2]), 0.0))
             if ic.correspondence_sigmas * (sxy + 30.0 * sth) > hi and pts.shape[0]:
                 r = pts[:: max(1, pts.shape[0] // 16)]
-                rng = statistics.median(np.hypot(r[:, 0], r[:, 1]).tolist())
+                rng = median(np.hypot(r[:, 0], r[:, 1]).tolist())
                 hi = max(hi, min(ic.max_correspondence_cap, ic.correspondence_sigmas * (sxy + rng * sth)))
         key = (round(lo, 2), round(robust, 2), round(math.ceil(hi / 0.1) * 0.1, 1))
         cfg = self._icp_configs.get(key)

@@ -442,7 +442,12 @@ class Map:
             p, n = self.sample(s)
             if len(p) == 0:
                 raise MapError(self.source, "lines", "map has no points to index")
-            idx = MapIndex(p, n)
+            from . import cache as map_cache  # a cached map's grid is kept beside it
+
+            idx = map_cache.load_index(self, s, p, n)
+            if idx is None:
+                idx = MapIndex(p, n)
+                map_cache.store_index(self, s, p, n, idx)
             if idx.cache_fallback is not None:  # said once: the index is kept
                 warnings.warn(f"{self.source}: {idx.cache_fallback}", RuntimeWarning, stacklevel=2)
             self._indexes[s] = idx

@@ -8,8 +8,10 @@ use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
 mod closest_grid;
+pub mod runs;
 
 use closest_grid::ClosestGrid;
+pub use closest_grid::FILL_VERSION as GRID_FILL_VERSION;
 
 use crate::error::{IcpError, Result};
 use crate::se2::{wrap_angle, Pose2};
@@ -194,6 +196,49 @@ impl MapIndex {
                     }
                 }
             }
+        }
+        Ok(self)
+    }
+
+    /// The closest-point grid's cells in storage order (map point indices, `u32::MAX` for
+    /// none), to save them and rebuild the same index with [`MapIndex::with_cache_cells`]
+    /// without computing them again; `None` without a grid.
+    pub fn cache_cells(&self) -> Option<&[u32]> {
+        self.cache.as_ref().map(|c| c.cells())
+    }
+
+    /// [`MapIndex::with_cache`]`(Some(resolution))` with the grid's cells taken from an
+    /// earlier build of the same points at the same resolution ([`MapIndex::cache_cells`])
+    /// instead of computed: the same index, without the grid's fill (most of its build
+    /// time). The layout is computed from the points; cells that do not fit it (another
+    /// length, an index naming no point) are an error, never a silently wrong grid. Cells
+    /// of other points that happen to fit cannot be told apart: the caller keys them by
+    /// the points.
+    pub fn with_cache_cells(mut self, resolution: f64, cells: Vec<u32>) -> Result<Self> {
+        if !(resolution > 0.0 && resolution.is_finite()) {
+            return Err(IcpError::InvalidConfig {
+                field: "cache_resolution",
+                value: resolution.to_string(),
+                reason: "must be positive and finite",
+            });
+        }
+        self.cache = None;
+        self.cache_fallback = None;
+        let bad = |reason: String| IcpError::InvalidInput {
+            what: "closest-point grid cells".into(),
+            reason,
+        };
+        match ClosestGrid::with_cells(
+            &self.points,
+            self.bounds,
+            resolution,
+            CACHE_REACH,
+            MAX_CACHE_CELLS,
+            cells,
+        ) {
+            Ok(Ok(g)) => self.cache = Some(g),
+            Ok(Err(why)) => return Err(bad(why)),
+            Err(why) => return Err(bad(format!("no grid at this resolution: {why}"))),
         }
         Ok(self)
     }
@@ -502,6 +547,55 @@ mod tests {
             v.push([5.0, t]);
         }
         v
+    }
+
+    #[test]
+    fn saved_grid_cells_rebuild_the_same_index() {
+        let mut rng = crate::testkit::Rng::new(21);
+        let mut pts = wall_points();
+        pts.extend((0..200).map(|_| [rng.range(-1.0, 6.0), rng.range(-1.0, 6.0)]));
+        let built = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        let (v, n) = runs::encode(built.cache_cells().unwrap());
+        let cells = runs::decode(&v, &n, MAX_CACHE_CELLS).unwrap();
+        assert!(
+            v.len() * 10 < cells.len(),
+            "{} runs of {} cells",
+            v.len(),
+            cells.len()
+        );
+        let loaded = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache_cells(0.02, cells.clone())
+            .unwrap();
+        assert_eq!(loaded.cache_cells(), built.cache_cells());
+        for _ in 0..2000 {
+            let q = [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)];
+            assert_eq!(loaded.correspondence(q), built.correspondence(q));
+        }
+    }
+
+    #[test]
+    fn saved_grid_cells_that_do_not_fit_are_refused() {
+        let pts = wall_points();
+        let built = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        let cells = built.cache_cells().unwrap().to_vec();
+        let fresh = || MapIndex::new(pts.clone(), None).unwrap();
+        let short = fresh()
+            .with_cache_cells(0.02, cells[1..].to_vec())
+            .unwrap_err();
+        assert!(short.to_string().contains("cells given"), "{short}");
+        let mut wrong = cells.clone();
+        wrong[5] = pts.len() as u32;
+        let e = fresh().with_cache_cells(0.02, wrong).unwrap_err();
+        assert!(e.to_string().contains("names point"), "{e}");
+        let other_res = fresh().with_cache_cells(0.05, cells).unwrap_err();
+        assert!(other_res.to_string().contains("cells given"), "{other_res}");
     }
 
     #[test]

@@ -21,6 +21,7 @@ use icploc_core as core;
 use icploc_core::{IcpError as CoreError, Pose2};
 
 mod global;
+mod gridstore;
 mod maps;
 
 static ICP_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
@@ -1050,5 +1051,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(parse_floats, m)?)?;
     global::register(m)?;
     maps::register(m)?;
+    gridstore::register(m)?;
     Ok(())
 }

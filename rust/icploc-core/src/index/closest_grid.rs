@@ -26,6 +26,12 @@
 
 use std::collections::HashSet;
 
+/// Version of the cells' computation and storage order: saved cells are valid only for
+/// the version that made them (bump on any change to either).
+pub const FILL_VERSION: u32 = 1;
+/// A grid of tiles whose bounding box has at most this many times the most tiles a grid
+/// may have is filled as one box ([`fill_box`]: much faster), then copied into its tiles.
+const BOX_FILL_TILES: u64 = 2;
 /// Cells per tile side (a power of two).
 const TILE_SHIFT: u32 = 5;
 const TILE: usize = 1 << TILE_SHIFT;
@@ -210,6 +216,41 @@ impl ClosestGrid {
         reach: f64,
         max_cells: usize,
     ) -> Result<Self, Unbuilt> {
+        Self::build_with(points, bounds, res, reach, max_cells, Fill::Compute)
+            .map(|g| g.expect("computed cells always fit"))
+    }
+
+    /// The grid [`ClosestGrid::build`] makes, with the cells of an earlier build of the
+    /// same points, resolution, reach and bound ([`ClosestGrid::cells`]) instead of
+    /// computing them. The layout is computed from the points as in `build`; `Ok(Err(why))`
+    /// when the cells do not fit it (another length, or an index that names no point).
+    pub(super) fn with_cells(
+        points: &[[f64; 2]],
+        bounds: [f64; 4],
+        res: f64,
+        reach: f64,
+        max_cells: usize,
+        cells: Vec<u32>,
+    ) -> Result<std::result::Result<Self, String>, Unbuilt> {
+        Self::build_with(points, bounds, res, reach, max_cells, Fill::Given(cells))
+    }
+
+    /// The cells (map point indices, `u32::MAX` for none) in storage order, for
+    /// [`ClosestGrid::with_cells`].
+    pub(super) fn cells(&self) -> &[u32] {
+        &self.cells
+    }
+
+    /// [`ClosestGrid::build`] with the cells filled as `fill` says (`Ok(Err(why))`: given
+    /// cells that do not fit the layout).
+    fn build_with(
+        points: &[[f64; 2]],
+        bounds: [f64; 4],
+        res: f64,
+        reach: f64,
+        max_cells: usize,
+        fill: Fill,
+    ) -> Result<std::result::Result<Self, String>, Unbuilt> {
         let max_tiles = max_cells / TILE_CELLS;
         let tile_w = TILE as f64 * res;
         // every query within `margin` (per axis) of a point falls in a tile at most `k`
@@ -328,24 +369,85 @@ impl ClosestGrid {
             inv_res: 1.0 / res,
             dir: Directory::new(&keys, full),
             full: None,
-            cells: vec![NONE; keys.len() * TILE_CELLS],
+            cells: Vec::new(),
         };
-        grid.fill(points, &keys);
-        if let Some([tx0, ty0, w, h]) = full {
-            // tile-major → row-major over the box
-            let (cw, ch) = (w as usize * TILE, h as usize * TILE);
-            let mut rm = vec![NONE; cw * ch];
-            for (s, tile) in grid.cells.chunks_exact(TILE_CELLS).enumerate() {
-                let (sx, sy) = (s % w as usize, s / w as usize);
-                for ly in 0..TILE {
-                    let dst = (sy * TILE + ly) * cw + sx * TILE;
-                    rm[dst..dst + TILE].copy_from_slice(&tile[ly * TILE..(ly + 1) * TILE]);
+        // the tiles' bounding box in cells
+        let b = [
+            tx0 * TILE as u64,
+            ty0 * TILE as u64,
+            w * TILE as u64,
+            h * TILE as u64,
+        ];
+        let tiled = match fill {
+            Fill::Given(cells) => {
+                let want = match full {
+                    Some(_) => (b[2] * b[3]) as usize,
+                    None => keys.len() * TILE_CELLS,
+                };
+                if cells.len() != want {
+                    return Ok(Err(format!(
+                        "{} cells given, the layout has {want}",
+                        cells.len()
+                    )));
+                }
+                let n = points.len() as u32;
+                if let Some(i) = cells.iter().position(|&j| j != NONE && j >= n) {
+                    return Ok(Err(format!("cell {i} names point {} of {n}", cells[i])));
+                }
+                grid.cells = cells;
+                grid.full = full.map(|_| b);
+                return Ok(Ok(grid));
+            }
+            Fill::Compute => false,
+            #[cfg(test)]
+            Fill::Tiled => true,
+        };
+        match full {
+            Some(_) if !tiled => {
+                grid.cells = fill_box(points, bx, by, res, b, None);
+                grid.full = Some(b);
+            }
+            // a box of at most `BOX_FILL_TILES` × `max_tiles` tiles (a transient 64 MB at
+            // the default bound): filled as a box with the missing tiles left out, then
+            // copied into tile-major slots
+            None if !tiled && w * h <= BOX_FILL_TILES * max_tiles as u64 => {
+                let mut exists = vec![false; (w * h) as usize];
+                for &t in &keys {
+                    exists[(((t >> 32) - ty0) * w + (t & 0xFFFF_FFFF) - tx0) as usize] = true;
+                }
+                let boxed = fill_box(points, bx, by, res, b, Some(&exists));
+                let cw = w as usize * TILE;
+                let mut cells = vec![NONE; keys.len() * TILE_CELLS];
+                for (tile, &t) in cells.chunks_exact_mut(TILE_CELLS).zip(&keys) {
+                    let sx = ((t & 0xFFFF_FFFF) - tx0) as usize;
+                    let sy = ((t >> 32) - ty0) as usize;
+                    for ly in 0..TILE {
+                        let src = (sy * TILE + ly) * cw + sx * TILE;
+                        tile[ly * TILE..(ly + 1) * TILE].copy_from_slice(&boxed[src..src + TILE]);
+                    }
+                }
+                grid.cells = cells;
+            }
+            _ => {
+                grid.cells = vec![NONE; keys.len() * TILE_CELLS];
+                grid.fill(points, &keys);
+                if let Some([tx0, ty0, w, h]) = full {
+                    // tile-major → row-major over the box
+                    let (cw, ch) = (w as usize * TILE, h as usize * TILE);
+                    let mut rm = vec![NONE; cw * ch];
+                    for (s, tile) in grid.cells.chunks_exact(TILE_CELLS).enumerate() {
+                        let (sx, sy) = (s % w as usize, s / w as usize);
+                        for ly in 0..TILE {
+                            let dst = (sy * TILE + ly) * cw + sx * TILE;
+                            rm[dst..dst + TILE].copy_from_slice(&tile[ly * TILE..(ly + 1) * TILE]);
+                        }
+                    }
+                    grid.cells = rm;
+                    grid.full = Some([tx0 * TILE as u64, ty0 * TILE as u64, cw as u64, ch as u64]);
                 }
             }
-            grid.cells = rm;
-            grid.full = Some([tx0 * TILE as u64, ty0 * TILE as u64, cw as u64, ch as u64]);
         }
-        Ok(grid)
+        Ok(Ok(grid))
     }
 
     #[inline(always)]
@@ -668,6 +770,200 @@ impl ClosestGrid {
     }
 }
 
+/// How [`ClosestGrid::build_with`] fills the cells.
+enum Fill {
+    /// computed: a box of tiles at once ([`fill_box`]) when it is small enough, else tile by tile
+    Compute,
+    /// computed tile by tile ([`ClosestGrid::fill`]; the tests' reference for `fill_box`)
+    #[cfg(test)]
+    Tiled,
+    /// given (an earlier build's cells)
+    Given(Vec<u32>),
+}
+
+/// Squared distance from map point `j` to (qx, qy), written as everywhere in this module
+/// (the cells compare these values, so they must be the same expression).
+#[inline(always)]
+fn dist2(points: &[[f64; 2]], j: u32, qx: f64, qy: f64) -> f64 {
+    let p = points[j as usize];
+    (p[0] - qx) * (p[0] - qx) + (p[1] - qy) * (p[1] - qy)
+}
+
+/// One relaxation of [`ClosestGrid::fill`]: cell (qx, qy), holding `cur` at squared
+/// distance `best` (NaN: not computed yet), takes the seed of cell `n` when that is closer.
+#[inline(always)]
+fn relax_cell(
+    cells: &[u32],
+    points: &[[f64; 2]],
+    n: usize,
+    cur: &mut u32,
+    best: &mut f64,
+    qx: f64,
+    qy: f64,
+) {
+    let s = cells[n];
+    if s == NONE || s == *cur {
+        return;
+    }
+    if best.is_nan() {
+        *best = if *cur == NONE {
+            f64::INFINITY
+        } else {
+            dist2(points, *cur, qx, qy)
+        };
+    }
+    let d = dist2(points, s, qx, qy);
+    if d < *best {
+        *best = d;
+        *cur = s;
+    }
+}
+
+/// [`ClosestGrid::fill`] for a grid that is its whole box `b` = (first cell x, first cell
+/// y, width, height in cells; x and y multiples of `TILE`), straight into row-major cells.
+///
+/// The same cells bit for bit: in a full box every tile row spans the box, so the
+/// tile-by-tile raster passes of `fill` are plain row scans over the box; the seeds are
+/// tried in the same order, the relaxations too, and the cell centres are computed with
+/// the same arithmetic (the tile's first centre plus the offset within the tile). What is
+/// gone: the tile indirection at every tile border, the distance array (a cell's current
+/// distance is recomputed from its point when a neighbour offers another: the same value)
+/// and the copy from tile-major to row-major order.
+// x and y address cells, neighbours and centres at once
+#[allow(clippy::needless_range_loop)]
+fn fill_box(
+    points: &[[f64; 2]],
+    bx: i64,
+    by: i64,
+    res: f64,
+    b: [u64; 4],
+    exists: Option<&[bool]>,
+) -> Vec<u32> {
+    let [x0, y0, w, h] = b;
+    let (w, h) = (w as usize, h as usize);
+    let tw = w / TILE;
+    // does the tile of cell (x, y) exist (cells of missing tiles stay empty, as they are
+    // absent in the tiled fill)
+    let tile_ok =
+        |x: usize, y: usize| exists.is_none_or(|e| e[(y >> TILE_SHIFT) * tw + (x >> TILE_SHIFT)]);
+    let centres = |g0: u64, n: usize, base: i64| -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                let g = g0 as usize + i;
+                let tile0 = (g >> TILE_SHIFT) << TILE_SHIFT;
+                ((tile0 as i64 + base) as f64 + 0.5) * res + (g & (TILE - 1)) as f64 * res
+            })
+            .collect()
+    };
+    let cx = centres(x0, w, bx);
+    let cy = centres(y0, h, by);
+    let mut cells = vec![NONE; w * h];
+    // seeds: every point is tried exactly on the 3 × 3 cells around its own
+    for (j, p) in points.iter().enumerate() {
+        let gx = (floor_i64(p[0] / res) - bx) as u64;
+        let gy = (floor_i64(p[1] / res) - by) as u64;
+        let (x, y) = (gx.wrapping_sub(x0) as usize, gy.wrapping_sub(y0) as usize);
+        for dy in 0..3usize {
+            let yy = (y + dy).wrapping_sub(1);
+            if yy >= h {
+                continue;
+            }
+            for dx in 0..3usize {
+                let xx = (x + dx).wrapping_sub(1);
+                if xx >= w || !tile_ok(xx, yy) {
+                    continue;
+                }
+                let c = yy * w + xx;
+                let (qx, qy) = (cx[xx], cy[yy]);
+                let d = (p[0] - qx) * (p[0] - qx) + (p[1] - qy) * (p[1] - qy);
+                let cur = cells[c];
+                if cur == NONE || d < dist2(points, cur, qx, qy) {
+                    cells[c] = j as u32;
+                }
+            }
+        }
+    }
+    // the tile columns of row band `ty` that exist
+    let band = |ty: usize| -> Vec<usize> {
+        (0..tw)
+            .filter(|&tx| exists.is_none_or(|e| e[ty * tw + tx]))
+            .collect()
+    };
+    // forward: rows upwards; left to right from the row below, then right to left
+    for ty in 0..h / TILE {
+        let cols = band(ty);
+        for y in ty * TILE..(ty + 1) * TILE {
+            let qy = cy[y];
+            let row = y * w;
+            for &tx in &cols {
+                for x in tx * TILE..(tx + 1) * TILE {
+                    let c = row + x;
+                    let qx = cx[x];
+                    let (mut cur, mut best) = (cells[c], f64::NAN);
+                    if x > 0 {
+                        relax_cell(&cells, points, c - 1, &mut cur, &mut best, qx, qy);
+                    }
+                    if y > 0 {
+                        if x > 0 {
+                            relax_cell(&cells, points, c - w - 1, &mut cur, &mut best, qx, qy);
+                        }
+                        relax_cell(&cells, points, c - w, &mut cur, &mut best, qx, qy);
+                        if x + 1 < w {
+                            relax_cell(&cells, points, c - w + 1, &mut cur, &mut best, qx, qy);
+                        }
+                    }
+                    cells[c] = cur;
+                }
+            }
+            for &tx in cols.iter().rev() {
+                for x in (tx * TILE..((tx + 1) * TILE).min(w - 1)).rev() {
+                    let c = row + x;
+                    let (mut cur, mut best) = (cells[c], f64::NAN);
+                    relax_cell(&cells, points, c + 1, &mut cur, &mut best, cx[x], qy);
+                    cells[c] = cur;
+                }
+            }
+        }
+    }
+    // backward: rows downwards; right to left from the row above, then left to right
+    for ty in (0..h / TILE).rev() {
+        let cols = band(ty);
+        for y in (ty * TILE..(ty + 1) * TILE).rev() {
+            let qy = cy[y];
+            let row = y * w;
+            for &tx in cols.iter().rev() {
+                for x in (tx * TILE..(tx + 1) * TILE).rev() {
+                    let c = row + x;
+                    let qx = cx[x];
+                    let (mut cur, mut best) = (cells[c], f64::NAN);
+                    if x + 1 < w {
+                        relax_cell(&cells, points, c + 1, &mut cur, &mut best, qx, qy);
+                    }
+                    if y + 1 < h {
+                        if x + 1 < w {
+                            relax_cell(&cells, points, c + w + 1, &mut cur, &mut best, qx, qy);
+                        }
+                        relax_cell(&cells, points, c + w, &mut cur, &mut best, qx, qy);
+                        if x > 0 {
+                            relax_cell(&cells, points, c + w - 1, &mut cur, &mut best, qx, qy);
+                        }
+                    }
+                    cells[c] = cur;
+                }
+            }
+            for &tx in &cols {
+                for x in (tx * TILE).max(1)..(tx + 1) * TILE {
+                    let c = row + x;
+                    let (mut cur, mut best) = (cells[c], f64::NAN);
+                    relax_cell(&cells, points, c - 1, &mut cur, &mut best, cx[x], qy);
+                    cells[c] = cur;
+                }
+            }
+        }
+    }
+    cells
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -796,6 +1092,62 @@ mod tests {
         assert_eq!(e, Unbuilt::TooWide { span: 2e9 });
     }
 
+    /// The box fill ([`fill_box`]) and the tile-by-tile fill give the same grid; returns
+    /// whether it is a full box.
+    fn assert_same_fill(points: &[[f64; 2]], res: f64, reach: f64) -> bool {
+        let b = bounds(points);
+        let rows = ClosestGrid::build_with(points, b, res, reach, 1 << 22, Fill::Compute)
+            .unwrap()
+            .unwrap();
+        let tiles = ClosestGrid::build_with(points, b, res, reach, 1 << 22, Fill::Tiled)
+            .unwrap()
+            .unwrap();
+        assert_eq!(rows.full, tiles.full);
+        assert_eq!(rows.keys(), tiles.keys());
+        assert_eq!(rows.cells.len(), tiles.cells.len());
+        let differ = rows
+            .cells
+            .iter()
+            .zip(&tiles.cells)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(differ, 0, "{differ} of {} cells differ", rows.cells.len());
+        rows.full.is_some()
+    }
+
+    #[test]
+    fn row_major_fill_is_the_tiled_fill_on_a_building() {
+        // rooms of walls sampled at 5 cm off the axes' lattice, plus clutter, over several tiles
+        let mut rng = crate::testkit::Rng::new(5);
+        let mut pts = Vec::new();
+        for k in 0..6 {
+            let (x0, y0) = (k as f64 * 3.1 + 0.013, (k % 2) as f64 * 2.7 - 0.021);
+            for i in 0..60 {
+                let t = i as f64 * 0.05;
+                pts.push([x0 + t, y0]);
+                pts.push([x0, y0 + t * 0.9]);
+            }
+        }
+        pts.extend((0..200).map(|_| [rng.range(0.0, 18.0), rng.range(-1.0, 5.0)]));
+        assert!(assert_same_fill(&pts, 0.02, 2.0), "expected a full box");
+        assert!(assert_same_fill(&pts, 0.05, 2.0), "expected a full box");
+    }
+
+    #[test]
+    fn box_fill_is_the_tiled_fill_on_an_l_shaped_map() {
+        // two 30 m walls meeting at a corner: their tiles cover less than half of the box
+        let mut pts: Vec<[f64; 2]> = (0..600).map(|i| [i as f64 * 0.05 + 0.01, 0.02]).collect();
+        pts.extend((0..600).map(|i| [0.02, i as f64 * 0.05 + 0.01]));
+        assert!(
+            !assert_same_fill(&pts, 0.05, 2.0),
+            "expected tiles, not a full box"
+        );
+        assert!(
+            !assert_same_fill(&pts, 0.02, 0.6),
+            "expected tiles, not a full box"
+        );
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig { cases: 48, .. ProptestConfig::default() })]
 
@@ -827,6 +1179,23 @@ mod tests {
                 }).collect(),
             };
             prop_assert!(check_cells(&pts, res, 0.6).0 > 0);
+        }
+
+        /// Bit-identical cells from the box fill, for one or two random clusters (a full
+        /// box, or tiles with gaps) at any offset and cell size.
+        #[test]
+        fn prop_box_fill_is_the_tiled_fill(seed in 0u64..10_000, n in 1usize..80,
+                            spread in 0.0f64..4.0, apart in prop_oneof![Just(0.0), 3.0f64..20.0],
+                            offset in prop_oneof![Just(0.0), Just(-7.3e3), Just(1e6), Just(-3e8)],
+                            res in prop_oneof![Just(0.02), Just(0.05), Just(0.13)]) {
+            let mut rng = crate::testkit::Rng::new(seed);
+            let pts: Vec<[f64; 2]> = (0..n)
+                .map(|i| {
+                    let d = if i % 2 == 1 { apart } else { 0.0 };
+                    [offset + d + rng.range(0.0, spread), offset * 0.5 + 0.7 * d + rng.range(0.0, spread)]
+                })
+                .collect();
+            assert_same_fill(&pts, res, 0.6);
         }
     }
 }
