@@ -431,7 +431,7 @@ mod tests {
     use crate::icp::{align, StartPath};
     use crate::index::DEFAULT_CACHE_RESOLUTION;
     use crate::testkit::{
-        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng, World,
+        all_worlds, clinic_world, make_scan, rectangle, sample_segments, world_cases, Rng, World,
     };
 
     fn index_of(segs: &[crate::raycast::Segment]) -> MapIndex {
@@ -490,7 +490,8 @@ mod tests {
 
     #[test]
     fn window_search_recovers_what_plain_icp_misses() {
-        for w in worlds() {
+        // the three tuned families and the held-out apartment
+        for w in all_worlds() {
             let idx = index_of(&w.map_segments());
             let cs = world_cases(&w, 40, (1.0, 0.5, 25f64.to_radians()), 11);
             let cfg = IcpConfig::default();
@@ -512,6 +513,22 @@ mod tests {
             );
             assert!(with >= 37, "{}: {with}/40", w.name);
             assert!(with > without, "{}: {with} vs {without}", w.name);
+        }
+    }
+
+    #[test]
+    fn default_call_converges_from_the_small_start_on_every_family() {
+        for w in all_worlds() {
+            let idx = index_of(&w.map_segments());
+            let cs = world_cases(&w, 40, (0.3, 0.3, 10f64.to_radians()), 23);
+            let cfg = IcpConfig::default();
+            let good = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &cfg).unwrap().pose, c.truth))
+                .count();
+            // the clinic (people hiding up to half of an 8 m scan) is at ~96 %, the others
+            // at 99.5-100 % in `cargo bench`
+            assert!(good >= 36, "{}: {good}/40", w.name);
         }
     }
 
