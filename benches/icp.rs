@@ -3,16 +3,18 @@
 //! (180°, 0.5°, 1 cm noise) with the default config (`IcpConfig::default()`: what
 //! `icp(scan, index, pose)` runs, verified start included):
 //!
-//! * `align_<family>_<start>`: the three scenario families of `testkit::worlds()` (the
+//! * `align_<family>_<start>`: the scenario families of `testkit::all_worlds()` (the
 //!   office, 20 % clutter, 30 m; a clinic wing, people, glass, 8 m; a warehouse of racks,
-//!   10 % clutter, people, 20 m), maps sampled every 2.5 cm;
+//!   10 % clutter, people, 20 m; and, held out from tuning, an apartment: open plan, a 45°
+//!   wall, round legs and pillar, a turned desk, glass, 12 m), maps sampled every 2.5 cm;
 //! * `align_office_sizes_<start>_<metric>`: the office sampled to 1k / 10k / 100k / 1M
 //!   points, point-to-line and point-to-point.
 //!
 //! Start errors (0.3 m, 0.3 m, 10°) and (1.0 m, 0.5 m, 25°), random signs. Before timing
-//! each cell it prints the success rate (within 2 cm and 0.5°), the median and the p95 time
-//! of one pass over the 200 cases and how often the window search ran; criterion then times
-//! repeated passes.
+//! each cell it prints the success rate (within 2 cm and 0.5°), the median and the p95 over
+//! the 200 cases of each case's fastest of three passes (so that other processes on a
+//! shared machine do not set the p95), and how often the window search ran; criterion then
+//! times repeated passes.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -20,7 +22,9 @@ use std::time::{Duration, Instant};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use icploc_core::index::DEFAULT_CACHE_RESOLUTION;
 use icploc_core::se2::wrap_angle;
-use icploc_core::testkit::{cases, office_segments, sample_segments, world_cases, worlds, Case};
+use icploc_core::testkit::{
+    all_worlds, cases, office_segments, sample_segments, world_cases, Case,
+};
 use icploc_core::{align, IcpConfig, MapIndex, Metric, StartPath};
 
 const SIZES: [usize; 4] = [1_000, 10_000, 100_000, 1_000_000];
@@ -52,21 +56,28 @@ fn queries() -> Vec<[f64; 2]> {
         .collect()
 }
 
-/// One pass over the cases: (successes, median, p95, window searches).
+/// Passes over the cases: (successes, median, p95 of each case's fastest of `PASSES`
+/// passes, window searches).
 fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration, Duration, usize) {
+    const PASSES: usize = 3;
     let mut ok = 0;
     let mut windows = 0;
-    let mut times: Vec<Duration> = Vec::with_capacity(cs.len());
-    for c in cs {
-        let t0 = Instant::now();
-        let r = align(&c.scan, idx, c.initial, cfg).expect("valid input");
-        times.push(t0.elapsed());
-        let dt = ((r.pose.x - c.truth.x).powi(2) + (r.pose.y - c.truth.y).powi(2)).sqrt();
-        let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
-        if dt < 0.02 && dth < 0.5f64.to_radians() {
-            ok += 1;
+    let mut times: Vec<Duration> = vec![Duration::MAX; cs.len()];
+    for pass in 0..PASSES {
+        for (k, c) in cs.iter().enumerate() {
+            let t0 = Instant::now();
+            let r = align(&c.scan, idx, c.initial, cfg).expect("valid input");
+            times[k] = times[k].min(t0.elapsed());
+            if pass > 0 {
+                continue;
+            }
+            let dt = ((r.pose.x - c.truth.x).powi(2) + (r.pose.y - c.truth.y).powi(2)).sqrt();
+            let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
+            if dt < 0.02 && dth < 0.5f64.to_radians() {
+                ok += 1;
+            }
+            windows += (r.start != StartPath::Plain) as usize;
         }
-        windows += (r.start != StartPath::Plain) as usize;
     }
     times.sort();
     (
@@ -84,7 +95,7 @@ const STARTS: [(&str, (f64, f64, f64)); 2] = [
 
 fn bench_families(c: &mut Criterion) {
     let cfg = IcpConfig::default();
-    for w in worlds() {
+    for w in all_worlds() {
         let (p, nrm) = sample_segments(&w.map_segments(), 0.025);
         let idx = MapIndex::new(p, Some(nrm))
             .unwrap()

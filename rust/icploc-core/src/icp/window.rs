@@ -183,6 +183,12 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
     }
 }
 
+/// Are two window poses distinct hypotheses?
+fn distinct(p: &Pose2, q: &Pose2) -> bool {
+    (p.x - q.x).hypot(p.y - q.y) > DISTINCT_DISTANCE
+        || wrap_angle(p.theta - q.theta).abs() > DISTINCT_ANGLE
+}
+
 /// What the window search found.
 #[derive(Clone, Debug)]
 pub(crate) struct WindowOutcome {
@@ -202,173 +208,221 @@ struct Node {
     b: i32,
 }
 
-/// Branch-and-bound over the window around `center`: translations on the field's cells
-/// within ±`cfg.window_position`, headings every `cfg.window_angle_step` within
-/// ±`cfg.window_heading`. `None` when the scan has too few usable points.
+/// The window's lattice: headings every `cfg.window_angle_step` within ±`cfg.window_heading`
+/// of the centre's, translations on the field's cells within ±`cfg.window_position`, and
+/// per heading the cells of the subsampled scan with the sensor at the centre.
+struct Lattice<'a> {
+    field: &'a LikelihoodField,
+    center: Pose2,
+    headings: Vec<f64>,
+    offsets: Vec<Vec<(i32, i32)>>,
+    /// half-width in cells
+    wc: i32,
+    /// half-width in heading steps
+    nk: i32,
+    /// the best possible sum (every point on a full cell)
+    full: u32,
+}
+
+impl<'a> Lattice<'a> {
+    /// `None` when the scan has too few usable points.
+    fn new(
+        field: &'a LikelihoodField,
+        scan: &[[f64; 2]],
+        center: Pose2,
+        cfg: &IcpConfig,
+    ) -> Option<Self> {
+        let usable: Vec<[f64; 2]> = scan
+            .iter()
+            .copied()
+            .filter(|p| p[0] * p[0] + p[1] * p[1] > 1e-4)
+            .collect();
+        if usable.len() < 3 {
+            return None;
+        }
+        let sub = subsample(&usable, usable.len().div_ceil(WINDOW_POINTS), 3);
+        let res = field.res;
+        let wc = (cfg.window_position / res).round().max(0.0) as i32;
+        let nk = (cfg.window_heading / cfg.window_angle_step)
+            .round()
+            .max(0.0) as i32;
+        let headings: Vec<f64> = (-nk..=nk)
+            .map(|k| wrap_angle(center.theta + k as f64 * cfg.window_angle_step))
+            .collect();
+        let offsets: Vec<Vec<(i32, i32)>> = headings
+            .iter()
+            .map(|&th| {
+                let (s, c) = th.sin_cos();
+                sub.iter()
+                    .map(|p| {
+                        field.cell([
+                            center.x + c * p[0] - s * p[1],
+                            center.y + s * p[0] + c * p[1],
+                        ])
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(Self {
+            field,
+            center,
+            headings,
+            offsets,
+            wc,
+            nk,
+            full: 255 * sub.len() as u32,
+        })
+    }
+
+    fn pose_of(&self, l: &Node) -> Pose2 {
+        Pose2::new(
+            self.center.x + l.a as f64 * self.field.res,
+            self.center.y + l.b as f64 * self.field.res,
+            self.headings[l.k as usize],
+        )
+    }
+
+    /// Branch and bound: every leaf (a lattice pose clear of the map) whose score is at
+    /// least `floor` and at least `keep_ratio` of the best found.
+    fn leaves(&self, floor: u32, keep_ratio: f64) -> Vec<Node> {
+        let field = self.field;
+        let (wc, nk) = (self.wc, self.nk);
+        let span = 2 * wc + 1;
+        let mut top = 0usize;
+        while (1i32 << top) < span && top < field.levels() {
+            top += 1;
+        }
+        let stride = 1i32 << top;
+        let mut roots: Vec<Node> = Vec::new();
+        for (k, offs) in self.offsets.iter().enumerate() {
+            let mut b = -wc;
+            while b <= wc {
+                let mut a = -wc;
+                while a <= wc {
+                    roots.push(Node {
+                        bound: field.sum(top, offs, a, b),
+                        level: top as u8,
+                        k: k as u32,
+                        a,
+                        b,
+                    });
+                    a += stride;
+                }
+                b += stride;
+            }
+        }
+        // best root first; ties: nearest heading to the start
+        roots.sort_unstable_by_key(|n| {
+            (
+                std::cmp::Reverse(n.bound),
+                (n.k as i32 - nk).abs(),
+                n.a.abs() + n.b.abs(),
+            )
+        });
+        let mut best = floor;
+        let threshold = |b: u32| (((b as f64) * keep_ratio).ceil() as u32).max(floor);
+        let mut leaves: Vec<Node> = Vec::new();
+        let mut stack: Vec<Node> = Vec::new();
+        for root in &roots {
+            if root.bound < threshold(best) {
+                continue;
+            }
+            stack.clear();
+            stack.push(*root);
+            while let Some(n) = stack.pop() {
+                let thr = threshold(best);
+                if n.bound < thr {
+                    continue;
+                }
+                if n.level == 0 {
+                    let p = [
+                        self.center.x + n.a as f64 * field.res,
+                        self.center.y + n.b as f64 * field.res,
+                    ];
+                    if field.distance_at(p).is_none_or(|d| d < MIN_CLEARANCE) {
+                        continue;
+                    }
+                    leaves.push(n);
+                    best = best.max(n.bound);
+                    continue;
+                }
+                let lvl = n.level as usize - 1;
+                let s = 1i32 << lvl;
+                let offs = &self.offsets[n.k as usize];
+                let mut kids = [n; 4];
+                let mut nkids = 0;
+                for (da, db) in [(0, 0), (s, 0), (0, s), (s, s)] {
+                    let (a, b) = (n.a + da, n.b + db);
+                    if a > wc || b > wc {
+                        continue;
+                    }
+                    let bound = field.sum(lvl, offs, a, b);
+                    if bound < thr {
+                        continue;
+                    }
+                    kids[nkids] = Node {
+                        bound,
+                        level: lvl as u8,
+                        k: n.k,
+                        a,
+                        b,
+                    };
+                    nkids += 1;
+                }
+                let kids = &mut kids[..nkids];
+                kids.sort_unstable_by_key(|c| c.bound);
+                stack.extend_from_slice(kids);
+            }
+        }
+        let keep = threshold(best);
+        leaves.retain(|l| l.bound >= keep);
+        leaves
+    }
+
+    /// The window's distinct seeds, best first, and its ambiguity.
+    fn search(&self) -> Option<WindowOutcome> {
+        let floor = (0.1 * self.full as f64) as u32;
+        let nk = self.nk;
+        let mut leaves = self.leaves(floor, KEEP_RATIO);
+        // ties by closeness to the start: the result does not depend on the visiting order
+        leaves.sort_unstable_by_key(|l| {
+            (
+                std::cmp::Reverse(l.bound),
+                (l.k as i32 - nk).abs(),
+                l.a.abs() + l.b.abs(),
+                l.k,
+                l.b,
+                l.a,
+            )
+        });
+        let max_seeds = WINDOW_SEEDS;
+        let mut seeds: Vec<(Pose2, f64)> = Vec::new();
+        for l in &leaves {
+            let p = self.pose_of(l);
+            if seeds.iter().all(|(q, _)| distinct(&p, q)) {
+                seeds.push((p, l.bound as f64 / self.full as f64));
+                if seeds.len() >= max_seeds {
+                    break;
+                }
+            }
+        }
+        let second = seeds.get(1).map(|s| s.1).unwrap_or(0.0);
+        if seeds.is_empty() {
+            return None;
+        }
+        Some(WindowOutcome { seeds, second })
+    }
+}
+
+/// Branch-and-bound over the window around `center` (see [`Lattice`]). `None` when the
+/// scan has too few usable points or no pose of the window scores.
 pub(crate) fn search(
     field: &LikelihoodField,
     scan: &[[f64; 2]],
     center: Pose2,
     cfg: &IcpConfig,
 ) -> Option<WindowOutcome> {
-    let usable: Vec<[f64; 2]> = scan
-        .iter()
-        .copied()
-        .filter(|p| p[0] * p[0] + p[1] * p[1] > 1e-4)
-        .collect();
-    if usable.len() < 3 {
-        return None;
-    }
-    let sub = subsample(&usable, usable.len().div_ceil(WINDOW_POINTS), 3);
-    let m = sub.len();
-    let res = field.res;
-    let wc = (cfg.window_position / res).round().max(0.0) as i32;
-    let nk = (cfg.window_heading / cfg.window_angle_step)
-        .round()
-        .max(0.0) as i32;
-    let headings: Vec<f64> = (-nk..=nk)
-        .map(|k| wrap_angle(center.theta + k as f64 * cfg.window_angle_step))
-        .collect();
-    // per heading: the cells of the points with the sensor at the window centre
-    let offsets: Vec<Vec<(i32, i32)>> = headings
-        .iter()
-        .map(|&th| {
-            let (s, c) = th.sin_cos();
-            sub.iter()
-                .map(|p| {
-                    field.cell([
-                        center.x + c * p[0] - s * p[1],
-                        center.y + s * p[0] + c * p[1],
-                    ])
-                })
-                .collect()
-        })
-        .collect();
-    let span = 2 * wc + 1;
-    let mut top = 0usize;
-    while (1i32 << top) < span && top < field.levels() {
-        top += 1;
-    }
-    let stride = 1i32 << top;
-    let mut roots: Vec<Node> = Vec::new();
-    for (k, offs) in offsets.iter().enumerate() {
-        let mut b = -wc;
-        while b <= wc {
-            let mut a = -wc;
-            while a <= wc {
-                roots.push(Node {
-                    bound: field.sum(top, offs, a, b),
-                    level: top as u8,
-                    k: k as u32,
-                    a,
-                    b,
-                });
-                a += stride;
-            }
-            b += stride;
-        }
-    }
-    // best root first; ties: nearest heading to the start
-    roots.sort_unstable_by_key(|n| {
-        (
-            std::cmp::Reverse(n.bound),
-            (n.k as i32 - nk).abs(),
-            n.a.abs() + n.b.abs(),
-        )
-    });
-    let full = 255 * m as u32;
-    let floor = (0.1 * full as f64) as u32;
-    let mut best = floor;
-    let threshold = |b: u32| ((b as f64) * KEEP_RATIO).ceil() as u32;
-    let mut leaves: Vec<Node> = Vec::new();
-    let mut stack: Vec<Node> = Vec::new();
-    for root in &roots {
-        if root.bound < threshold(best).max(floor) {
-            continue;
-        }
-        stack.clear();
-        stack.push(*root);
-        while let Some(n) = stack.pop() {
-            let thr = threshold(best).max(floor);
-            if n.bound < thr {
-                continue;
-            }
-            if n.level == 0 {
-                let p = [center.x + n.a as f64 * res, center.y + n.b as f64 * res];
-                if field.distance_at(p).is_none_or(|d| d < MIN_CLEARANCE) {
-                    continue;
-                }
-                leaves.push(n);
-                best = best.max(n.bound);
-                continue;
-            }
-            let lvl = n.level as usize - 1;
-            let s = 1i32 << lvl;
-            let offs = &offsets[n.k as usize];
-            let mut kids = [n; 4];
-            let mut nkids = 0;
-            for (da, db) in [(0, 0), (s, 0), (0, s), (s, s)] {
-                let (a, b) = (n.a + da, n.b + db);
-                if a > wc || b > wc {
-                    continue;
-                }
-                let bound = field.sum(lvl, offs, a, b);
-                if bound < thr {
-                    continue;
-                }
-                kids[nkids] = Node {
-                    bound,
-                    level: lvl as u8,
-                    k: n.k,
-                    a,
-                    b,
-                };
-                nkids += 1;
-            }
-            let kids = &mut kids[..nkids];
-            kids.sort_unstable_by_key(|c| c.bound);
-            stack.extend_from_slice(kids);
-        }
-    }
-    let keep = threshold(best).max(floor);
-    leaves.retain(|l| l.bound >= keep);
-    // ties by closeness to the start: the result does not depend on the visiting order
-    leaves.sort_unstable_by_key(|l| {
-        (
-            std::cmp::Reverse(l.bound),
-            (l.k as i32 - nk).abs(),
-            l.a.abs() + l.b.abs(),
-            l.k,
-            l.b,
-            l.a,
-        )
-    });
-    let pose_of = |l: &Node| {
-        Pose2::new(
-            center.x + l.a as f64 * res,
-            center.y + l.b as f64 * res,
-            headings[l.k as usize],
-        )
-    };
-    let distinct = |p: &Pose2, q: &Pose2| {
-        (p.x - q.x).hypot(p.y - q.y) > DISTINCT_DISTANCE
-            || wrap_angle(p.theta - q.theta).abs() > DISTINCT_ANGLE
-    };
-    let mut seeds: Vec<(Pose2, f64)> = Vec::new();
-    for l in &leaves {
-        let p = pose_of(l);
-        if seeds.iter().all(|(q, _)| distinct(&p, q)) {
-            seeds.push((p, l.bound as f64 / full as f64));
-            if seeds.len() >= WINDOW_SEEDS {
-                break;
-            }
-        }
-    }
-    let second = seeds.get(1).map(|s| s.1).unwrap_or(0.0);
-    if seeds.is_empty() {
-        return None;
-    }
-    Some(WindowOutcome { seeds, second })
+    Lattice::new(field, scan, center, cfg)?.search()
 }
 
 #[cfg(test)]
@@ -377,7 +431,7 @@ mod tests {
     use crate::icp::{align, StartPath};
     use crate::index::DEFAULT_CACHE_RESOLUTION;
     use crate::testkit::{
-        clinic_world, make_scan, rectangle, sample_segments, world_cases, worlds, Rng, World,
+        all_worlds, clinic_world, make_scan, rectangle, sample_segments, world_cases, Rng, World,
     };
 
     fn index_of(segs: &[crate::raycast::Segment]) -> MapIndex {
@@ -436,7 +490,8 @@ mod tests {
 
     #[test]
     fn window_search_recovers_what_plain_icp_misses() {
-        for w in worlds() {
+        // the three tuned families and the held-out apartment
+        for w in all_worlds() {
             let idx = index_of(&w.map_segments());
             let cs = world_cases(&w, 40, (1.0, 0.5, 25f64.to_radians()), 11);
             let cfg = IcpConfig::default();
@@ -458,6 +513,22 @@ mod tests {
             );
             assert!(with >= 37, "{}: {with}/40", w.name);
             assert!(with > without, "{}: {with} vs {without}", w.name);
+        }
+    }
+
+    #[test]
+    fn default_call_converges_from_the_small_start_on_every_family() {
+        for w in all_worlds() {
+            let idx = index_of(&w.map_segments());
+            let cs = world_cases(&w, 40, (0.3, 0.3, 10f64.to_radians()), 23);
+            let cfg = IcpConfig::default();
+            let good = cs
+                .iter()
+                .filter(|c| ok(align(&c.scan, &idx, c.initial, &cfg).unwrap().pose, c.truth))
+                .count();
+            // the clinic (people hiding up to half of an 8 m scan) is at ~96 %, the others
+            // at 99.5-100 % in `cargo bench`
+            assert!(good >= 36, "{}: {good}/40", w.name);
         }
     }
 
