@@ -40,8 +40,8 @@ from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
 from icploc.errors import DeviceError
+from icploc.messages import Odometry
 from icploc.se2 import between, compose, inverse
-from icploc.types import Odometry
 
 __all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
 
@@ -541,7 +541,7 @@ class PowerBot:
             yield sip
 
     def odometry(self, limit: int | None = None) -> Iterator[Odometry]:
-        """:meth:`sips` converted to :class:`icploc.types.Odometry`."""
+        """:meth:`sips` converted to :class:`icploc.messages.Odometry`."""
         for sip in self.sips(limit):
             yield sip.to_odometry()
 

@@ -35,7 +35,7 @@ from icploc.drivers import sick_protocol as sp
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.recording import Recorder
 from icploc.errors import DeviceError
-from icploc.types import Scan
+from icploc.messages import Scan
 
 ScanCallback = Callable[[Scan], None]
 
