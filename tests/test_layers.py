@@ -60,6 +60,7 @@ LAYERS: dict[str, int] = {
     "icploc.logs.rosbag": FORMATS,
     "icploc.drivers": FORMATS,
     "icploc.drivers._queues": FORMATS,
+    "icploc.drivers._link": FORMATS,
     "icploc.drivers.arcos_protocol": FORMATS,
     "icploc.drivers.byteclock": FORMATS,
     "icploc.drivers.ports": FORMATS,
