@@ -7,24 +7,7 @@ nothing inside the package imports this module (tests/test_layers.py checks).
 
 from __future__ import annotations
 
-from icploc.messages import (
-    BEAM_DAZZLE,
-    BEAM_FIELD_A,
-    BEAM_FIELD_B,
-    BEAM_FIELD_C,
-    BEAM_INVALID,
-    BEAM_NO_RETURN,
-    Odometry,
-    Scan,
-)
+from icploc import messages as _messages
+from icploc.messages import *  # noqa: F403
 
-__all__ = [
-    "BEAM_DAZZLE",
-    "BEAM_FIELD_A",
-    "BEAM_FIELD_B",
-    "BEAM_FIELD_C",
-    "BEAM_INVALID",
-    "BEAM_NO_RETURN",
-    "Odometry",
-    "Scan",
-]
+__all__ = list(_messages.__all__)
