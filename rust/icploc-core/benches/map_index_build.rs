@@ -7,7 +7,8 @@
 //! of the real-data benchmark's aces map, whose grid is one full box of tiles; and a
 //! small 20 m × 12 m office wing. `kdtree+grid_from_runs`: the same index rebuilt from its
 //! grid's saved cells (`index::runs` + `MapIndex::with_cache_cells`, what a process does when
-//! the prepared-map cache holds them). Run with
+//! the prepared-map cache holds them). `two_wings_1km_apart`: two wings 1 km apart, a grid
+//! whose box of tiles is too sparse for the box fill: the tile-by-tile fill. Run with
 //! `cargo bench -p icploc-core --bench map_index_build`.
 
 use std::hint::black_box;
@@ -106,5 +107,36 @@ fn bench_build(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_build);
+/// Two office wings 1 km apart: the grid's box holds far more tiles than the grid, so its
+/// cells are filled tile by tile (`ClosestGrid::fill`), not as a box.
+fn bench_sparse(c: &mut Criterion) {
+    let (mut p, mut n) = building(20.0, 12.0, 4.0, 5.0);
+    let (p2, n2) = building(20.0, 12.0, 4.0, 5.0);
+    p.extend(p2.iter().map(|q| [q[0] + 1000.0, q[1]]));
+    n.extend(n2);
+    let idx = MapIndex::new(p.clone(), Some(n.clone()))
+        .unwrap()
+        .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+        .unwrap();
+    println!(
+        "two_wings_1km_apart: {} points, {} tiles of the closest-point grid",
+        p.len(),
+        idx.cache_tiles()
+    );
+    let mut g = c.benchmark_group("map_index_build_two_wings_1km_apart");
+    g.sample_size(10);
+    g.bench_function("kdtree+grid_2cm", |b| {
+        b.iter(|| {
+            black_box(
+                MapIndex::new(p.clone(), Some(n.clone()))
+                    .unwrap()
+                    .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+                    .unwrap(),
+            )
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_build, bench_sparse);
 criterion_main!(benches);
