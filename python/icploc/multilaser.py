@@ -420,10 +420,7 @@ def simulated_laser(session: Any, mount: LaserMount, *, seed: int = 0, name: str
     def source(t: float) -> NDArray[np.float64]:
         sensor = compose(session.robot.pose, mount.mounting)
         mr, noise = session.laser_max_range, session.laser_noise_std
-        if hasattr(world, "scan"):
-            r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
-        else:
-            r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
+        r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
         return np.asarray(r, dtype=np.float64)
 
     dev.source = source
