@@ -36,9 +36,9 @@ import numpy as np
 from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
+from icploc.messages import BEAM_NO_RETURN, Odometry, Scan
 from icploc.relocalize import Relocalizer, attach, global_localizer
 from icploc.se2 import between, compose, wrap_angle
-from icploc.types import BEAM_NO_RETURN, Odometry, Scan
 
 LOCK_SCANS = 5
 KIDNAP_SCANS = 20

@@ -48,9 +48,9 @@ def simulate(
 ) -> dict[str, Any]:  # fmt: skip
     """The corridor run: front and rear scans (frames ``front_laser`` / ``rear_laser``),
     odometry at 50 Hz, the true poses at each scan."""
+    from icploc.messages import Odometry, Scan
     from icploc.se2 import compose
     from icploc.sim.world import World
-    from icploc.types import Odometry, Scan
 
     walls = corridor(length)
     world = World("corridor", walls)

@@ -554,7 +554,7 @@ def replay_throughput(num_scans: int, single: bool = True) -> dict[str, Any]:
         out["icploc Localizer"] = {"skipped": f"icploc.Localizer not available ({type(e).__name__}: {e})"}
         return out
     try:
-        from icploc.types import Odometry, Scan
+        from icploc.messages import Odometry, Scan
 
         loc = _make_localizer(localizer_cls, pts, nrm, log)
         scan_objs = [

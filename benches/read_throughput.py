@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from icploc.logs import open_log
 from icploc.logs.carmen import flaser_angles, read_carmen, write_carmen
-from icploc.types import Odometry, Scan
+from icploc.messages import Odometry, Scan
 
 SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

@@ -71,8 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     from icploc.config import LocalizerConfig
     from icploc.localizer import Localizer, Status
     from icploc.maps import Map
+    from icploc.messages import Scan
     from icploc.relocalize import GlobalRelocalization
-    from icploc.types import Scan
 
     cache = ev.cache_dir()
     names = args.names or LOGS

@@ -377,7 +377,7 @@ def test_demo_into_a_file_is_one_error_line(tmp_path: Path) -> None:
 def test_log_info_prints_each_log_and_one_error_line_per_bad_one(tmp_path: Path) -> None:
     import numpy as np
     from icploc.logs.carmen import flaser_angles
-    from icploc.types import Scan
+    from icploc.messages import Scan
 
     good = tmp_path / "a.log"
     scans = [

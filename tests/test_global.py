@@ -14,6 +14,7 @@ from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
 from icploc.maps import Map
+from icploc.messages import Odometry, Scan
 from icploc.relocalize import (
     GlobalRelocalization,
     RelocalizeConfig,
@@ -23,7 +24,6 @@ from icploc.relocalize import (
     relocalize,
 )
 from icploc.se2 import between, compose
-from icploc.types import Odometry, Scan
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benches"))
 import global_bench as gb  # noqa: E402

@@ -11,10 +11,10 @@ from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, run
 from icploc.maps import Map
+from icploc.messages import Odometry, Scan
 from icploc.relocalize import attach
 from icploc.replay import replay
 from icploc.se2 import between, compose, wrap_angle
-from icploc.types import Odometry, Scan
 
 
 @pytest.fixture(scope="module")

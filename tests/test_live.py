@@ -18,9 +18,9 @@ from icploc.cli import app
 from icploc.drivers.ports import PortError, check_port
 from icploc.localizer import Estimate, Status
 from icploc.maps import Map
+from icploc.messages import Scan
 from icploc.sim.harness import run_simulated, truth_at
 from icploc.sim.scenes import box, lab_random_walk
-from icploc.types import Scan
 from typer.testing import CliRunner
 
 runner = CliRunner()

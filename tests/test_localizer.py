@@ -10,8 +10,8 @@ from icploc import MapIndex
 from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
+from icploc.messages import BEAM_DAZZLE, BEAM_NO_RETURN, Odometry, Scan
 from icploc.se2 import compose, wrap_angle
-from icploc.types import BEAM_DAZZLE, BEAM_NO_RETURN, Odometry, Scan
 
 ANGLES = np.linspace(-math.pi / 2, math.pi / 2, 361)
 

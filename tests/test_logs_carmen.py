@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from icploc.logs import LogFormatError, detect_format, log_info, open_log
 from icploc.logs._base import repair_stamps
 from icploc.logs.carmen import flaser_angles, read_carmen, write_carmen
-from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
+from icploc.messages import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 SHARED = Path(__file__).parents[1] / ".." / "shared" / "data"
 needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data not present")

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from icploc.logs import LogFormatError, open_log
 from icploc.logs.carmen import flaser_angles, read_carmen, write_carmen
-from icploc.types import BEAM_INVALID, Odometry, Scan
+from icploc.messages import BEAM_INVALID, Odometry, Scan
 from log_damage import DAMAGE_CLASSES, damage
 
 N_SCANS = 40

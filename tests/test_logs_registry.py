@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from icploc.logs import FORMATS, LogFormatError, detect_format, load_log, merge_in_time, open_log
 from icploc.logs.carmen import flaser_angles, write_carmen
 from icploc.logs.rosbag import write_rosbag
-from icploc.types import Odometry, Scan
+from icploc.messages import Odometry, Scan
 
 HAVE_RECORDED = importlib.util.find_spec("icploc.logs.recorded") is not None
 

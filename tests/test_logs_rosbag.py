@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from icploc.logs import LogFormatError, detect_format, open_log
 from icploc.logs.rosbag import is_rosbag, iter_ros1_raw, read_rosbag, write_rosbag
-from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
+from icploc.messages import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 SHARED = Path(__file__).parents[1] / ".." / "shared" / "data"
 needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data not present")

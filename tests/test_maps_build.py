@@ -13,7 +13,7 @@ import yaml
 from icploc import raycast
 from icploc.maps import Map, MapError
 from icploc.maps.build import build_grid, build_map
-from icploc.types import Scan
+from icploc.messages import Scan
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

@@ -90,7 +90,7 @@ def test_cli_no_cache_flag(yaml_map: Path, tmp_path: Path) -> None:
 def test_replay_no_cache_flag_leaves_the_cache_empty(yaml_map: Path, tmp_path: Path) -> None:
     from icploc.cli import app
     from icploc.logs import write_carmen
-    from icploc.types import Scan
+    from icploc.messages import Scan
     from typer.testing import CliRunner
 
     angles = np.linspace(-np.pi / 2, np.pi / 2, 181)

@@ -144,7 +144,7 @@ def test_hypotheses_logged_on_every_lost_scan(sim: dict, tmp_path: Path) -> None
 
 def test_log_times_increase_when_stamps_do_not(tmp_path: Path) -> None:
     from icploc.localizer import Estimate, Status
-    from icploc.types import Scan
+    from icploc.messages import Scan
 
     out = tmp_path / "zero.mcap"
     rec = McapRecorder(out)
@@ -244,7 +244,7 @@ def test_a_full_disk_is_a_clear_error_without_a_flood_of_warnings(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     from icploc.localizer import Estimate, Status
-    from icploc.types import Scan
+    from icploc.messages import Scan
 
     rec = McapRecorder("/dev/full")
     scan = Scan(1.0, np.ones(361), np.linspace(-1.5, 1.5, 361))

@@ -14,6 +14,7 @@ from icploc.config import ConfigError, LocalizerConfig
 from icploc.localizer import OdometryBuffer
 from icploc.logs import read_carmen, write_carmen
 from icploc.maps import Map
+from icploc.messages import Odometry, Scan
 from icploc.multilaser import (
     BASE_FRAME,
     LaserMerger,
@@ -22,7 +23,6 @@ from icploc.multilaser import (
     merge_stream,
     mounts,
 )
-from icploc.types import Odometry, Scan
 from typer.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benches"))

@@ -10,11 +10,11 @@ import pytest
 import serial
 from icploc.drivers import arcos_protocol as ap
 from icploc.drivers.powerbot import PowerBot, PowerBotTimeout
+from icploc.messages import Odometry
 from icploc.se2 import wrap_angle
 from icploc.sim.device import DeviceRunner, Faults
 from icploc.sim.powerbot_device import PowerBotDevice, constant_plan
 from icploc.sim.robot import DiffDriveRobot, EncoderNoise
-from icploc.types import Odometry
 
 
 def runner(**kw: object) -> DeviceRunner:

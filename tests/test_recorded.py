@@ -18,11 +18,11 @@ from icploc.drivers.recording import (
 )
 from icploc.drivers.sick import PLS
 from icploc.logs.recorded import is_recorded, read_recorded, replay_config
+from icploc.messages import Odometry, Scan
 from icploc.sim.device import Faults
 from icploc.sim.powerbot_device import constant_plan
 from icploc.sim.scenes import box
 from icploc.sim.session import SimSession
-from icploc.types import Odometry, Scan
 
 
 def record_session(

@@ -182,7 +182,7 @@ def test_replay_recorded_raw_bytes_session(tmp_path: Path) -> None:
 def test_replay_prefers_the_odometry_recorded_with_each_scan(sim_run: dict, tmp_path: Path) -> None:
     """CARMEN logs carry odometry in every laser line; an ODOM stream (here: a robot that
     never moved) is used only when asked for."""
-    from icploc.types import Odometry
+    from icploc.messages import Odometry
 
     still = [Odometry(o.stamp, (0.0, 0.0, 0.0)) for o in sim_run["odoms"]]
     log = tmp_path / "two_odometries.log"

@@ -11,9 +11,9 @@ import pytest
 from icploc import sim as worlds
 from icploc.logs import LogFormatError, write_carmen
 from icploc.maps import Map
+from icploc.messages import Scan
 from icploc.replay import replay
 from icploc.trajectory import tum_line
-from icploc.types import Scan
 from log_damage import damage
 
 

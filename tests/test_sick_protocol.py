@@ -13,7 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from icploc.drivers import sick_protocol as sp
-from icploc.types import BEAM_DAZZLE, BEAM_FIELD_A, BEAM_FIELD_B, BEAM_INVALID, BEAM_NO_RETURN
+from icploc.messages import BEAM_DAZZLE, BEAM_FIELD_A, BEAM_FIELD_B, BEAM_INVALID, BEAM_NO_RETURN
 
 FIX = json.loads(
     (Path(__file__).parent / "fixtures" / "protocols" / "sick_fixtures.json").read_text()

@@ -204,3 +204,19 @@ def test_pursuit_plan_stops_and_says_done_at_the_end() -> None:
 
     plan = PursuitPlan(np.array([[0.0, 0.0], [1.0, 0.0]]), lambda: (0.95, 0.0, 0.0))
     assert (plan(0.0), plan.done.is_set()) == ((0.0, 0.0), True)
+
+
+def test_a_random_walk_starts_on_its_start_stays_in_its_box_and_ends_at_the_origin() -> None:
+    from icploc.sim.scenes import random_walk
+
+    box = ((-2.2, 2.2), (2.2, 3.1))
+    w = random_walk(12.0, seed=4, box=box, start=((0.0, 0.0), (0.0, 1.5)))
+    inner = w[2:-1]
+    steps = np.hypot(*np.diff(w[1:-1], axis=0).T)
+    assert (
+        w[:2].tolist(),
+        w[-1].tolist(),
+        bool(np.all((inner >= [box[0][0], box[1][0]]) & (inner <= [box[0][1], box[1][1]]))),
+        bool(np.all(steps > 1.2)),
+        float(np.hypot(*np.diff(w[:-1], axis=0).T).sum()) >= 12.0 - 3.0,
+    ) == ([[0.0, 0.0], [0.0, 1.5]], [0.0, 0.0], True, True, True)

@@ -12,10 +12,10 @@ from icploc.live import tum_row
 from icploc.localizer import Localizer, Status
 from icploc.logs import write_carmen
 from icploc.maps import Map
+from icploc.messages import Odometry, Scan
 from icploc.se2 import wrap_angle
 from icploc.sim.world import World
 from icploc.startrefine import REFINING, StartRefineConfig, combine_scans
-from icploc.types import Odometry, Scan
 from typer.testing import CliRunner
 
 #: a room with features (no symmetry): every pose in it is unique

@@ -235,6 +235,20 @@ def demo(
     typer.echo(f"wrote {out}/results.md and plots in {time.perf_counter() - t0:.1f} s")
 
 
+# the options replay and run share (declared once)
+InitialPoseOption = Annotated[str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")]
+ConfigOption = Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")]
+McapOption = Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")]
+RefineStartOption = Annotated[
+    bool,
+    typer.Option(
+        "--refine-start",
+        help="Refine the initial pose from the first scans while the robot stands still; "
+        "prints the verdict (refined / ambiguous / rejected / moved)",
+    ),
+]
+
+
 @app.command()
 def replay(
     log: Annotated[
@@ -243,9 +257,7 @@ def replay(
     map_path: Annotated[
         Path, typer.Option("--map", help="Map file (ROS YAML, GeoJSON, DXF, .npz ...)")
     ],
-    initial_pose: Annotated[
-        str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")
-    ] = None,
+    initial_pose: InitialPoseOption = None,
     out: Annotated[
         Path | None, typer.Option("--out", help="Write the trajectory (TUM), row by row")
     ] = None,
@@ -263,7 +275,7 @@ def replay(
     plot: Annotated[
         Path | None, typer.Option("--plot", help="Draw the map and trajectories (PNG)")
     ] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
+    config: ConfigOption = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
     odometry: Annotated[
         str, typer.Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
@@ -285,18 +297,11 @@ def replay(
             help="Exit 3 when more than this share of the scans ends lost; 1 = never (0-1)",
         ),
     ] = 0.5,
-    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
+    mcap: McapOption = None,
     no_cache: Annotated[
         bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
     ] = False,
-    refine_start: Annotated[
-        bool,
-        typer.Option(
-            "--refine-start",
-            help="Refine the initial pose from the first scans while the robot stands still; "
-            "prints the verdict (refined / ambiguous / rejected / moved)",
-        ),
-    ] = False,
+    refine_start: RefineStartOption = False,
     partial_map: Annotated[
         bool, typer.Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
     ] = False,
@@ -371,21 +376,19 @@ def run_cmd(
     simulate: Annotated[
         bool, typer.Option("--simulate", help="Use the device simulators on ptys")
     ] = False,
-    initial_pose: Annotated[
-        str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")
-    ] = None,
+    initial_pose: InitialPoseOption = None,
     global_start: Annotated[
         bool,
         typer.Option("--global", help="With --simulate: do not tell the localizer the start pose"),
     ] = False,
     out: Annotated[Path | None, typer.Option("--out", help="Write the trajectory (TUM)")] = None,
     record: Annotated[Path | None, typer.Option("--record", help="Record the raw bytes")] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
+    config: ConfigOption = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this long (s)")] = None,
     baud: Annotated[
         int, typer.Option(help="Laser baud rate: 9600, 19200, 38400 or 500000 (Bd)")
     ] = 38400,
-    mcap: Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")] = None,
+    mcap: McapOption = None,
     state: Annotated[
         Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
     ] = None,
@@ -393,14 +396,7 @@ def run_cmd(
         float,
         typer.Option(help="Give up on a vanished device after this long, exit 1 (s)"),
     ] = 60.0,
-    refine_start: Annotated[
-        bool,
-        typer.Option(
-            "--refine-start",
-            help="Refine the initial pose from the first scans while the robot stands still; "
-            "prints the verdict (refined / ambiguous / rejected / moved)",
-        ),
-    ] = False,
+    refine_start: RefineStartOption = False,
 ) -> None:
     """Localize live from a PLS and a PowerBot (or their simulators with --simulate).
 

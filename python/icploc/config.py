@@ -279,7 +279,7 @@ class ScanSection(Section):
     def _lasers(cls, v: Any, info: ValidationInfo) -> Any:
         if v == () or v is None:
             return ()
-        from icploc.multilaser import check_lasers
+        from icploc.laser_mounts import check_lasers
 
         d = info.data
         single = (d.get("laser_x", 0.0), d.get("laser_y", 0.0), d.get("laser_theta", 0.0))

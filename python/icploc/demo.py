@@ -89,19 +89,9 @@ def glass_walk(length: float = 15.0, seed: int = 2) -> NDArray[np.float64]:
     waypoints in the band 0.65–1.55 m from the lab's glass wall (:func:`icploc.sim.lab`:
     glass at y = 3.75 m for |x| ≤ 2.5 m), so many beams meet the glass: the
     paper's Table 5 / Fig. 11 run."""
-    rng = np.random.default_rng(seed)
-    pts = [(0.0, 0.0), (0.0, 1.5)]
-    total = 1.5
-    band = ((-2.2, 2.2), (2.2, 3.1))
-    while total < length - 3.0:
-        for _ in range(100):
-            q = (float(rng.uniform(*band[0])), float(rng.uniform(*band[1])))
-            if math.dist(q, pts[-1]) > 1.2:
-                break
-        total += math.dist(q, pts[-1])
-        pts.append(q)
-    pts.append((0.0, 0.0))
-    return np.array(pts)
+    from icploc.sim.scenes import random_walk
+
+    return random_walk(length, seed, box=((-2.2, 2.2), (2.2, 3.1)), start=((0.0, 0.0), (0.0, 1.5)))
 
 
 def experiments(quick: bool = False) -> list[Experiment]:

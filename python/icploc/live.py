@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from icploc import clock
 from icploc.errors import IcplocError
@@ -37,6 +37,9 @@ from icploc.localizer import Estimate, Localizer, Status
 from icploc.outputs import map_inputs
 from icploc.se2 import Pose, between, compose, inverse
 from icploc.trajectory import TumWriter, tum_line
+
+if TYPE_CHECKING:
+    from icploc.config import LocalizerConfig
 
 __all__ = [
     "LiveResult",
@@ -453,6 +456,34 @@ def open_devices(
         laser.close()
 
 
+def run_merged(
+    localizer: Localizer,
+    config: LocalizerConfig,
+    first: Any,
+    base: Any,
+    extra_ports: Sequence[str],
+    *,
+    laser_baud: int,
+    reconnect_timeout: float,
+    connect_baudrates: tuple[int, ...] | None = None,
+    **run_kw: Any,
+) -> LiveResult:
+    """:func:`run_live` with the first laser's driver ``first`` and one PLS per
+    ``extra_ports`` merged (:class:`icploc.multilaser.MergedLasers`). A laser that cannot
+    be opened is a :class:`RunError` naming its port."""
+    from icploc.multilaser import LaserMount, LaserPortError, MergedLasers, mounts, open_lasers
+
+    lasers = mounts(config) or (LaserMount("laser", "laser"),)
+    bauds = [m.baud or laser_baud for m in lasers[1 : 1 + len(extra_ports)]]
+    try:
+        with open_lasers(extra_ports, bauds, reconnect_timeout=reconnect_timeout,
+                         connect_baudrates=connect_baudrates) as extras:  # fmt: skip
+            merged = MergedLasers([first, *extras], lasers, config, localizer.odometry)
+            return run_live(localizer, merged, base, **run_kw)
+    except LaserPortError as e:
+        raise RunError(str(e)) from None
+
+
 def run_hardware(
     map_path: str | Path,
     laser_port: str,
@@ -527,9 +558,9 @@ def run_hardware(
                           reconnect_timeout=reconnect_timeout) as (laser, bot):  # fmt: skip
             outputs.commit()
             if several:  # hook: the lasers' scans merged into one (icploc.multilaser)
-                res = multilaser.run_merged(loc, cfg, laser, bot, extra_lasers, laser_baud=laser_baud,
-                                            reconnect_timeout=reconnect_timeout, duration=duration,
-                                            on_estimate=on_estimate, tum=outputs.tum)  # fmt: skip
+                res = run_merged(loc, cfg, laser, bot, extra_lasers, laser_baud=laser_baud,
+                                 reconnect_timeout=reconnect_timeout, duration=duration,
+                                 on_estimate=on_estimate, tum=outputs.tum)  # fmt: skip
             else:
                 res = run_live(loc, laser, bot, duration=duration, on_estimate=on_estimate,
                                tum=outputs.tum)  # fmt: skip

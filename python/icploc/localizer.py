@@ -43,11 +43,11 @@ from icploc.fitcheck import FitCheck, FitChecker, MapQuality
 from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
 from icploc.kidnap import CheckVerdict, KidnapTrigger
 from icploc.median import median
+from icploc.messages import Odometry, Scan
 from icploc.motion import MotionModel
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
 from icploc.se2 import Pose, between, compose, wrap_angle
-from icploc.types import Odometry, Scan
 
 __all__ = [
     "Estimate",

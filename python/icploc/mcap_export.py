@@ -48,8 +48,8 @@ import numpy as np
 from icploc import foxglove_pb as pb
 from icploc.errors import IcplocError
 from icploc.localizer import Estimate, Localizer, Status
+from icploc.messages import Scan
 from icploc.se2 import Pose, compose, inverse
-from icploc.types import Scan
 
 __all__ = ["McapError", "McapFileWriter", "McapRecorder", "TOPICS", "attach", "hypotheses_of"]
 

@@ -10,7 +10,7 @@ section of the YAML)::
         - {name: front_laser, x: 0.20, y: 0.0, yaw: 0.0}
         - {name: rear_laser, x: -0.20, y: 0.0, yaw: 3.14159265, time_offset: -0.004}
 
-Each entry (:class:`LaserMount`): ``name``; ``frame`` (the :attr:`icploc.types.Scan.frame`
+Each entry (:class:`LaserMount`): ``name``; ``frame`` (the :attr:`icploc.messages.Scan.frame`
 of its scans in a log, default the name: CARMEN ``FLASER`` is ``front_laser``, ``RLASER``
 ``rear_laser``); ``x``, ``y`` (m), ``yaw`` (rad) in the robot base frame; ``upside_down``
 (mounted rolled by 180 degrees: its beams sweep clockwise); ``time_offset`` (s, added to
@@ -22,7 +22,7 @@ its stamps to put them on the odometry clock: a scanner's latency); ``port`` and
 beams are prepared as a single laser's would be (range limits, no-returns) and moved into
 the base frame by its mounting; a scan taken earlier than the newest of the round is carried
 to the newest one's stamp by the odometry between the two (the robot moves between two
-scanners' sweeps), and the union is one :class:`~icploc.types.Scan` in the base frame
+scanners' sweeps), and the union is one :class:`~icploc.messages.Scan` in the base frame
 (``frame="base_link"``, beams sorted by bearing) that the Localizer matches like any scan,
 with :func:`localizer_config` (no mounting applied twice). A round closes when every
 source has delivered a scan, when one source delivers its next scan first (its rate is
@@ -44,9 +44,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icploc.config import ConfigError, LocalizerConfig
-from icploc.se2 import Pose, between
-from icploc.types import Odometry, Scan
+from icploc.config import LocalizerConfig
+from icploc.laser_mounts import LaserMount, check_lasers, parse_mount
+from icploc.messages import Odometry, Scan
+from icploc.se2 import between
 
 __all__ = [
     "BASE_FRAME",
@@ -66,127 +67,10 @@ __all__ = [
 #: the frame of a merged scan
 BASE_FRAME = "base_link"
 
-_KEYS = ("name", "frame", "x", "y", "yaw", "upside_down", "time_offset", "port", "baud")
-
-
-@dataclass(frozen=True)
-class LaserMount:
-    """One laser source (see the module docstring)."""
-
-    name: str
-    frame: str
-    x: float = 0.0
-    y: float = 0.0
-    yaw: float = 0.0
-    upside_down: bool = False
-    time_offset: float = 0.0
-    port: str | None = None
-    baud: int | None = None
-
-    @property
-    def mounting(self) -> Pose:
-        return (self.x, self.y, self.yaw)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in _KEYS}
-
-
-def _number(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ConfigError(f"{where}: expected a number, got {v!r}")
-    f = float(v)
-    if not math.isfinite(f):
-        raise ConfigError(f"{where}: must be a finite number, got {v!r}")
-    return f
-
-
-def _mount(entry: Any, i: int, where: str) -> LaserMount:
-    w = f"{where}[{i}]"
-    if isinstance(entry, LaserMount):
-        entry = entry.to_dict()
-    if not isinstance(entry, dict):
-        raise ConfigError(
-            f"{w}: expected a mapping like {{name: front_laser, x: 0.2, yaw: 0}}, got {entry!r}"
-        )
-    for k in entry:
-        if k not in _KEYS:
-            raise ConfigError(f"{w}: unknown key {k!r}; valid keys: {', '.join(_KEYS)}")
-    name = entry.get("name", f"laser{i}")
-    if not isinstance(name, str) or not name.strip():
-        raise ConfigError(f"{w}.name: expected a non-empty name, got {name!r}")
-    frame = entry.get("frame", name)
-    if frame is None:
-        frame = name
-    if not isinstance(frame, str) or not frame.strip():
-        raise ConfigError(f"{w}.frame: expected a frame name, got {frame!r}")
-    ud = entry.get("upside_down", False)
-    if not isinstance(ud, bool):
-        raise ConfigError(f"{w}.upside_down: expected true/false, got {ud!r}")
-    port = entry.get("port")
-    if port is not None and (not isinstance(port, str) or not port):
-        raise ConfigError(f"{w}.port: expected a serial port path, got {port!r}")
-    baud = entry.get("baud")
-    if baud is not None and (isinstance(baud, bool) or baud not in (9600, 19200, 38400, 500000)):
-        raise ConfigError(f"{w}.baud: expected one of 9600, 19200, 38400, 500000, got {baud!r}")
-    off = _number(entry.get("time_offset", 0.0), f"{w}.time_offset")
-    if abs(off) > 1.0:
-        raise ConfigError(f"{w}.time_offset: {off!r} s is not a scanner latency (at most 1 s)")
-    return LaserMount(
-        name=name,
-        frame=frame,
-        x=_number(entry.get("x", 0.0), f"{w}.x"),
-        y=_number(entry.get("y", 0.0), f"{w}.y"),
-        yaw=_number(entry.get("yaw", 0.0), f"{w}.yaw"),
-        upside_down=ud,
-        time_offset=off,
-        port=port,
-        baud=baud,
-    )
-
-
-def check_lasers(
-    value: Any, single: Pose = (0.0, 0.0, 0.0), where: str = "scan.lasers"
-) -> tuple[dict[str, Any], ...]:
-    """Validate the ``scan.lasers`` list: every entry complete (defaults filled), errors
-    naming the entry and the key. ``single``: ``scan.laser_x, laser_y, laser_theta``,
-    which must stay 0 beside a list. Returns the entries as plain mappings (what the
-    config holds and dumps)."""
-    if value is None:
-        return ()
-    if isinstance(value, dict) or isinstance(value, str) or not isinstance(value, Iterable):
-        raise ConfigError(f"{where}: expected a list of lasers, got {value!r}")
-    out = [_mount(e, i, where) for i, e in enumerate(value)]
-    if not out:
-        return ()
-    for name, v in zip(("laser_x", "laser_y", "laser_theta"), single, strict=True):
-        if v != 0.0:
-            raise ConfigError(
-                f"scan.{name}: with {where} every laser gives its own mounting; leave "
-                f"scan.{name} at 0 (got {v!r})"
-            )
-    seen: dict[str, int] = {}
-    for i, m in enumerate(out):
-        for what, key in (("name", m.name), ("frame", m.frame)):
-            k = f"{what}:{key}"
-            if k in seen:
-                raise ConfigError(
-                    f"{where}[{i}].{what}: {key!r} is already {where}[{seen[k]}].{what}"
-                )
-            seen[k] = i
-        if m.port is not None:
-            k = f"port:{m.port}"
-            if k in seen:
-                raise ConfigError(
-                    f"{where}[{i}].port: {m.port!r} is already {where}[{seen[k]}].port"
-                )
-            seen[k] = i
-    return tuple(m.to_dict() for m in out)
-
-
 def mounts(config: LocalizerConfig) -> tuple[LaserMount, ...]:
     """The configured lasers (empty: one laser, ``scan.laser_*``)."""
     lasers = getattr(config.scan, "lasers", ())
-    return tuple(_mount(e, i, "scan.lasers") for i, e in enumerate(lasers or ()))
+    return tuple(parse_mount(e, i, "scan.lasers") for i, e in enumerate(lasers or ()))
 
 
 def localizer_config(config: LocalizerConfig) -> LocalizerConfig:
@@ -516,34 +400,6 @@ class LaserPortError(RuntimeError):
     """A laser of several could not be opened (the message names its port)."""
 
 
-def run_merged(
-    localizer: Any,
-    config: LocalizerConfig,
-    first: Any,
-    base: Any,
-    extra_ports: Sequence[str],
-    *,
-    laser_baud: int,
-    reconnect_timeout: float,
-    connect_baudrates: tuple[int, ...] | None = None,
-    **run_kw: Any,
-) -> Any:
-    """:func:`icploc.live.run_live` with the first laser's driver ``first`` and one PLS
-    per ``extra_ports`` merged (:class:`MergedLasers`). A laser that cannot be opened is
-    a :class:`icploc.live.RunError` naming its port."""
-    from icploc.live import RunError, run_live
-
-    lasers = mounts(config) or (LaserMount("laser", "laser"),)
-    bauds = [m.baud or laser_baud for m in lasers[1 : 1 + len(extra_ports)]]
-    try:
-        with open_lasers(extra_ports, bauds, reconnect_timeout=reconnect_timeout,
-                         connect_baudrates=connect_baudrates) as extras:  # fmt: skip
-            merged = MergedLasers([first, *extras], lasers, config, localizer.odometry)
-            return run_live(localizer, merged, base, **run_kw)
-    except LaserPortError as e:
-        raise RunError(str(e)) from None
-
-
 def simulated_laser(session: Any, mount: LaserMount, *, seed: int = 0, name: str = "pls-2") -> Any:
     """One more simulated PLS on the robot of an :class:`icploc.sim.session.SimSession`,
     mounted at ``mount`` and sampling the session's world (its noise and range): a
@@ -564,10 +420,7 @@ def simulated_laser(session: Any, mount: LaserMount, *, seed: int = 0, name: str
     def source(t: float) -> NDArray[np.float64]:
         sensor = compose(session.robot.pose, mount.mounting)
         mr, noise = session.laser_max_range, session.laser_noise_std
-        if hasattr(world, "scan"):
-            r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
-        else:
-            r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
+        r = world.ranges(sensor, look, mr, t=t, rng=rng, noise=noise)
         return np.asarray(r, dtype=np.float64)
 
     dev.source = source

@@ -43,7 +43,7 @@ from icploc.se2 import Pose
 
 if TYPE_CHECKING:
     from icploc.localizer import Estimate, Localizer
-    from icploc.types import Scan
+    from icploc.messages import Scan
 
 __all__ = [
     "MappedArea",

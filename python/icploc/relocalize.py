@@ -32,10 +32,10 @@ from numpy.typing import NDArray
 
 from icploc.config import GlobalSearchSection, LocalizerConfig, RelocalizeSection
 from icploc.kidnap import CheckVerdict
+from icploc.messages import Scan
 from icploc.recovery import Candidate, LocalRecovery, RecoveryStep, RecoveryView
 from icploc.scanprep import prepare_scan
 from icploc.se2 import Pose, compose, wrap_angle
-from icploc.types import Scan
 
 __all__ = [
     "GlobalRelocalization",

@@ -28,8 +28,8 @@ from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
 from icploc.localizer import Estimate, Localizer, Status, run
+from icploc.messages import Odometry, Scan
 from icploc.trajectory import Evaluation, Trajectory, evaluate, read_tum
-from icploc.types import Odometry, Scan
 
 if TYPE_CHECKING:
     from icploc.logs import LogInfo

@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.config import LocalizerConfig
-from icploc.types import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
+from icploc.messages import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
 
 __all__ = ["prepare_scan"]
 

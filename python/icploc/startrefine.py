@@ -55,8 +55,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.messages import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
 from icploc.se2 import Pose, between, compose, wrap_angle
-from icploc.types import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
 
 if TYPE_CHECKING:
     from icploc.localizer import Estimate, Localizer

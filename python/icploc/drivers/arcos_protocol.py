@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from icploc.drivers.byteclock import ByteClock
 from icploc.errors import DeviceError
-from icploc.types import Odometry
+from icploc.messages import Odometry
 
 HEADER = b"\xfa\xfb"
 #: Largest COUNT accepted on input (§B.2: "maximum of 249").

@@ -36,12 +36,13 @@ import serial
 
 from icploc import clock
 from icploc.drivers import arcos_protocol as ap
+from icploc.drivers._link import close_quietly, retry_with_backoff
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.arcos_protocol import Sip
 from icploc.drivers.recording import Recorder
 from icploc.errors import DeviceError
+from icploc.messages import Odometry
 from icploc.se2 import between, compose, inverse
-from icploc.types import Odometry
 
 __all__ = ["PowerBot", "PowerBotError", "PowerBotTimeout", "Sip"]
 
@@ -191,30 +192,24 @@ class PowerBot:
         self.counters["reconnects"] += 1
         if self.recorder is not None:
             self.recorder.meta(self._rec_dev, clock.now(), {"event": "reconnect", "why": str(why)})
-        deadline = clock.now() + self.reconnect_timeout
-        delay = self.reconnect_backoff
-        last: BaseException = why
-        while not self._stop.is_set():
-            self._close_port()
-            try:
-                self._link()
-            except (OSError, serial.SerialException, PowerBotError) as e:
-                last = e
-            else:
-                self._relinked_at = self._last_sip_time
-                self._last_sip_time = clock.now()
-                return
-            left = deadline - clock.now()
-            if left <= 0:
-                break
-            self._stop.wait(min(delay, left))
-            delay = min(delay * 2.0, self.reconnect_backoff_max)
-        self._close_port()
+        linked, last = retry_with_backoff(
+            self._link,
+            close=self._close_port,
+            failures=(OSError, serial.SerialException, PowerBotError),
+            stop=self._stop,
+            timeout=self.reconnect_timeout,
+            backoff=self.reconnect_backoff,
+            backoff_max=self.reconnect_backoff_max,
+        )
+        if linked:
+            self._relinked_at = self._last_sip_time
+            self._last_sip_time = clock.now()
+            return
         if self._stop.is_set():
             return
         raise PowerBotTimeout(
             f"robot on {self.port} did not come back within {self.reconnect_timeout:g} s "
-            f"(last error: {last})"
+            f"(last error: {last if last is not None else why})"
         )
 
     def _continue_odometry(self, sip: Sip) -> Sip:
@@ -246,11 +241,7 @@ class PowerBot:
         return dataclasses.replace(sip, pose=compose(self._odom_offset, sip.pose))
 
     def _close_port(self) -> None:
-        if self.ser is not None:
-            try:
-                self.ser.close()
-            except (OSError, serial.SerialException):
-                pass
+        close_quietly(self.ser)
         self.ser = None
 
     def close(self) -> None:
@@ -541,7 +532,7 @@ class PowerBot:
             yield sip
 
     def odometry(self, limit: int | None = None) -> Iterator[Odometry]:
-        """:meth:`sips` converted to :class:`icploc.types.Odometry`."""
+        """:meth:`sips` converted to :class:`icploc.messages.Odometry`."""
         for sip in self.sips(limit):
             yield sip.to_odometry()
 

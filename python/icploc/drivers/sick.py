@@ -32,10 +32,11 @@ import serial
 
 from icploc import clock
 from icploc.drivers import sick_protocol as sp
+from icploc.drivers._link import close_quietly, retry_with_backoff
 from icploc.drivers._queues import put_dropping_oldest
 from icploc.drivers.recording import Recorder
 from icploc.errors import DeviceError
-from icploc.types import Scan
+from icploc.messages import Scan
 
 ScanCallback = Callable[[Scan], None]
 
@@ -196,11 +197,7 @@ class SickLaser:
         self.parser.reset()
 
     def _close_port(self) -> None:
-        if self.ser is not None:
-            try:
-                self.ser.close()
-            except (OSError, serial.SerialException):
-                pass
+        close_quietly(self.ser)
         self.ser = None
 
     def _set_host_baud(self, baud: int) -> None:
@@ -287,24 +284,23 @@ class SickLaser:
         self.streaming = False
         if self.recorder is not None:
             self.recorder.meta(self._rec_dev, clock.now(), {"event": "reconnect"})
-        deadline = clock.now() + self.reconnect_timeout
-        delay = self.reconnect_backoff
-        last: BaseException | None = None
+
+        def attempt() -> None:
+            self._open_port()
+            self._configure()
+
         try:
-            while not self._stop.is_set():
-                self._close_port()
-                try:
-                    self._open_port()
-                    self._configure()
-                    return
-                except (SickError, OSError, serial.SerialException) as e:
-                    last = e
-                left = deadline - clock.now()
-                if left <= 0:
-                    break
-                self._stop.wait(min(delay, left))
-                delay = min(delay * 2.0, self.reconnect_backoff_max)
-            self._close_port()
+            configured, last = retry_with_backoff(
+                attempt,
+                close=self._close_port,
+                failures=(SickError, OSError, serial.SerialException),
+                stop=self._stop,
+                timeout=self.reconnect_timeout,
+                backoff=self.reconnect_backoff,
+                backoff_max=self.reconnect_backoff_max,
+            )
+            if configured:
+                return
             if self._stop.is_set():
                 raise SickError("closed while reconnecting")
             raise SickTimeout(

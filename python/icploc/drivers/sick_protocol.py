@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from icploc.drivers.byteclock import ByteClock
 from icploc.errors import DeviceError
-from icploc.types import (
+from icploc.messages import (
     BEAM_DAZZLE,
     BEAM_FIELD_A,
     BEAM_FIELD_B,

@@ -15,8 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.errors import FileFormatError
+from icploc.messages import Odometry, Scan
 from icploc.trajectory import Trajectory
-from icploc.types import Odometry, Scan
 
 log = logging.getLogger("icploc.logs")
 

@@ -22,7 +22,7 @@ the robot pose. Both are kept: :attr:`LogData.truth_poses` holds the reported po
 ``x y theta`` the pose the log reports for it). It is read with ``rear_laser=True`` (a
 replay with several lasers configured, :mod:`icploc.multilaser`); by default its lines
 are skipped and counted, and a note says so. Scans carry their source in
-:attr:`~icploc.types.Scan.frame`: ``front_laser`` (``FLASER``), ``rear_laser``
+:attr:`~icploc.messages.Scan.frame`: ``front_laser`` (``FLASER``), ``rear_laser``
 (``RLASER``), ``laser`` (``ROBOTLASER1`` / ``RAWLASER1``); the ``PARAM``s
 ``robot_frontlaser_offset`` / ``robot_rearlaser_offset`` (m along the robot's x axis)
 are reported in :attr:`LogInfo.notes` when a rear laser is read.
@@ -60,7 +60,7 @@ from icploc.logs._base import (
     register_format,
     repair_stamps,
 )
-from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
+from icploc.messages import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = [
     "CARMEN_TYPES",

@@ -3,7 +3,7 @@
 The bytes each driver received are fed, with their recorded stamps, through the same
 parsers the live drivers use (:mod:`icploc.drivers.sick_protocol`,
 :mod:`icploc.drivers.arcos_protocol`), so a real session re-runs without hardware and
-produces the same :class:`~icploc.types.Scan` and :class:`~icploc.types.Odometry`
+produces the same :class:`~icploc.messages.Scan` and :class:`~icploc.messages.Odometry`
 objects, merged in time order. :func:`replay_config` puts the scans where the run did:
 at the laser mounting the recording carries.
 """
@@ -28,8 +28,8 @@ from icploc.drivers.recording import (
     recorded_mounting,
 )
 from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format, scan_span
+from icploc.messages import Odometry, Scan
 from icploc.se2 import Pose, compose
-from icploc.types import Odometry, Scan
 
 __all__ = ["RecordingFormatError", "is_recorded", "load_recorded", "read_recorded", "replay_config"]
 

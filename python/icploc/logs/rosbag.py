@@ -39,7 +39,7 @@ from icploc.logs._base import (
     repair_stamps,
     scan_span,
 )
-from icploc.types import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
+from icploc.messages import BEAM_INVALID, BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = ["TopicError", "is_rosbag", "iter_ros1_raw", "read_rosbag", "write_rosbag"]
 

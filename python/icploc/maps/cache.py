@@ -57,7 +57,7 @@ def _warn_once(message: str) -> None:
 
 def cache_key(files: Iterable[Path], settings: dict[str, Any]) -> str:
     """Content hash of ``files`` plus the settings and the fitting-code version."""
-    from icploc import __version__
+    from icploc._core import __version__
 
     h = hashlib.blake2b(digest_size=20)
     h.update(f"icploc {__version__} fit {FIT_VERSION}\n".encode())

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc.messages import BEAM_NO_RETURN, Odometry, Scan
 from icploc.se2 import Pose, compose, wrap_angle
 from icploc.sim.pursuit import PurePursuit
 from icploc.sim.world import World
-from icploc.types import BEAM_NO_RETURN, Odometry, Scan
 
 __all__ = ["SimFrame", "simulate"]
 

@@ -6,7 +6,8 @@ aisles), :func:`box` (a closed rectangular room), :func:`from_plan` (any floor p
 the clinic and warehouse families of ``benches/scenario.py``).
 
 Paths (polylines for :func:`icploc.sim.kinematic.simulate` and the device simulators'
-pure pursuit): :func:`lab_random_walk`, :func:`circle_path`, :func:`tour_path`.
+pure pursuit): :func:`lab_random_walk` (a :func:`random_walk` in the lab), :func:`circle_path`,
+:func:`tour_path`.
 """
 
 from __future__ import annotations
@@ -157,13 +158,25 @@ def tour_path(waypoints: Sequence[Sequence[float]], laps: int = 1) -> NDArray[np
 def lab_random_walk(length: float = 22.0, seed: int = 3) -> NDArray[np.float64]:
     """A random walk in the lab's free space of at least ``length`` metres, starting and
     ending at the origin (the paper marked the start on the floor and drove back to it)."""
+    return random_walk(length, seed, box=((-2.0, 2.0), (-2.0, 2.3)))
+
+
+def random_walk(
+    length: float,
+    seed: int,
+    box: tuple[tuple[float, float], tuple[float, float]],
+    start: Sequence[tuple[float, float]] = ((0.0, 0.0),),
+) -> NDArray[np.float64]:
+    """Waypoints of a random walk of at least ``length`` metres: from the polyline
+    ``start``, each next waypoint drawn uniformly in ``box`` ((x min, x max), (y min,
+    y max)), more than 1.2 m from the one before (100 tries), until 3 m short of
+    ``length``; then back to the origin."""
     rng = np.random.default_rng(seed)
-    pts = [(0.0, 0.0)]
-    total = 0.0
-    free = [(-2.0, 2.0), (-2.0, 2.3)]
+    pts = list(start)
+    total = sum(math.dist(a, b) for a, b in zip(pts, pts[1:], strict=False))
     while total < length - 3.0:
         for _ in range(100):
-            q = (rng.uniform(*free[0]), rng.uniform(*free[1]))
+            q = (float(rng.uniform(*box[0])), float(rng.uniform(*box[1])))
             if math.dist(q, pts[-1]) > 1.2:
                 break
         total += math.dist(q, pts[-1])

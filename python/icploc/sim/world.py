@@ -44,7 +44,7 @@ def _raycast(segments: NDArray[np.float64], pose: Sequence[float], angles: NDArr
              max_range: float) -> NDArray[np.float64]:  # fmt: skip
     if segments.shape[0] == 0:
         return np.full(angles.shape[0], np.inf)
-    from icploc import raycast
+    from icploc._core import raycast
 
     return np.asarray(raycast(segments, (float(pose[0]), float(pose[1]), float(pose[2])), angles, max_range),
                       dtype=np.float64)  # fmt: skip

@@ -7,7 +7,8 @@
 //! of the real-data benchmark's aces map, whose grid is one full box of tiles; and a
 //! small 20 m × 12 m office wing. `kdtree+grid_from_runs`: the same index rebuilt from its
 //! grid's saved cells (`index::runs` + `MapIndex::with_cache_cells`, what a process does when
-//! the prepared-map cache holds them). Run with
+//! the prepared-map cache holds them). `two_wings_1km_apart`: two wings 1 km apart, a grid
+//! whose box of tiles is too sparse for the box fill: the tile-by-tile fill. Run with
 //! `cargo bench -p icploc-core --bench map_index_build`.
 
 use std::hint::black_box;
@@ -54,16 +55,21 @@ fn building(w: f64, h: f64, rx: f64, ry: f64) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) 
     (p, n)
 }
 
+/// The index as the Python API builds it: k-d tree and closest-point grid at 2 cm.
+fn with_grid(p: &[[f64; 2]], n: &[[f64; 2]]) -> MapIndex {
+    MapIndex::new(p.to_vec(), Some(n.to_vec()))
+        .unwrap()
+        .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
+        .unwrap()
+}
+
 fn bench_build(c: &mut Criterion) {
     for (name, (w, h)) in [
         ("building_52m", (52.0, 52.0)),
         ("wing_20x12m", (20.0, 12.0)),
     ] {
         let (p, n) = building(w, h, 4.0, 5.0);
-        let idx = MapIndex::new(p.clone(), Some(n.clone()))
-            .unwrap()
-            .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
-            .unwrap();
+        let idx = with_grid(&p, &n);
         println!(
             "{name}: {} points, {} tiles of the closest-point grid ({} MB)",
             p.len(),
@@ -76,14 +82,7 @@ fn bench_build(c: &mut Criterion) {
             b.iter(|| black_box(MapIndex::new(p.clone(), Some(n.clone())).unwrap()))
         });
         g.bench_function("kdtree+grid_2cm", |b| {
-            b.iter(|| {
-                black_box(
-                    MapIndex::new(p.clone(), Some(n.clone()))
-                        .unwrap()
-                        .with_cache(Some(DEFAULT_CACHE_RESOLUTION))
-                        .unwrap(),
-                )
-            })
+            b.iter(|| black_box(with_grid(&p, &n)))
         });
         let (values, lengths) = runs::encode(idx.cache_cells().expect("a grid"));
         println!(
@@ -106,5 +105,26 @@ fn bench_build(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, bench_build);
+/// Two office wings 1 km apart: the grid's box holds far more tiles than the grid, so its
+/// cells are filled tile by tile (`ClosestGrid::fill`), not as a box.
+fn bench_sparse(c: &mut Criterion) {
+    let (mut p, mut n) = building(20.0, 12.0, 4.0, 5.0);
+    let (p2, n2) = building(20.0, 12.0, 4.0, 5.0);
+    p.extend(p2.iter().map(|q| [q[0] + 1000.0, q[1]]));
+    n.extend(n2);
+    let idx = with_grid(&p, &n);
+    println!(
+        "two_wings_1km_apart: {} points, {} tiles of the closest-point grid",
+        p.len(),
+        idx.cache_tiles()
+    );
+    let mut g = c.benchmark_group("map_index_build_two_wings_1km_apart");
+    g.sample_size(10);
+    g.bench_function("kdtree+grid_2cm", |b| {
+        b.iter(|| black_box(with_grid(&p, &n)))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench_build, bench_sparse);
 criterion_main!(benches);

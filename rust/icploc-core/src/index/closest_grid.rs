@@ -634,7 +634,7 @@ impl ClosestGrid {
                     for dx in 0..3 {
                         let c = row + lx + dx - 1;
                         let cx = ox + (lx + dx - 1) as f64 * res;
-                        let d = (p[0] - cx) * (p[0] - cx) + (p[1] - cy) * (p[1] - cy);
+                        let d = dist2(points, j as u32, cx, cy);
                         if d < best[c] {
                             best[c] = d;
                             cells[c] = j as u32;
@@ -652,7 +652,7 @@ impl ClosestGrid {
                             ox + (cl & (TILE - 1)) as f64 * res,
                             oy + (cl >> TILE_SHIFT) as f64 * res,
                         ];
-                        let d = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+                        let d = dist2(points, j as u32, q[0], q[1]);
                         if d < best[c] {
                             best[c] = d;
                             cells[c] = j as u32;
@@ -669,8 +669,7 @@ impl ClosestGrid {
             if s == NONE || s == cells[c] {
                 return;
             }
-            let p = points[s as usize];
-            let d = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+            let d = dist2(points, s, q[0], q[1]);
             if d < best[c] {
                 best[c] = d;
                 cells[c] = s;
@@ -685,85 +684,80 @@ impl ClosestGrid {
                 a = s;
             }
         }
-        let inner = |lx: usize, ly: usize| lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE;
-        const T: usize = TILE;
-        // forward: rows upwards; left to right from the row below, then right to left
-        for &(a, b) in &rows {
-            for ly in 0..TILE {
-                for s in a..b {
-                    let [ox, oy] = origin[s];
-                    let cy = oy + ly as f64 * res;
-                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
-                    for lx in 0..TILE {
-                        let c = row + lx;
-                        let q = [ox + lx as f64 * res, cy];
-                        if inner(lx, ly) {
-                            relax(c, Some(c - 1), q);
-                            relax(c, Some(c - T - 1), q);
-                            relax(c, Some(c - T), q);
-                            relax(c, Some(c - T + 1), q);
+        sweep::<true>(&rows, &origin, res, &at, &mut relax);
+        sweep::<false>(&rows, &origin, res, &at, &mut relax);
+    }
+}
+
+/// One raster pass of [`ClosestGrid::fill`] over the tile rows `rows` (runs of slots
+/// sharing a row coordinate). Forward (`FWD`): tile rows upwards; each cell row left to
+/// right from the left neighbour and the three cells below, then right to left from the
+/// right neighbour. Backward: the mirror image (tile rows downwards; right to left from
+/// the right neighbour and the three cells above, then left to right from the left
+/// neighbour). `at` finds a neighbour across tile borders; `relax(c, n, q)` lets cell `c`
+/// (centre `q`) take the seed of cell `n`.
+#[inline(always)]
+fn sweep<const FWD: bool>(
+    rows: &[(usize, usize)],
+    origin: &[[f64; 2]],
+    res: f64,
+    at: &impl Fn(usize, usize, usize, isize, isize) -> Option<usize>,
+    relax: &mut impl FnMut(usize, Option<usize>, [f64; 2]),
+) {
+    const T: usize = TILE;
+    // the i-th of 0..n in ascending (`up`) or descending order
+    let nth = |up: bool, i: usize, n: usize| if up { i } else { n - 1 - i };
+    // the side the pass comes from: -1 (left, below) forward, +1 backward
+    let d: isize = if FWD { -1 } else { 1 };
+    for r in 0..rows.len() {
+        let (a, b) = rows[nth(FWD, r, rows.len())];
+        for l in 0..TILE {
+            let ly = nth(FWD, l, TILE);
+            for i in 0..b - a {
+                let s = a + nth(FWD, i, b - a);
+                let [ox, oy] = origin[s];
+                let cy = oy + ly as f64 * res;
+                let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                for k in 0..TILE {
+                    let lx = nth(FWD, k, TILE);
+                    let c = row + lx;
+                    let q = [ox + lx as f64 * res, cy];
+                    if lx > 0 && ly > 0 && lx + 1 < TILE && ly + 1 < TILE {
+                        let n = if FWD {
+                            [c - 1, c - T - 1, c - T, c - T + 1]
                         } else {
-                            relax(c, at(s, lx, ly, -1, 0), q);
-                            relax(c, at(s, lx, ly, -1, -1), q);
-                            relax(c, at(s, lx, ly, 0, -1), q);
-                            relax(c, at(s, lx, ly, 1, -1), q);
-                        }
-                    }
-                }
-                for s in (a..b).rev() {
-                    let [ox, oy] = origin[s];
-                    let cy = oy + ly as f64 * res;
-                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
-                    for lx in (0..TILE).rev() {
-                        let c = row + lx;
-                        let q = [ox + lx as f64 * res, cy];
-                        let n = if lx + 1 < TILE {
-                            Some(c + 1)
-                        } else {
-                            at(s, lx, ly, 1, 0)
+                            [c + 1, c + T + 1, c + T, c + T - 1]
                         };
-                        relax(c, n, q);
+                        for n in n {
+                            relax(c, Some(n), q);
+                        }
+                    } else {
+                        relax(c, at(s, lx, ly, d, 0), q);
+                        relax(c, at(s, lx, ly, d, d), q);
+                        relax(c, at(s, lx, ly, 0, d), q);
+                        relax(c, at(s, lx, ly, -d, d), q);
                     }
                 }
             }
-        }
-        // backward: rows downwards; right to left from the row above, then left to right
-        for &(a, b) in rows.iter().rev() {
-            for ly in (0..TILE).rev() {
-                for s in (a..b).rev() {
-                    let [ox, oy] = origin[s];
-                    let cy = oy + ly as f64 * res;
-                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
-                    for lx in (0..TILE).rev() {
-                        let c = row + lx;
-                        let q = [ox + lx as f64 * res, cy];
-                        if inner(lx, ly) {
-                            relax(c, Some(c + 1), q);
-                            relax(c, Some(c + T + 1), q);
-                            relax(c, Some(c + T), q);
-                            relax(c, Some(c + T - 1), q);
-                        } else {
-                            relax(c, at(s, lx, ly, 1, 0), q);
-                            relax(c, at(s, lx, ly, 1, 1), q);
-                            relax(c, at(s, lx, ly, 0, 1), q);
-                            relax(c, at(s, lx, ly, -1, 1), q);
-                        }
-                    }
-                }
-                for s in a..b {
-                    let [ox, oy] = origin[s];
-                    let cy = oy + ly as f64 * res;
-                    let row = s * TILE_CELLS + (ly << TILE_SHIFT);
-                    for lx in 0..TILE {
-                        let c = row + lx;
-                        let q = [ox + lx as f64 * res, cy];
-                        let n = if lx > 0 {
-                            Some(c - 1)
-                        } else {
-                            at(s, lx, ly, -1, 0)
-                        };
-                        relax(c, n, q);
-                    }
+            // back along the cell row, from the neighbour on the other side
+            for i in 0..b - a {
+                let s = a + nth(!FWD, i, b - a);
+                let [ox, oy] = origin[s];
+                let cy = oy + ly as f64 * res;
+                let row = s * TILE_CELLS + (ly << TILE_SHIFT);
+                for k in 0..TILE {
+                    let lx = nth(!FWD, k, TILE);
+                    let c = row + lx;
+                    let q = [ox + lx as f64 * res, cy];
+                    let inside = if FWD { lx + 1 < TILE } else { lx > 0 };
+                    let n = if !inside {
+                        at(s, lx, ly, -d, 0)
+                    } else if FWD {
+                        Some(c + 1)
+                    } else {
+                        Some(c - 1)
+                    };
+                    relax(c, n, q);
                 }
             }
         }
@@ -875,7 +869,7 @@ fn fill_box(
                 }
                 let c = yy * w + xx;
                 let (qx, qy) = (cx[xx], cy[yy]);
-                let d = (p[0] - qx) * (p[0] - qx) + (p[1] - qy) * (p[1] - qy);
+                let d = dist2(points, j as u32, qx, qy);
                 let cur = cells[c];
                 if cur == NONE || d < dist2(points, cur, qx, qy) {
                     cells[c] = j as u32;
