@@ -167,7 +167,7 @@ class IcpResult:
         """Share of the checked beams that pass through a mapped wall at the final pose."""
     @property
     def fit_score(self) -> float | None:
-        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+        """Mean Gaussian likelihood of the point distances times (1 - see_through)², in [0, 1]."""
     @property
     def window_score(self) -> float | None:
         """Coarse (pyramid) score in [0, 1] of the window's best pose; None when the window
@@ -281,7 +281,7 @@ class GlobalCandidate:
         """Sensor pose (x, y, theta) in the map frame."""
     @property
     def score(self) -> float:
-        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+        """Mean Gaussian likelihood of the point distances times (1 - see_through)², in [0, 1]."""
     @property
     def inlier_ratio(self) -> float: ...
     @property
