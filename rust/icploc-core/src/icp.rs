@@ -77,10 +77,12 @@ pub struct IcpConfig {
     /// explains most of the scan; 0 turns it off.
     pub position_search: f64,
     /// The verified start: when the ICP result does not explain the scan (see
-    /// `accept_inlier_ratio`, `accept_see_through`, `expected_noise`), or lies in a corridor
-    /// (translational degeneracy below 0.25) explaining less than 90 % of it, search the window
-    /// around the initial pose (branch and bound on the map's likelihood pyramid) and
-    /// refine the best poses found there by ICP. `false` turns it off.
+    /// `accept_inlier_ratio`, `accept_see_through`, `expected_noise`; outside corridors, a fit
+    /// with a tight RMS and no see-through explains it with 55 % inliers, see `occluded`), or
+    /// lies in a corridor (translational degeneracy below 0.25) explaining less than 90 % of
+    /// it, search the window around the initial pose (branch and bound on the map's
+    /// likelihood pyramid) and refine the best poses found there by ICP (and a wider second
+    /// pass when none of them is free of beams through walls). `false` turns it off.
     pub window_search: bool,
     /// Half-width of the window in x and in y (m).
     pub window_position: f64,
