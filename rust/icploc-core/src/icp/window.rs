@@ -507,6 +507,28 @@ mod tests {
     }
 
     #[test]
+    fn a_right_fit_behind_unmapped_obstacles_takes_the_plain_path() {
+        // a room; 35 % of the beams end on unmapped things in front of the walls: the fit
+        // explains fewer than `accept_inlier_ratio` of the points, but tightly, with no
+        // beam through a wall and outside any corridor
+        let segs = rectangle(8.0, 5.0);
+        let idx = index_of(&segs);
+        let truth = Pose2::new(3.0, 2.0, 0.3);
+        let mut rng = Rng::new(5);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.35, &mut rng);
+        let cfg = IcpConfig::default();
+        let start = Pose2::new(3.05, 1.96, 0.33);
+        let r = align(&scan, &idx, start, &cfg).unwrap();
+        let fit = r.fit.unwrap();
+        assert!(
+            fit.inlier_ratio < cfg.accept_inlier_ratio,
+            "{}",
+            fit.inlier_ratio
+        );
+        assert_eq!((r.start, ok(r.pose, truth)), (StartPath::Plain, true));
+    }
+
+    #[test]
     fn window_search_recovers_what_plain_icp_misses() {
         // the three tuned families and the held-out apartment
         for w in all_worlds() {
