@@ -56,7 +56,10 @@ class IcpConfig:
     (5 cm cells, built once per MapIndex on first use; 10 or 20 cm on maps whose bounds need
     more than 2**23 cells, and no search beyond that) finds the best poses there, and ICP
     from them gives the result that explains the scan best. When the plain fit explains
-    the scan nothing more runs."""
+    the scan nothing more runs. A fit outside corridors (degeneracy >= 0.25) with no more
+    see-through than ``accept_see_through`` and an RMS within 0.75 x ``expected_noise``
+    explains it with 55 % inliers already (the rest: unmapped things in front of walls); a
+    corridor fit explaining less than 90 % of the scan always gets the search."""
 
     metric: Metric
     max_iterations: int
@@ -167,7 +170,7 @@ class IcpResult:
         """Share of the checked beams that pass through a mapped wall at the final pose."""
     @property
     def fit_score(self) -> float | None:
-        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+        """Mean Gaussian likelihood of the point distances times (1 - see_through)², in [0, 1]."""
     @property
     def window_score(self) -> float | None:
         """Coarse (pyramid) score in [0, 1] of the window's best pose; None when the window
@@ -281,7 +284,7 @@ class GlobalCandidate:
         """Sensor pose (x, y, theta) in the map frame."""
     @property
     def score(self) -> float:
-        """Mean Gaussian likelihood of the point distances times (1 - see_through), in [0, 1]."""
+        """Mean Gaussian likelihood of the point distances times (1 - see_through)², in [0, 1]."""
     @property
     def inlier_ratio(self) -> float: ...
     @property

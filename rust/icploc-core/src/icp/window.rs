@@ -24,7 +24,7 @@ const GRAZING_DEG: f64 = 15.0;
 const WINDOW_POINTS: usize = 48;
 /// Leaves within this fraction of the best are kept (the window's ambiguity is reported
 /// when the best distinct alternative scores at least this much of the best).
-const KEEP_RATIO: f64 = 0.8;
+pub(crate) const KEEP_RATIO: f64 = 0.8;
 /// A window pose closer than this to the map (m) is inside a wall or furniture: not a pose.
 const MIN_CLEARANCE: f64 = 0.15;
 /// Two window poses are distinct hypotheses when this far apart (m) or `DISTINCT_ANGLE`.
@@ -32,6 +32,12 @@ pub(crate) const DISTINCT_DISTANCE: f64 = 0.3;
 pub(crate) const DISTINCT_ANGLE: f64 = 0.1;
 /// Distinct coarse seeds ranked by [`assess`].
 pub(crate) const WINDOW_SEEDS: usize = 12;
+/// The wide pass, run when no pose of the first explains the scan without beams through
+/// walls (the pyramid's likelihood cannot see those, so the right pose may score well
+/// below wrong ones whose beams cross walls): leaves within this fraction of the best ...
+pub(crate) const WIDE_KEEP_RATIO: f64 = 0.6;
+/// ... and this many distinct seeds.
+pub(crate) const WIDE_SEEDS: usize = 32;
 /// Scan points (evenly subsampled) the seeds are ranked on.
 pub(crate) const RANKING_POINTS: usize = 96;
 /// The best ranked seeds refined by ICP.
@@ -71,8 +77,12 @@ pub struct Fit {
     pub rms: f64,
     /// Share of the checked beams that pass through a mapped wall.
     pub see_through: f64,
-    /// Mean Gaussian likelihood (σ = expected noise) of the point distances, times one
-    /// minus `see_through`, in [0, 1]: the ranking score of candidate poses.
+    /// Mean Gaussian likelihood (σ = expected noise) of the point distances, times
+    /// (1 − `see_through`)², in [0, 1]: the ranking score of candidate poses. Squared: a
+    /// beam through a wall is stronger evidence against a pose than a point the map does
+    /// not explain (an unmapped person or box in front of a wall) — on the clinic, wrong
+    /// poses one door frame along the corridor explain more points, worse, with 2-3 % of
+    /// the beams through walls, and tie with the right pose under a single factor.
     pub score: f64,
 }
 
@@ -117,7 +127,7 @@ pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig)
             f64::INFINITY
         },
         see_through: st,
-        score: lik / n * (1.0 - st),
+        score: lik / n * (1.0 - st).powi(2),
     }
 }
 
@@ -184,7 +194,7 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
 }
 
 /// Are two window poses distinct hypotheses?
-fn distinct(p: &Pose2, q: &Pose2) -> bool {
+pub(crate) fn distinct(p: &Pose2, q: &Pose2) -> bool {
     (p.x - q.x).hypot(p.y - q.y) > DISTINCT_DISTANCE
         || wrap_angle(p.theta - q.theta).abs() > DISTINCT_ANGLE
 }
@@ -379,11 +389,12 @@ impl<'a> Lattice<'a> {
         leaves
     }
 
-    /// The window's distinct seeds, best first, and its ambiguity.
-    fn search(&self) -> Option<WindowOutcome> {
+    /// The window's distinct seeds (at most `max_seeds`, from the leaves within
+    /// `keep_ratio` of the best), best first, and its ambiguity.
+    fn search(&self, keep_ratio: f64, max_seeds: usize) -> Option<WindowOutcome> {
         let floor = (0.1 * self.full as f64) as u32;
         let nk = self.nk;
-        let mut leaves = self.leaves(floor, KEEP_RATIO);
+        let mut leaves = self.leaves(floor, keep_ratio);
         // ties by closeness to the start: the result does not depend on the visiting order
         leaves.sort_unstable_by_key(|l| {
             (
@@ -395,7 +406,6 @@ impl<'a> Lattice<'a> {
                 l.a,
             )
         });
-        let max_seeds = WINDOW_SEEDS;
         let mut seeds: Vec<(Pose2, f64)> = Vec::new();
         for l in &leaves {
             let p = self.pose_of(l);
@@ -406,7 +416,12 @@ impl<'a> Lattice<'a> {
                 }
             }
         }
-        let second = seeds.get(1).map(|s| s.1).unwrap_or(0.0);
+        // the ambiguity keeps its meaning (an alternative within `KEEP_RATIO`) in a wide pass
+        let second = seeds
+            .get(1)
+            .map(|s| s.1)
+            .filter(|&s2| s2 >= KEEP_RATIO * seeds[0].1)
+            .unwrap_or(0.0);
         if seeds.is_empty() {
             return None;
         }
@@ -414,15 +429,18 @@ impl<'a> Lattice<'a> {
     }
 }
 
-/// Branch-and-bound over the window around `center` (see [`Lattice`]). `None` when the
-/// scan has too few usable points or no pose of the window scores.
+/// Branch-and-bound over the window around `center` (see [`Lattice`]): the `max_seeds`
+/// best distinct poses among those within `keep_ratio` of the best. `None` when the scan
+/// has too few usable points or no pose of the window scores.
 pub(crate) fn search(
     field: &LikelihoodField,
     scan: &[[f64; 2]],
     center: Pose2,
     cfg: &IcpConfig,
+    keep_ratio: f64,
+    max_seeds: usize,
 ) -> Option<WindowOutcome> {
-    Lattice::new(field, scan, center, cfg)?.search()
+    Lattice::new(field, scan, center, cfg)?.search(keep_ratio, max_seeds)
 }
 
 #[cfg(test)]
@@ -489,6 +507,28 @@ mod tests {
     }
 
     #[test]
+    fn a_right_fit_behind_unmapped_obstacles_takes_the_plain_path() {
+        // a room; 35 % of the beams end on unmapped things in front of the walls: the fit
+        // explains fewer than `accept_inlier_ratio` of the points, but tightly, with no
+        // beam through a wall and outside any corridor
+        let segs = rectangle(8.0, 5.0);
+        let idx = index_of(&segs);
+        let truth = Pose2::new(3.0, 2.0, 0.3);
+        let mut rng = Rng::new(5);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.35, &mut rng);
+        let cfg = IcpConfig::default();
+        let start = Pose2::new(3.05, 1.96, 0.33);
+        let r = align(&scan, &idx, start, &cfg).unwrap();
+        let fit = r.fit.unwrap();
+        assert!(
+            fit.inlier_ratio < cfg.accept_inlier_ratio,
+            "{}",
+            fit.inlier_ratio
+        );
+        assert_eq!((r.start, ok(r.pose, truth)), (StartPath::Plain, true));
+    }
+
+    #[test]
     fn window_search_recovers_what_plain_icp_misses() {
         // the three tuned families and the held-out apartment
         for w in all_worlds() {
@@ -511,7 +551,9 @@ mod tests {
                 "{}: {with}/40 with the window search, {without}/40 without",
                 w.name
             );
-            assert!(with >= 37, "{}: {with}/40", w.name);
+            // every case on the three tuned families; the held-out apartment at 37
+            let floor = if w.name == "apartment" { 37 } else { 40 };
+            assert!(with >= floor, "{}: {with}/40", w.name);
             assert!(with > without, "{}: {with} vs {without}", w.name);
         }
     }
@@ -526,9 +568,10 @@ mod tests {
                 .iter()
                 .filter(|c| ok(align(&c.scan, &idx, c.initial, &cfg).unwrap().pose, c.truth))
                 .count();
-            // the clinic (people hiding up to half of an 8 m scan) is at ~96 %, the others
-            // at 99.5-100 % in `cargo bench`
-            assert!(good >= 36, "{}: {good}/40", w.name);
+            eprintln!("{}: {good}/40 from the small start", w.name);
+            // the clinic (people hiding up to half of an 8 m scan) at 38, the warehouse at 39
+            // (98.5 % and 100 % of 200 in `cargo bench`), the office and the apartment at 40
+            assert!(good >= 38, "{}: {good}/40", w.name);
         }
     }
 
