@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from icploc.mappatch import corrected_poses, grid_from_scans, patch_grid
+from icploc.mappatch import corrected_poses, graph_poses, grid_from_scans, patch_grid
 from icploc.outputs import OutputClashError, OutputError
 from icploc.se2 import compose
 from partial_world import WING_BOX, localized, partial_run, wall_distance
@@ -63,20 +63,66 @@ def _patch():  # type: ignore[no-untyped-def]
     return run, m, g
 
 
-@pytest.mark.slow
-def test_the_patch_walls_lie_mostly_within_ten_centimetres_of_the_true_ones() -> None:
-    # measured (seed 0): 73 % of the wing's wall cells within 10 cm, p95 12.5 cm, max 17.5
-    # (cell centres, 5 cm cells; the exit pose itself was 5 cm off); the target is
-    # all within 10 cm
-    run, _, g = _patch()
+def _wing_wall_distances(run, g):  # type: ignore[no-untyped-def]
     occ = np.argwhere(g.occupied)
     xy = np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution
     x0, y0, x1, y1 = WING_BOX
     box = (xy[:, 0] > x0 + 0.5) & (xy[:, 0] < x1 + 0.5) & (xy[:, 1] > y0 - 0.5) & (xy[:, 1] < y1 + 0.5)
-    d = wall_distance(run.world, xy[box])
-    assert [len(d) > 500, float(np.mean(d <= 0.10)) >= 0.65, float(np.percentile(d, 95)) <= 0.15] == [
+    return wall_distance(run.world, xy[box])
+
+
+@pytest.mark.slow
+def test_the_patch_walls_lie_mostly_within_ten_centimetres_of_the_true_ones() -> None:
+    # measured (pose graph): 89 % of the wing's wall cells within 10 cm, p95 12.5 cm, max
+    # 17.5 (seed 0; seeds 1 / 2: 95 % / 90 %; cell centres, 5 cm cells; the exit and the
+    # lock are each ~4.5 cm off along the corridor). Before the pose graph (seeds 0 / 1 /
+    # 2): 73 / 78 / 77 %. The target (all within 10 cm) is not met yet.
+    run, _, g = _patch()
+    d = _wing_wall_distances(run, g)
+    assert [len(d) > 500, float(np.mean(d <= 0.10)) >= 0.85, float(np.percentile(d, 95)) <= 0.13] == [
         True, True, True,
     ]  # fmt: skip
+
+
+def test_graph_poses_close_a_loop_the_odometry_drifted_on() -> None:
+    # a room 6 x 4 m seen from a 4 x 2 m rectangle driven twice; dead reckoning with a
+    # heading drift on the first lap only (spreading the lock's correction evenly cannot
+    # undo that); scans match the stretch's keyframes, the lock holds the end: the graph's
+    # poses beat the lock-corrected dead reckoning
+    walls = np.array([[-1, -1, 5, -1], [5, -1, 5, 3], [5, 3, -1, 3], [-1, 3, -1, -1.0]])
+    ang = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+
+    def scan(p):  # type: ignore[no-untyped-def]
+        out = []
+        for a in ang:
+            d = np.array([math.cos(p[2] + a), math.sin(p[2] + a)])
+            best = math.inf
+            for x0, y0, x1, y1 in walls:
+                e = np.array([x1 - x0, y1 - y0])
+                m = np.array([[d[0], -e[0]], [d[1], -e[1]]])
+                if abs(np.linalg.det(m)) < 1e-12:
+                    continue
+                t, u = np.linalg.solve(m, np.array([x0 - p[0], y0 - p[1]]))
+                if t > 0 and 0 <= u <= 1:
+                    best = min(best, t)
+            out.append([best * math.cos(a), best * math.sin(a)])
+        return np.array(out)
+
+    truth, dr = [(0.0, 0.0, 0.0)], [(0.0, 0.0, 0.0)]
+    for lap in range(2):
+        for side in range(4):
+            length = 4.0 if side % 2 == 0 else 2.0
+            for _ in range(int(length / 0.1)):
+                truth.append(compose(truth[-1], (0.1, 0.0, 0.0)))
+                dr.append(compose(dr[-1], (0.1, 0.0, math.radians(0.3 if lap == 0 else 0.0))))
+            truth.append(compose(truth[-1], (0.0, 0.0, math.pi / 2)))
+            dr.append(compose(dr[-1], (0.0, 0.0, math.pi / 2)))
+    scans = [scan(p) for p in truth[1:]]
+    got = graph_poses(truth[0], scans, dr[1:], truth[-1])
+    spread = corrected_poses(truth[0], dr[1:], dr[-1], truth[-1])
+    t = np.array(truth[1:])
+    err = np.hypot(*(got[:, :2] - t[:, :2]).T).max()
+    assert err < 0.5 * np.hypot(*(spread[:, :2] - t[:, :2]).T).max()
 
 
 @pytest.mark.slow
