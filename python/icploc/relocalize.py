@@ -118,9 +118,9 @@ def _sample_segments(segs: NDArray[np.float64], spacing: float) -> NDArray[np.fl
 def global_localizer(map_: Any, resolution: float = 0.05, **kwargs: Any) -> Any:
     """A :class:`icploc.GlobalLocalizer` for ``map_``: a MapIndex, an ``icploc.Map``, an
     (N, 2) array of points or a (K, 4) array of wall segments (sampled every 5 cm)."""
-    from icploc._core import GlobalLocalizer
+    from icploc.maps.cache import global_localizer as cached  # a cached map's field is kept
 
-    return GlobalLocalizer(_index_of(map_), resolution, **kwargs)
+    return cached(_index_of(map_), resolution, **kwargs)
 
 
 def _subsample(points: NDArray[np.float64], n: int) -> NDArray[np.float64]:
