@@ -41,3 +41,28 @@ def test_importing_the_config_and_using_its_defaults_imports_no_yaml() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_icp_config_with_changes_is_the_replaced_sections() -> None:
+    sec = LocalizerConfig().icp
+    changes = {"window_search": False, "robust_scale": 0.08, "max_correspondence_distance": 0.9}
+    got, want = sec.to_icp_config(**changes), sec.replace(**changes).to_icp_config()
+    names = [n for n in dir(want) if not n.startswith("_") and not callable(getattr(want, n))]
+    assert {n: getattr(got, n) for n in names} == {n: getattr(want, n) for n in names}
+
+
+def test_icp_config_refuses_an_outer_loop_key() -> None:
+    with pytest.raises(TypeError, match="not a setting of the core: correspondence_sigmas"):
+        LocalizerConfig().icp.to_icp_config(correspondence_sigmas=2.0)
+
+
+def test_a_default_replay_builds_no_validator() -> None:
+    """A replay with the defaults never pays for building a model's validator (~25 ms)."""
+    code = (
+        "import numpy as np, icploc.config as c\n"
+        "from icploc.localizer import Localizer\n"
+        "loc = Localizer(np.c_[np.linspace(0, 5, 200), np.zeros(200)])\n"
+        "print(sum(S.__pydantic_complete__ for S in (*c._SECTIONS, c.LocalizerConfig)))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "0"

@@ -254,12 +254,17 @@ class IcpSection(Section):
             raise ValueError(_core_message(str(e))) from None
         return self
 
-    def to_icp_config(self) -> IcpConfig:
-        """The ``icploc.IcpConfig`` for the Rust core."""
+    def to_icp_config(self, **changes: Any) -> IcpConfig:
+        """The ``icploc.IcpConfig`` for the Rust core, with some of the core's settings
+        changed (``replace(**changes).to_icp_config()`` without a section in between; the
+        core checks the values, raising ``InvalidConfigError``)."""
         from icploc._core import IcpConfig
 
         kw = {k: v for k, v in self.__dict__.items() if k not in self._OUTER}
-        return IcpConfig(**kw)
+        unknown = sorted(set(changes) - set(kw))
+        if unknown:
+            raise TypeError(f"to_icp_config: not a setting of the core: {', '.join(unknown)}")
+        return IcpConfig(**{**kw, **changes})
 
 
 def _core_message(msg: str) -> str:
