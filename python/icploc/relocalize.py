@@ -474,7 +474,10 @@ class GlobalRelocalization:
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
                     self._relocalizer = Relocalizer(
-                        index, self.settings.replace(resolution=res), **self.global_search.to_dict()
+                        index,
+                        # res > 0 by construction: a copy, no validation (a validator build)
+                        self.settings.model_copy(update={"resolution": res}),
+                        **self.global_search.to_dict(),
                     )
                     break
                 except GridTooLargeError:
