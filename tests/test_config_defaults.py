@@ -66,3 +66,4 @@ def test_a_default_replay_builds_no_validator() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "0"
+
