@@ -348,8 +348,11 @@ class GlobalLocalizer:
         distinct_angle: float | None = None,
         ambiguity_margin: float | None = None,
         icp_config: IcpConfig | None = None,
+        distances: NDArray[np.float32] | None = None,
     ) -> Self:
-        """Every setting left None is the core's default (:func:`global_defaults`)."""
+        """Every setting left None is the core's default (:func:`global_defaults`);
+        ``distances``: :meth:`distances` of a localizer built before on the same map and
+        resolution (the likelihood field without its nearest-point queries)."""
     def search(
         self,
         scan_xy: ArrayLike,
@@ -358,6 +361,8 @@ class GlobalLocalizer:
     ) -> GlobalSearchResult:
         """Find the pose of an (N, 2) sensor-frame scan; ``region`` (xmin, ymin, xmax, ymax)
         bounds the position, ``heading`` (min, max) the heading in radians."""
+    def distances(self) -> NDArray[np.float32]:
+        """The likelihood field's distances (m, each cell centre to the map, row by row)."""
     def refine(self, scan_xy: ArrayLike, poses: ArrayLike) -> list[GlobalCandidate]:
         """ICP-refine each of the (M, 3) poses and score it."""
     def score(self, scan_xy: ArrayLike, poses: ArrayLike) -> list[GlobalCandidate]:
@@ -459,6 +464,8 @@ DEFAULT_CACHE_RESOLUTION: float
 """Cell size (m) of the closest-point grid ``MapIndex(points, normals)`` builds by default."""
 GRID_FILL_VERSION: int
 """Version of the grid cells' computation and order: saved cells are valid for it only."""
+FIELD_VERSION: int
+"""Version of the likelihood field's distances (GlobalLocalizer.distances(), cached)."""
 
 def grid_runs(
     index: MapIndex,

@@ -28,10 +28,10 @@ from __future__ import annotations
 
 import math
 import textwrap
+from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args
 
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -97,12 +97,25 @@ class Section(BaseModel):
     :meth:`replace`; a :class:`ConfigError` names the section and the field."""
 
     model_config = ConfigDict(
-        extra="forbid", strict=True, allow_inf_nan=False, validate_assignment=True
+        extra="forbid",
+        strict=True,
+        allow_inf_nan=False,
+        validate_assignment=True,
+        defer_build=True,
     )
     #: the section's key in a config file
     section: ClassVar[str] = ""
 
     def __init__(self, **data: Any) -> None:
+        if not data:  # the defaults: no field to validate, only the section's _check
+            _defaults(self)
+            check = getattr(type(self), "_check", None)  # its model_validator, if any
+            try:
+                if check is not None:
+                    check(self)
+                return
+            except ValueError:
+                pass  # the validated construction below words the error
         try:
             super().__init__(**data)
         except ValidationError as e:
@@ -124,6 +137,16 @@ class Section(BaseModel):
 
     def to_dict(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
+
+
+def _defaults(model: BaseModel) -> None:
+    """Set ``model`` (in its ``__init__``, given no values) to its fields' defaults without
+    the validator: what the validated construction gives, as defaults are not validated field
+    by field (``validate_default`` is off) and the section's ``_check`` runs after this
+    (tests/test_config_defaults.py compares each section with its validated construction).
+    The models are built lazily (``defer_build``): a process that only uses the defaults
+    never pays for building the validators (~30 ms) nor for pydantic's plugin discovery."""
+    model.__setstate__(type(model).model_construct().__getstate__())
 
 
 def _tuple(v: Any) -> Any:
@@ -231,12 +254,17 @@ class IcpSection(Section):
             raise ValueError(_core_message(str(e))) from None
         return self
 
-    def to_icp_config(self) -> IcpConfig:
-        """The ``icploc.IcpConfig`` for the Rust core."""
+    def to_icp_config(self, **changes: Any) -> IcpConfig:
+        """The ``icploc.IcpConfig`` for the Rust core, with some of the core's settings
+        changed (``replace(**changes).to_icp_config()`` without a section in between; the
+        core checks the values, raising ``InvalidConfigError``)."""
         from icploc._core import IcpConfig
 
         kw = {k: v for k, v in self.__dict__.items() if k not in self._OUTER}
-        return IcpConfig(**kw)
+        unknown = sorted(set(changes) - set(kw))
+        if unknown:
+            raise TypeError(f"to_icp_config: not a setting of the core: {', '.join(unknown)}")
+        return IcpConfig(**{**kw, **changes})
 
 
 def _core_message(msg: str) -> str:
@@ -699,7 +727,9 @@ _SECTIONS: tuple[type[Section], ...] = (
 class LocalizerConfig(BaseModel):
     """Every setting of the localizer, by section (see the module docstring)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True, validate_assignment=True)
+    model_config = ConfigDict(
+        extra="forbid", strict=True, validate_assignment=True, defer_build=True
+    )
 
     icp: IcpSection = Field(default_factory=IcpSection)
     scan: ScanSection = Field(default_factory=ScanSection)
@@ -720,6 +750,9 @@ class LocalizerConfig(BaseModel):
         return v
 
     def __init__(self, **sections: Any) -> None:
+        if not sections:  # every section's defaults (see _defaults)
+            _defaults(self)
+            return
         try:
             super().__init__(**sections)
         except ValidationError as e:
@@ -742,6 +775,8 @@ class LocalizerConfig(BaseModel):
     def to_yaml(self) -> str:
         """The configuration as YAML, every section and key with its description, unit and
         range as comments (what ``icploc config defaults`` / ``config check`` print)."""
+        from yaml import safe_dump  # only when YAML is written (~15 ms to import)
+
         out = ["# icploc localizer configuration (every key optional; unknown keys are errors)"]
         for name, sec in self.__dict__.items():
             doc = " ".join((type(sec).__doc__ or "").split())
@@ -750,7 +785,7 @@ class LocalizerConfig(BaseModel):
             out.append(f"{name}:")
             for key, value in sec.to_dict().items():
                 out.extend("  # " + ln for ln in textwrap.wrap(_describe(type(sec), key), 86))
-                dumped = yaml.safe_dump({key: value}, default_flow_style=True, width=1000)
+                dumped = safe_dump({key: value}, default_flow_style=True, width=1000)
                 out.append("  " + dumped.strip().removeprefix("{").removesuffix("}"))
         return "\n".join(out) + "\n"
 
@@ -813,9 +848,12 @@ class LocalizerConfig(BaseModel):
                 "save the config file as UTF-8",
                 path=str(p),
             ) from None
+        import yaml  # only when a file is read (~15 ms to import)
+
+        loader, duplicate = _yaml_loader()
         try:
-            data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
-        except _DuplicateKey as e:
+            data = yaml.load(text, Loader=loader)  # noqa: S506 - a SafeLoader
+        except duplicate as e:
             raise ConfigError(f"{p}:{e.line}: {e}", path=str(p), field=str(e.key)) from None
         except yaml.YAMLError as e:
             raise ConfigError(f"{p}: invalid YAML: {e}", path=str(p)) from None
@@ -908,28 +946,34 @@ def _config_error(e: ValidationError, cls: type[Section] | None) -> ConfigError:
     return ConfigError(f"{where}: {what}, got {v!r}", field=where)
 
 
-class _DuplicateKey(yaml.YAMLError):
-    def __init__(self, key: Any, first: int, line: int) -> None:
-        super().__init__(f"duplicate key {key!r} (first at line {first})")
-        self.key = key
-        self.line = line
+@cache
+def _yaml_loader() -> tuple[Any, Any]:
+    """``(loader, duplicate)``: the safe YAML loader with a duplicated mapping key an error
+    (``duplicate``, a YAMLError with ``key`` and ``line``) rather than a silent override;
+    built on first use so that importing the config does not import yaml."""
+    import yaml
 
+    class _DuplicateKey(yaml.YAMLError):
+        def __init__(self, key: Any, first: int, line: int) -> None:
+            super().__init__(f"duplicate key {key!r} (first at line {first})")
+            self.key = key
+            self.line = line
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """The safe loader, with a duplicated mapping key an error (not a silent override)."""
+    class _UniqueKeyLoader(yaml.SafeLoader):
+        def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+            seen: dict[Any, Any] = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+                try:
+                    dup = key in seen
+                except TypeError:
+                    continue  # an unhashable key: the base class reports it
+                if dup:
+                    raise _DuplicateKey(key, seen[key].line + 1, key_node.start_mark.line + 1)
+                seen[key] = key_node.start_mark
+            return super().construct_mapping(node, deep=deep)
 
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: dict[Any, Any] = {}
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
-            try:
-                dup = key in seen
-            except TypeError:
-                continue  # an unhashable key: the base class reports it
-            if dup:
-                raise _DuplicateKey(key, seen[key].line + 1, key_node.start_mark.line + 1)
-            seen[key] = key_node.start_mark
-        return super().construct_mapping(node, deep=deep)
+    return _UniqueKeyLoader, _DuplicateKey
 
 
 def default_yaml() -> str:

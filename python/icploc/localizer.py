@@ -274,7 +274,7 @@ class Localizer:
         # the core's verified start (a window search when a fit does not explain the scan) is
         # off in the localizer's ICPs: here the chi-square gate, the verification and the
         # recovery strategies decide what a doubtful fit means
-        self.icp_config = self.config.icp.replace(window_search=False).to_icp_config()
+        self.icp_config = self.config.icp.to_icp_config(window_search=False)
         lc = self.config.localizer
         if recovery is None:
             if lc.relocalization == "global":
@@ -508,12 +508,12 @@ class Localizer:
         key = (round(lo, 2), round(robust, 2), round(math.ceil(hi / 0.1) * 0.1, 1))
         cfg = self._icp_configs.get(key)
         if cfg is None:
-            cfg = ic.replace(
+            cfg = ic.to_icp_config(
                 min_correspondence_distance=key[0],
                 robust_scale=key[1],
                 max_correspondence_distance=max(key[2], key[0]),
                 window_search=False,  # see __init__
-            ).to_icp_config()
+            )
             self._icp_configs[key] = cfg
         return cfg
 

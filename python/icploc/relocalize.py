@@ -118,9 +118,9 @@ def _sample_segments(segs: NDArray[np.float64], spacing: float) -> NDArray[np.fl
 def global_localizer(map_: Any, resolution: float = 0.05, **kwargs: Any) -> Any:
     """A :class:`icploc.GlobalLocalizer` for ``map_``: a MapIndex, an ``icploc.Map``, an
     (N, 2) array of points or a (K, 4) array of wall segments (sampled every 5 cm)."""
-    from icploc._core import GlobalLocalizer
+    from icploc.maps.cache import global_localizer as cached  # a cached map's field is kept
 
-    return GlobalLocalizer(_index_of(map_), resolution, **kwargs)
+    return cached(_index_of(map_), resolution, **kwargs)
 
 
 def _subsample(points: NDArray[np.float64], n: int) -> NDArray[np.float64]:
@@ -474,7 +474,10 @@ class GlobalRelocalization:
             for res in (res0, 2 * res0, 4 * res0, 8 * res0):
                 try:
                     self._relocalizer = Relocalizer(
-                        index, self.settings.replace(resolution=res), **self.global_search.to_dict()
+                        index,
+                        # res > 0 by construction: a copy, no validation (a validator build)
+                        self.settings.model_copy(update={"resolution": res}),
+                        **self.global_search.to_dict(),
                     )
                     break
                 except GridTooLargeError:

@@ -273,6 +273,29 @@ impl GlobalLocalizer {
     pub fn new(index: Arc<MapIndex>, resolution: f64, cfg: GlobalConfig) -> Result<Self> {
         cfg.validate()?;
         let field = LikelihoodField::build(&index, resolution, cfg.sigma, cfg.levels)?;
+        Ok(Self::with_field(index, cfg, field))
+    }
+
+    /// hook (speed2, the likelihood-field cache): `new` from the field's distances
+    /// ([`Self::distances`]) of an earlier `new` on the same map and resolution.
+    pub fn from_distances(
+        index: Arc<MapIndex>,
+        resolution: f64,
+        cfg: GlobalConfig,
+        dist: Vec<f32>,
+    ) -> Result<Self> {
+        cfg.validate()?;
+        let field =
+            LikelihoodField::from_distances(&index, resolution, cfg.sigma, cfg.levels, dist)?;
+        Ok(Self::with_field(index, cfg, field))
+    }
+
+    /// The likelihood field's distances (m, cell centre to map, row by row).
+    pub fn distances(&self) -> &[f32] {
+        self.field.distances()
+    }
+
+    fn with_field(index: Arc<MapIndex>, cfg: GlobalConfig, field: LikelihoodField) -> Self {
         let (w, h) = field.shape();
         let free0: Vec<bool> = field
             .dist
@@ -284,12 +307,12 @@ impl GlobalLocalizer {
             let next = pool(&free[lvl - 1], w, h, 1usize << (lvl - 1), |a, b| a | b);
             free.push(next);
         }
-        Ok(Self {
+        Self {
             index,
             cfg,
             field,
             free,
-        })
+        }
     }
 
     pub fn config(&self) -> &GlobalConfig {

@@ -26,6 +26,10 @@ pub const WINDOW_LEVELS: usize = 6;
 /// The window search's field holds at most this many cells per level (~ 90 MB in all).
 pub const WINDOW_MAX_CELLS: usize = 1 << 23;
 
+/// hook (speed2): the version of the distances [`LikelihoodField::build`] computes; bump it
+/// when they change (the likelihood-field cache of `icploc.maps.cache` names it).
+pub const FIELD_VERSION: u32 = 1;
+
 /// A likelihood grid over a map's bounds with its max-pooled pyramid.
 #[derive(Clone)]
 pub struct LikelihoodField {
@@ -55,6 +59,50 @@ impl LikelihoodField {
     /// Build the field of `index` at `resolution` m per cell, likelihood σ `sigma`, with
     /// `levels` pooled levels above the base. Refuses grids of more than [`MAX_CELLS`].
     pub fn build(index: &MapIndex, resolution: f64, sigma: f64, levels: usize) -> Result<Self> {
+        let (x0, y0, w, h) = Self::grid(index, resolution)?;
+        let dist: Vec<f32> = (0..w * h)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(|c| {
+                let (i, j) = (c % w, c / w);
+                let q = [
+                    x0 + (i as f64 + 0.5) * resolution,
+                    y0 + (j as f64 + 0.5) * resolution,
+                ];
+                index.nearest(q).0.sqrt() as f32
+            })
+            .collect();
+        Ok(Self::finish(resolution, x0, y0, w, h, dist, sigma, levels))
+    }
+
+    /// hook (speed2, the likelihood-field cache): the field `build` gives for `index` at
+    /// `resolution` from the distances (`distances()`) a previous `build` of the same map
+    /// computed, without the nearest-point queries. Refused when their number is not the
+    /// grid's cell count.
+    pub fn from_distances(
+        index: &MapIndex,
+        resolution: f64,
+        sigma: f64,
+        levels: usize,
+        dist: Vec<f32>,
+    ) -> Result<Self> {
+        let (x0, y0, w, h) = Self::grid(index, resolution)?;
+        if dist.len() != w * h {
+            return Err(IcpError::InvalidInput {
+                what: "distances".into(),
+                reason: format!("{} values for a {w} x {h} grid", dist.len()),
+            });
+        }
+        Ok(Self::finish(resolution, x0, y0, w, h, dist, sigma, levels))
+    }
+
+    /// The distance (m) of every cell centre to the nearest map point, row by row.
+    pub fn distances(&self) -> &[f32] {
+        &self.dist
+    }
+
+    /// (x0, y0, width, height) of the grid over `index`'s bounds at `resolution`.
+    fn grid(index: &MapIndex, resolution: f64) -> Result<(f64, f64, usize, usize)> {
         if resolution <= 0.0 || !resolution.is_finite() {
             return Err(IcpError::InvalidInput {
                 what: "resolution".into(),
@@ -73,20 +121,21 @@ impl LikelihoodField {
                 max: MAX_CELLS,
             });
         }
-        let (w, h) = (wf as usize, hf as usize);
-        let (x0, y0) = (xmin, ymin);
-        let dist: Vec<f32> = (0..w * h)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map(|c| {
-                let (i, j) = (c % w, c / w);
-                let q = [
-                    x0 + (i as f64 + 0.5) * resolution,
-                    y0 + (j as f64 + 0.5) * resolution,
-                ];
-                index.nearest(q).0.sqrt() as f32
-            })
-            .collect();
+        Ok((xmin, ymin, wf as usize, hf as usize))
+    }
+
+    /// The likelihood and its pyramid over the distances `dist`.
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        resolution: f64,
+        x0: f64,
+        y0: f64,
+        w: usize,
+        h: usize,
+        dist: Vec<f32>,
+        sigma: f64,
+        levels: usize,
+    ) -> Self {
         let inv2s2 = 1.0 / (2.0 * sigma * sigma);
         let base: Vec<u8> = dist
             .iter()
@@ -100,7 +149,7 @@ impl LikelihoodField {
             let next = pool(&pooled[lvl - 1], w, h, 1usize << (lvl - 1), u8::max);
             pooled.push(next);
         }
-        Ok(Self {
+        Self {
             res: resolution,
             x0,
             y0,
@@ -108,7 +157,7 @@ impl LikelihoodField {
             h,
             dist,
             pooled,
-        })
+        }
     }
 
     /// The field `icp()`'s window search uses for `index`: [`WINDOW_RESOLUTION`], or 2 or 4
@@ -215,6 +264,21 @@ pub(crate) fn pool<T: Copy + Send + Sync>(
 #[cfg(test)]
 mod grid_bound_tests {
     use super::*;
+
+    #[test]
+    fn a_field_from_its_distances_is_the_built_field() {
+        let pts: Vec<[f64; 2]> = (0..200)
+            .map(|k| [0.05 * k as f64, (0.1 * k as f64).sin()])
+            .collect();
+        let idx = MapIndex::new(pts, None).unwrap();
+        let a = LikelihoodField::build(&idx, 0.05, 0.1, 4).unwrap();
+        let b =
+            LikelihoodField::from_distances(&idx, 0.05, 0.1, 4, a.distances().to_vec()).unwrap();
+        assert_eq!((a.dist.clone(), a.pooled.clone()), (b.dist, b.pooled));
+        let short = a.distances()[1..].to_vec();
+        let e = LikelihoodField::from_distances(&idx, 0.05, 0.1, 4, short).unwrap_err();
+        assert!(matches!(e, IcpError::InvalidInput { .. }), "{e}");
+    }
 
     #[test]
     fn a_grid_beyond_the_bound_is_grid_too_large() {

@@ -1,7 +1,7 @@
 //! `icploc._core.GlobalLocalizer`: the global search of `icploc_core::global`, GIL
 //! released around every heavy call.
 
-use numpy::PyArray1;
+use numpy::{PyArray1, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -177,7 +177,7 @@ impl PyGlobalLocalizer {
         index, resolution=0.05, *, angle_step=None, max_points=None, sigma=None,
         min_clearance=None, accept_ratio=None, min_score=None, max_candidates=None,
         levels=None, score_sigma=None, inlier_distance=None, distinct_distance=None,
-        distinct_angle=None, ambiguity_margin=None, icp_config=None
+        distinct_angle=None, ambiguity_margin=None, icp_config=None, distances=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -198,6 +198,7 @@ impl PyGlobalLocalizer {
         distinct_angle: Option<f64>,
         ambiguity_margin: Option<f64>,
         icp_config: Option<PyRef<'_, PyIcpConfig>>,
+        distances: Option<PyReadonlyArray1<'_, f32>>,
     ) -> PyResult<Self> {
         let d = GlobalConfig::default();
         let icp = match icp_config {
@@ -222,8 +223,22 @@ impl PyGlobalLocalizer {
             ..d
         };
         let idx = index.get().inner.clone();
+        // the field's distances of an earlier build on this map (a cache): no k-d tree queries
+        let dist = match &distances {
+            Some(d) => Some(
+                d.as_slice()
+                    .map_err(|_| input_err(py, "distances", "must be contiguous float32".into()))?
+                    .to_vec(),
+            ),
+            None => None,
+        };
         let inner = py
-            .detach(|| guarded(|| GlobalLocalizer::new(idx, resolution, cfg)))
+            .detach(|| {
+                guarded(|| match dist {
+                    Some(d) => GlobalLocalizer::from_distances(idx, resolution, cfg, d),
+                    None => GlobalLocalizer::new(idx, resolution, cfg),
+                })
+            })
             .map_err(|e| to_py(py, e))?;
         Ok(Self {
             inner,
@@ -290,6 +305,12 @@ impl PyGlobalLocalizer {
             .map(|p| self.inner.distance_at(*p).unwrap_or(f64::NAN))
             .collect();
         Ok(PyArray1::from_vec(py, v))
+    }
+
+    /// The likelihood field's distances (m, each cell centre to the map, row by row;
+    /// float32): what `distances=` takes to rebuild this localizer without recomputing them.
+    fn distances<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f32>> {
+        PyArray1::from_slice(py, self.inner.distances())
     }
 
     #[getter]
@@ -382,6 +403,7 @@ fn global_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("FIELD_VERSION", icploc_core::likelihood::FIELD_VERSION)?;
     m.add_function(wrap_pyfunction!(global_defaults, m)?)?;
     m.add_class::<PyGlobalLocalizer>()?;
     m.add_class::<PyGlobalResult>()?;

@@ -1,0 +1,69 @@
+"""The defaults' fast path: ``Section()`` / ``LocalizerConfig()`` without values skip the
+validator (built lazily), and give exactly what the validated construction gives."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from icploc.config import _SECTIONS, ConfigError, LocalizerConfig, Section
+
+
+@pytest.mark.parametrize("section", _SECTIONS, ids=lambda s: s.section)
+def test_a_default_section_equals_its_validated_defaults(section: type[Section]) -> None:
+    fast = section()
+    checked = section.model_validate({})  # the validator: field and model checks
+    assert (fast.__dict__, fast.model_fields_set) == (checked.__dict__, checked.model_fields_set)
+
+
+def test_default_config_equals_the_validated_one() -> None:
+    checked = LocalizerConfig.model_validate({s.section: s.model_validate({}) for s in _SECTIONS})
+    assert LocalizerConfig().to_dict() == checked.to_dict()
+
+
+def test_a_default_config_still_validates_assignment() -> None:
+    cfg = LocalizerConfig()
+    with pytest.raises(ConfigError, match=r"localizer\.lost_sigma_xy: must be > 0, got -1"):
+        cfg.localizer.lost_sigma_xy = -1.0
+
+
+def test_default_sections_are_separate_objects() -> None:
+    a, b = LocalizerConfig(), LocalizerConfig()
+    a.recovery.keep = 9
+    assert b.recovery.keep == LocalizerConfig().recovery.keep != 9
+
+
+def test_importing_the_config_and_using_its_defaults_imports_no_yaml() -> None:
+    code = (
+        "import sys, icploc.config as c; c.LocalizerConfig().icp.to_icp_config(); "
+        "print('yaml' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_icp_config_with_changes_is_the_replaced_sections() -> None:
+    sec = LocalizerConfig().icp
+    changes = {"window_search": False, "robust_scale": 0.08, "max_correspondence_distance": 0.9}
+    got, want = sec.to_icp_config(**changes), sec.replace(**changes).to_icp_config()
+    names = [n for n in dir(want) if not n.startswith("_") and not callable(getattr(want, n))]
+    assert {n: getattr(got, n) for n in names} == {n: getattr(want, n) for n in names}
+
+
+def test_icp_config_refuses_an_outer_loop_key() -> None:
+    with pytest.raises(TypeError, match="not a setting of the core: correspondence_sigmas"):
+        LocalizerConfig().icp.to_icp_config(correspondence_sigmas=2.0)
+
+
+def test_a_default_replay_builds_no_validator() -> None:
+    """A replay with the defaults never pays for building a model's validator (~25 ms)."""
+    code = (
+        "import numpy as np, icploc.config as c\n"
+        "from icploc.localizer import Localizer\n"
+        "loc = Localizer(np.c_[np.linspace(0, 5, 200), np.zeros(200)])\n"
+        "print(sum(S.__pydantic_complete__ for S in (*c._SECTIONS, c.LocalizerConfig)))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "0"
+
