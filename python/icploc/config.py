@@ -304,6 +304,11 @@ class LocalizerSection(_Section):
     #: (a crowd hides walls; at a wrong place chance hits scatter)
     crowd_residual: float = 1.2
     lost_sigma_xy: float = 2.0
+    #: while lost: the dead reckoning is corrected by scan fits consistent with it (the
+    #: chi-square gate, explaining the scan at least as well); the status stays ``lost``
+    lost_coasting: bool = True
+    #: while lost the odometry noise variances are this many times the learned ones
+    lost_noise_gain: float = 4.0
     #: a recovery candidate needs at least this inlier ratio (then verification)
     recover_inlier_ratio: float = 0.6
     #: consecutive verified, consistent scans before a recovery locks
@@ -350,6 +355,7 @@ class LocalizerSection(_Section):
             "lost_sigma_xy",
             "arbitration_max_inflation",
             "noise_gain_max",
+            "lost_noise_gain",
         )
         for name in (
             "process_sigma_xy",

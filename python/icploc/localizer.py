@@ -449,7 +449,14 @@ class Localizer:
             return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
         d = self.calibration.apply(between(self._last_odom, odom))
         self._last_odom = odom
-        return self.motion_model.predict(self.pose, self.covariance, d)
+        model = self.motion_model
+        gain = self.config.localizer.lost_noise_gain
+        if self.status is Status.LOST and gain != 1.0:
+            # nothing corroborates the dead reckoning: odometry that lost us is likely off
+            # by more than its usual noise (a bias, a slip), and the local search window
+            # grows with this covariance
+            model = dataclasses.replace(model, gain=model.gain * gain)
+        return model.predict(self.pose, self.covariance, d)
 
     def _match_index(self, pred: Pose) -> Any:
         mc = self.config.map
@@ -702,6 +709,8 @@ class Localizer:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
+        elif accepted and reason in ("", "unverified") and check.hit >= lc.verify_min_hit_ratio:
+            self.quality.observe_consistent(check)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
@@ -1055,6 +1064,8 @@ class Localizer:
             # nothing, search the whole map
             pred_cov = _unknown_covariance()
             self.recovery.reset()
+        elif self.config.localizer.lost_coasting:
+            pred, pred_cov = self._coast(pts, pred, pred_cov)
         self.pose = pred
         self.covariance = pred_cov
         best = step.hypotheses[0] if step.hypotheses else None
@@ -1074,6 +1085,46 @@ class Localizer:
             calibration=self.calibration.factors,
             hypotheses=step.hypotheses,
         )
+
+    def _coast(
+        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64]
+    ) -> tuple[Pose, NDArray[np.float64]]:
+        """While lost and not locked: the dead reckoning corrected by a scan fit from it
+        that is consistent with it (chi-square within the reject quantile, within the jump
+        caps) and explains the scan at least as well as the dead-reckoned pose. Biased
+        odometry then does not carry the pose off while the verification is still unsure
+        (a place the map barely covers); the status stays ``lost`` and the pose jumps only to
+        a verified lock. A pose that means nothing (unknown covariance) is not corrected."""
+        lc = self.config.localizer
+        g = self.config.gating
+        if (
+            pts.shape[0] < self.config.scan.min_points
+            or math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0)) > lc.lost_sigma_xy
+        ):
+            return pred, pred_cov
+        res = self._run_icp(pts, pred, pred_cov)
+        if res is None or res.inlier_ratio < lc.recover_inlier_ratio:
+            return pred, pred_cov
+        m = self._measurement(res)
+        if m is None:
+            return pred, pred_cov
+        z, R = m
+        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > g.max_translation_jump or abs(
+            wrap_angle(z[2] - pred[2])
+        ) > math.radians(g.max_rotation_jump_deg):
+            return pred, pred_cov
+        nis = mahalanobis2(pred, pred_cov, z, R)
+        if nis > self._chi2_reject:
+            return pred, pred_cov
+        at_z = self.checker.check(pts, z)
+        if at_z.hit < max(lc.verify_min_hit_ratio, lc.lost_hit_fraction * self.quality.hit_reference):
+            return pred, pred_cov
+        at_pred = self.checker.check(pts, pred)
+        if at_z.hit < at_pred.hit:
+            return pred, pred_cov
+        if nis > self._chi2_accept:
+            R = R * (nis / self._chi2_accept)
+        return fuse(pred, pred_cov, z, R)
 
     # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
     def save_state(self, path: str | os.PathLike[str]) -> Any:
