@@ -32,7 +32,6 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -47,26 +46,19 @@ from icploc.motion import MotionModel
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
 from icploc.se2 import Pose, between, compose, wrap_angle
+from icploc.status import Reason, Status
 from icploc.types import Odometry, Scan
 
 __all__ = [
     "Estimate",
     "Localizer",
     "OdometryBuffer",
+    "Reason",
     "Recovery",
     "Status",
     "prepare_scan",
     "run",
 ]
-
-
-class Status(str, Enum):
-    TRACKING = "tracking"
-    DEGRADED = "degraded"
-    LOST = "lost"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclass(frozen=True)
@@ -92,7 +84,7 @@ class Estimate:
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
     #: while lost the recovery's state (searching, confirming, ambiguous)
-    reason: str = ""
+    reason: str = Reason.NONE
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
     odometry: Pose | None = None  #: the (interpolated) odometry pose used
@@ -620,7 +612,7 @@ class Localizer:
         cnt = self._counters
         n = pts.shape[0]
         res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
-        reason = ""
+        reason: str = Reason.NONE
         pose, cov = pred, pred_cov
         accepted = False
         inlier_ratio = 0.0
@@ -630,30 +622,30 @@ class Localizer:
         R: NDArray[np.float64] | None = None
         nis = float("nan")
         if res is None:
-            reason = "too_few_points" if n < self.config.scan.min_points else "icp_failed"
+            reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
         else:
             inlier_ratio = float(res.inlier_ratio)
             iterations = int(res.iterations)
             degeneracy = float(res.degeneracy)
             m = self._measurement(res)
             if m is None:
-                reason = "icp_failed"
+                reason = Reason.ICP_FAILED
             elif inlier_ratio < g.min_inlier_ratio:
-                reason = "low_inlier_ratio"
+                reason = Reason.LOW_INLIER_RATIO
             elif g.require_convergence and not res.converged:
-                reason = "not_converged"
+                reason = Reason.NOT_CONVERGED
             else:
                 z, R = m
                 jump = math.hypot(z[0] - pred[0], z[1] - pred[1])
                 turn = abs(wrap_angle(z[2] - pred[2]))
                 nis = mahalanobis2(pred, pred_cov, z, R)
                 if jump > g.max_translation_jump or turn > math.radians(g.max_rotation_jump_deg):
-                    reason = "jump"
+                    reason = Reason.JUMP
                 elif nis <= self._chi2_accept:
                     accepted = True
                 elif nis <= self._chi2_reject:
                     accepted = True
-                    reason = "inflated"
+                    reason = Reason.INFLATED
                     R = R * (nis / self._chi2_accept)
                 else:
                     # prediction and scan disagree: the map arbitrates. A scan pose that
@@ -668,7 +660,7 @@ class Localizer:
                         and at_z.hit >= at_pred.hit + lc.arbitration_margin
                     ):
                         accepted = True
-                        reason = "odometry_off"
+                        reason = Reason.ODOMETRY_OFF
                         pred_cov = pred_cov * (nis / self._chi2_accept)
                     elif (
                         self._consistent_rejection(z, R, odom) >= lc.consistent_rejections
@@ -678,10 +670,10 @@ class Localizer:
                         # (a robot pushed, a pose that drifted while standing still): the
                         # prediction is off
                         accepted = True
-                        reason = "odometry_off"
+                        reason = Reason.ODOMETRY_OFF
                         pred_cov = pred_cov * (nis / self._chi2_accept)
                     else:
-                        reason = "inconsistent"
+                        reason = Reason.INCONSISTENT
                 if accepted:
                     self._rejected = None
                     self._learn_noise(nis)
@@ -699,17 +691,17 @@ class Localizer:
             tight = check.rms <= lc.crowd_residual * self.quality.sigma
             if check.hit <= at_pred.hit + 0.02 and not tight:
                 accepted = False
-                reason = "contradicted"
+                reason = Reason.CONTRADICTED
                 pose, cov = pred, pred_cov
                 check = at_pred
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
-            reason = "unverified"
+            reason = Reason.UNVERIFIED
         if verified:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
-        elif accepted and reason in ("", "unverified") and check.hit >= lc.verify_min_hit_ratio:
+        elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
             self.quality.observe_consistent(check)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
@@ -717,18 +709,18 @@ class Localizer:
         # fit there is weak evidence, not a contradiction)
         cnt.bad_in_row = 0 if accepted else cnt.bad_in_row + 1
         confident = self._confident(cov)
-        if verified and confident and reason in ("", "inflated", "odometry_off"):
+        if verified and confident and reason in (Reason.NONE, Reason.INFLATED, Reason.ODOMETRY_OFF):
             status = Status.TRACKING
         else:
             status = Status.DEGRADED
             if verified and not confident and not reason:
-                reason = "uncertain"
+                reason = Reason.UNCERTAIN
         # the fit contradicted the odometry (taken against a prediction it is beyond what
         # the arbitration accepts: several rejected scans agreed) and explains less of the
         # scan than usual: a place that half fits the old pose
         jumped = (
             accepted
-            and reason == "odometry_off"
+            and reason == Reason.ODOMETRY_OFF
             and nis > lc.arbitration_max_inflation * self._chi2_accept
             and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
         )
@@ -740,7 +732,7 @@ class Localizer:
         if elsewhere:
             # a distinct place explains the scans much better (checked twice): the pose
             # says nothing any more, the recovery searches the whole map at once
-            status, reason = Status.LOST, "elsewhere"
+            status, reason = Status.LOST, Reason.ELSEWHERE
             self.declare_lost()
             cov = _unknown_covariance()
         elif (
@@ -748,7 +740,7 @@ class Localizer:
             or sig_xy > lc.lost_sigma_xy
         ):
             status = Status.LOST
-            reason = reason or "lost"
+            reason = reason or Reason.LOST
             self.declare_lost()
         self.pose = pose
         self.covariance = cov
@@ -861,9 +853,9 @@ class Localizer:
             # not promised while a check is out or a better pose elsewhere awaits its
             # re-check
             if self._lock_unconfirmed:
-                status, reason = Status.DEGRADED, "unconfirmed"
+                status, reason = Status.DEGRADED, Reason.UNCONFIRMED
             elif self._elsewhere is not None or self._check_inflight is not None:
-                status, reason = Status.DEGRADED, "suspect"
+                status, reason = Status.DEGRADED, Reason.SUSPECT
         return status, reason, elsewhere
 
     def _apply_verdict(self, v: CheckVerdict, odom: Pose | None) -> bool:
@@ -1048,7 +1040,7 @@ class Localizer:
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
                 accepted=True,
-                reason="relocalized",
+                reason=Reason.RELOCALIZED,
                 degeneracy=float(res.degeneracy),
                 prediction=pred,
                 odometry=odom,
@@ -1078,7 +1070,7 @@ class Localizer:
             iterations=0,
             time=time.perf_counter() - t0,
             accepted=False,
-            reason="refuted" if refuted else (step.state or "lost"),
+            reason=Reason.REFUTED if refuted else (step.state or Reason.LOST),
             prediction=pred,
             odometry=odom,
             num_points=pts.shape[0],
