@@ -78,6 +78,20 @@ class OdometryCalibration:
             dth * self.turn_scale + self.drift * dist,
         )
 
+    def uncertainty(self, d: Sequence[float]) -> tuple[float, float]:
+        """The variance the factors not yet learned leave on the increment ``d``: (along
+        the motion, m^2; heading, rad^2). Each factor's spread starts at half its bound
+        and shrinks as evidence builds up against its prior; a base whose turns read 5 %
+        short is then no six-sigma surprise before the calibration has seen it turn."""
+        if not self.enabled:
+            return 0.0, 0.0
+        dist = math.hypot(float(d[0]), float(d[1]))
+        turn = abs(float(d[2]))
+        s_scale = 0.5 * self.max_scale * math.sqrt(self.prior / (self.prior + self._w))
+        s_turn = 0.5 * self.max_turn_scale * math.sqrt(self.prior_turn / (self.prior_turn + self._tt))
+        s_drift = 0.5 * self.max_drift * math.sqrt(self.prior / (self.prior + self._dd))
+        return (s_scale * dist) ** 2, (s_turn * turn) ** 2 + (s_drift * dist) ** 2
+
     def observe(self, odometry: Sequence[float], measured: Sequence[float]) -> None:
         """One pair: ``odometry`` the raw odometry increment between two accepted scans,
         ``measured`` the motion between their scan-matched poses (both in the first scan's

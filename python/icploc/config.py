@@ -267,6 +267,9 @@ class LocalizerSection(_Section):
     calibration_max_scale: float = 0.05
     calibration_max_turn_scale: float = 0.1
     calibration_max_drift_deg: float = 2.0
+    #: the prediction's covariance also holds what the calibration has not learned yet
+    #: (each factor's spread: half its bound, shrinking with evidence)
+    calibration_uncertainty: bool = True
     #: the scan match's covariance (:func:`icploc.fusion.scan_covariance`): the information
     #: of this many independent beams on a 10 cm map, inversely proportional to the map's
     #: resolution (a scan's beams share their walls' quantisation); 6 makes the NEES

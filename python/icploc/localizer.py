@@ -439,7 +439,8 @@ class Localizer:
             if odom is not None:
                 self._last_odom = odom
             return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
-        d = self.calibration.apply(between(self._last_odom, odom))
+        raw = between(self._last_odom, odom)
+        d = self.calibration.apply(raw)
         self._last_odom = odom
         model = self.motion_model
         gain = self.config.localizer.lost_noise_gain
@@ -448,7 +449,15 @@ class Localizer:
             # by more than its usual noise (a bias, a slip), and the local search window
             # grows with this covariance
             model = dataclasses.replace(model, gain=model.gain * gain)
-        return model.predict(self.pose, self.covariance, d)
+        pred, P = model.predict(self.pose, self.covariance, d)
+        if self.config.localizer.calibration_uncertainty:
+            v_al, v_th = self.calibration.uncertainty(raw)
+            if v_al > 0.0 or v_th > 0.0:
+                P = P.copy()
+                P[0, 0] += v_al
+                P[1, 1] += v_al
+                P[2, 2] += v_th
+        return pred, P
 
     def _match_index(self, pred: Pose) -> Any:
         mc = self.config.map
