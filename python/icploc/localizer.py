@@ -315,6 +315,9 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: while lost: consistent fits from the dead reckoning in a row (:meth:`_coast`)
+        self._coast_streak = 0
+        self._coast_inlier_ratio = 0.0
         #: kidnap detection while tracking (:mod:`icploc.kidnap`): the trigger, a check
         #: running on the worker thread (future, odometry then, strict), a better pose
         #: elsewhere awaiting its re-check (pose, odometry then, scan count), and whether
@@ -360,6 +363,7 @@ class Localizer:
         c.bad_in_row = 0
         self._lost_scans = 0
         self._lost_odom = None
+        self._coast_streak = 0
         self._anchor = None
         self._rejected = None
         self._forget_checks()
@@ -377,6 +381,7 @@ class Localizer:
         self.status = Status.LOST
         self._lost_scans = 0
         self._lost_odom = None
+        self._coast_streak = 0
         self._anchor = None
         self._forget_checks()
         self.recovery.reset()
@@ -1066,7 +1071,40 @@ class Localizer:
             pred_cov = _unknown_covariance()
             self.recovery.reset()
         elif self.config.localizer.lost_coasting:
-            pred, pred_cov = self._coast(pts, pred, pred_cov)
+            pred, pred_cov, fused = self._coast(pts, pred, pred_cov)
+            self._coast_streak = self._coast_streak + 1 if fused else 0
+            if fused and self._coast_streak >= self.config.localizer.recover_after:
+                # consistent, well-hitting fits from the dead reckoning on several scans
+                # in a row: the local search around it has found the way back. Checked
+                # like any lock (no distinct pose anywhere clearly better), then the
+                # localizer tracks again from there, ``degraded`` until it verifies.
+                v = self._run_check(pts, pred, odom, True)
+                if v is not None and v.verdict == "elsewhere":
+                    self._note("refuted")
+                    self._coast_streak = 0
+                else:
+                    inflight = self._check_inflight
+                    pending = v is None and inflight is not None
+                    self.reset(pred, pred_cov, Status.DEGRADED)
+                    if pending:
+                        self._check_inflight = inflight
+                        self._lock_unconfirmed = True
+                    return Estimate(
+                        stamp=scan.stamp,
+                        pose=self.pose,
+                        covariance=self.covariance,
+                        status=Status.DEGRADED,
+                        inlier_ratio=self._coast_inlier_ratio,
+                        iterations=0,
+                        time=time.perf_counter() - t0,
+                        accepted=True,
+                        reason=Reason.RELOCALIZED,
+                        prediction=pred,
+                        odometry=odom,
+                        num_points=pts.shape[0],
+                        calibration=self.calibration.factors,
+                        hypotheses=step.hypotheses,
+                    )
         self.pose = pred
         self.covariance = pred_cov
         best = step.hypotheses[0] if step.hypotheses else None
@@ -1089,43 +1127,46 @@ class Localizer:
 
     def _coast(
         self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64]
-    ) -> tuple[Pose, NDArray[np.float64]]:
+    ) -> tuple[Pose, NDArray[np.float64], bool]:
         """While lost and not locked: the dead reckoning corrected by a scan fit from it
         that is consistent with it (chi-square within the reject quantile, within the jump
         caps) and explains the scan at least as well as the dead-reckoned pose. Biased
         odometry then does not carry the pose off while the verification is still unsure
         (a place the map barely covers); the status stays ``lost`` and the pose jumps only to
-        a verified lock. A pose that means nothing (unknown covariance) is not corrected."""
+        a verified lock (or, after ``recover_after`` such fits in a row, to tracking, see
+        :meth:`_update_lost`). A pose that means nothing (unknown covariance) is not corrected."""
         lc = self.config.localizer
         g = self.config.gating
         if (
             pts.shape[0] < self.config.scan.min_points
             or math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0)) > lc.lost_sigma_xy
         ):
-            return pred, pred_cov
+            return pred, pred_cov, False
         res = self._run_icp(pts, pred, pred_cov)
         if res is None or res.inlier_ratio < lc.recover_inlier_ratio:
-            return pred, pred_cov
+            return pred, pred_cov, False
         m = self._measurement(res)
         if m is None:
-            return pred, pred_cov
+            return pred, pred_cov, False
         z, R = m
         if math.hypot(z[0] - pred[0], z[1] - pred[1]) > g.max_translation_jump or abs(
             wrap_angle(z[2] - pred[2])
         ) > math.radians(g.max_rotation_jump_deg):
-            return pred, pred_cov
+            return pred, pred_cov, False
         nis = mahalanobis2(pred, pred_cov, z, R)
         if nis > self._chi2_reject:
-            return pred, pred_cov
+            return pred, pred_cov, False
         at_z = self.checker.check(pts, z)
         if at_z.hit < max(lc.verify_min_hit_ratio, lc.lost_hit_fraction * self.quality.hit_reference):
-            return pred, pred_cov
+            return pred, pred_cov, False
         at_pred = self.checker.check(pts, pred)
         if at_z.hit < at_pred.hit:
-            return pred, pred_cov
+            return pred, pred_cov, False
         if nis > self._chi2_accept:
             R = R * (nis / self._chi2_accept)
-        return fuse(pred, pred_cov, z, R)
+        self._coast_inlier_ratio = float(res.inlier_ratio)
+        pose, cov = fuse(pred, pred_cov, z, R)
+        return pose, cov, True
 
     # -- saved state: thin wrappers of icploc.state (icploc run --state) ------------------
     def save_state(self, path: str | os.PathLike[str]) -> Any:
