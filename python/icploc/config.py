@@ -270,6 +270,9 @@ class LocalizerSection(_Section):
     #: the prediction's covariance also holds what the calibration has not learned yet
     #: (each factor's spread: half its bound, shrinking with evidence)
     calibration_uncertainty: bool = True
+    #: the calibration also learns from fits the odometry agrees with (chi-square accepted,
+    #: at least ``verify_min_hit_ratio`` of the beams on walls) that verification turned down
+    calibrate_from_consistent: bool = True
     #: the scan match's covariance (:func:`icploc.fusion.scan_covariance`): the information
     #: of this many independent beams on a 10 cm map, inversely proportional to the map's
     #: resolution (a scan's beams share their walls' quantisation); 6 makes the NEES

@@ -719,6 +719,8 @@ class Localizer:
                 self._calibrate(odom, z, R)
         elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
             self.quality.observe_consistent(check)
+            if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
+                self._calibrate(odom, z, R)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
