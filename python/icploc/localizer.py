@@ -697,19 +697,23 @@ class Localizer:
         if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
             # the fused pose explains far less of the scan than poses here usually do: a
             # place the map barely covers, or a fit that found something else (a local
-            # minimum, a crowd). Keep the correction only if the few beams that do end on
-            # walls fit as tightly as usual: walls hidden by a crowd, not a wrong place
-            # (where chance hits scatter over the hit distance). A loose fit to a few
-            # chance hits is no evidence even when it explains a little more than the
-            # prediction: fused, its covariance (from its inliers) would shrink the pose's
-            # for nothing, and on biased odometry in a place the map barely covers the
-            # pose then slides off with a covariance that says all is well.
+            # minimum, a crowd). Keep the correction only if it explains more of the scan
+            # than the prediction did, or if the few beams that do end on walls fit as
+            # tightly as usual: walls hidden by a crowd, not a wrong place (where chance
+            # hits scatter over the hit distance). A loose fit to a few chance hits (its
+            # own inliers under ``verify_min_hit_ratio``) is no evidence even when it
+            # explains a little more than the prediction: fused, its covariance would
+            # shrink the pose's for nothing, and on biased odometry in a place the map
+            # barely covers the pose then slides off with a covariance that says all is
+            # well.
+            at_pred = self.checker.check(pts, pred)
             tight = check.rms <= lc.crowd_residual * self.quality.sigma
-            if not tight:
+            weak = float(res.inlier_ratio) < lc.verify_min_hit_ratio if res is not None else True
+            if not tight and (weak or check.hit <= at_pred.hit + 0.02):
                 accepted = False
                 reason = Reason.CONTRADICTED
                 pose, cov = pred, pred_cov
-                check = self.checker.check(pts, pred)
+                check = at_pred
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
             reason = Reason.UNVERIFIED
