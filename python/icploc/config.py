@@ -389,6 +389,14 @@ class LocalizerSection(Section):
         "beams",
         gt=0,
     )
+    min_axis_beams: float = _f(
+        8.0,
+        "a direction the scan match constrains with fewer beams than this (the smallest "
+        "eigenvalue of its translational information, unit normals) is left unconstrained: "
+        "an aisle's length held by the odd shelf end is no measurement; 0: off",
+        "beams",
+        ge=0,
+    )
     verify_min_hit_ratio: float = _f(
         0.5, "verification: at least this share of beams end on walls", ge=0, le=1
     )

@@ -577,6 +577,7 @@ class Localizer:
             float(res.mse),
             self.quality.sigma,
             self._independent_beams,
+            self.config.localizer.min_axis_beams,
         )
         return (ix, iy, wrap_angle(ith)), R
 
@@ -595,6 +596,11 @@ class Localizer:
                 <= q.see_through_reference + lc.verify_max_see_through
             )
         )
+
+    def _prediction_better(self, pts: NDArray[np.float64], pred: Pose, z: Pose) -> bool:
+        """The prediction verifies and explains the scan better than the fit ``z``."""
+        at_pred = self.checker.check(pts, pred)
+        return self._verified(at_pred) and at_pred.hit > self.checker.check(pts, z).hit
 
     def _confident(self, cov: NDArray[np.float64]) -> bool:
         """The covariance is tight enough to promise the pose (``tracking``)."""
@@ -647,6 +653,7 @@ class Localizer:
         z: Pose | None = None
         R: NDArray[np.float64] | None = None
         nis = float("nan")
+        supported = False  # a rejected fit, but the prediction explains the scan better
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
         else:
@@ -669,10 +676,16 @@ class Localizer:
                     reason = Reason.JUMP
                 elif nis <= self._chi2_accept:
                     accepted = True
-                elif nis <= self._chi2_reject:
+                elif nis <= self._chi2_reject and not self._prediction_better(pts, pred, z):
                     accepted = True
                     reason = Reason.INFLATED
                     R = R * (nis / self._chi2_accept)
+                elif nis <= self._chi2_reject:
+                    # a doubtful fit (between the quantiles) that explains the scan less
+                    # well than the prediction it started from, which verifies: the fit
+                    # went astray (a neighbouring minimum of repetitive structure)
+                    reason = Reason.INCONSISTENT
+                    supported = True
                 else:
                     # prediction and scan disagree: the map arbitrates. A scan pose that
                     # explains the scan clearly better than the prediction (and verifies)
@@ -691,6 +704,7 @@ class Localizer:
                     elif (
                         self._consistent_rejection(z, R, odom) >= lc.consistent_rejections
                         and self._verified(at_z)
+                        and at_z.hit >= at_pred.hit
                     ):
                         # the scans keep agreeing with each other against the prediction
                         # (a robot pushed, a pose that drifted while standing still): the
@@ -700,6 +714,10 @@ class Localizer:
                         pred_cov = pred_cov * (nis / self._chi2_accept)
                     else:
                         reason = Reason.INCONSISTENT
+                        # the fit went astray from a prediction that explains the scan at
+                        # least as well (ICP sliding along a weak axis, a neighbouring
+                        # minimum of repetitive structure): no evidence against the pose
+                        supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                 if accepted:
                     self._rejected = None
                     self._learn_noise(nis)
@@ -741,7 +759,10 @@ class Localizer:
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
         # fit there is weak evidence, not a contradiction)
-        cnt.bad_in_row = 0 if accepted else cnt.bad_in_row + 1
+        if accepted:
+            cnt.bad_in_row = 0
+        elif not supported:
+            cnt.bad_in_row += 1
         confident = self._confident(cov)
         if verified and confident and reason in (Reason.NONE, Reason.INFLATED, Reason.ODOMETRY_OFF):
             status = Status.TRACKING
