@@ -61,6 +61,11 @@ __all__ = [
 ]
 
 
+#: a fit whose translational information's smallest eigenvalue is below this share of its
+#: largest can slide along that direction (a corridor, an aisle)
+_SLIDE_DEGENERACY = 0.1
+
+
 @dataclass(frozen=True)
 class Estimate:
     """The localizer's answer for one scan."""
@@ -597,6 +602,17 @@ class Localizer:
             )
         )
 
+    def _slid(self, res: Any, pred: Pose, z: Pose) -> bool:
+        """The fit is weakly constrained along one direction (translational degeneracy
+        below ``_SLIDE_DEGENERACY``) and moved the pose along it beyond the ICP's final
+        correspondence distance."""
+        if not float(res.degeneracy) < _SLIDE_DEGENERACY:
+            return False
+        q = self.quality
+        far = max(self.config.icp.min_correspondence_distance, 3.0 * q.sigma + 0.5 * q.resolution)
+        ux, uy = res.degenerate_direction
+        return abs((z[0] - pred[0]) * ux + (z[1] - pred[1]) * uy) > far
+
     def _prediction_better(self, pts: NDArray[np.float64], pred: Pose, z: Pose) -> bool:
         """The prediction verifies and explains the scan better than the fit ``z``."""
         at_pred = self.checker.check(pts, pred)
@@ -674,8 +690,15 @@ class Localizer:
                 nis = mahalanobis2(pred, pred_cov, z, R)
                 if jump > g.max_translation_jump or turn > math.radians(g.max_rotation_jump_deg):
                     reason = Reason.JUMP
-                elif nis <= self._chi2_accept:
+                elif nis <= self._chi2_accept and not (
+                    self._slid(res, pred, z) and self._prediction_better(pts, pred, z)
+                ):
                     accepted = True
+                elif nis <= self._chi2_accept:
+                    # a fit slid far along its weak axis and explains the scan less well
+                    # than the prediction: a neighbouring minimum of repetitive structure
+                    reason = Reason.INCONSISTENT
+                    supported = True
                 elif nis <= self._chi2_reject and not self._prediction_better(pts, pred, z):
                     accepted = True
                     reason = Reason.INFLATED
