@@ -27,6 +27,7 @@ LAYERS: dict[str, int] = {
     "icploc.errors": BASICS,
     "icploc.se2": BASICS,
     "icploc.messages": BASICS,
+    "icploc.status": BASICS,
     "icploc.types": BASICS,  # deprecated alias of icploc.messages
     "icploc.clock": BASICS,
     "icploc.median": BASICS,

@@ -40,6 +40,7 @@ from icploc._core import (
 )
 from icploc.errors import ConfigError, DeviceError, FileFormatError, IcplocError, UsageError
 from icploc.messages import Odometry, Scan
+from icploc.status import Reason, Status
 
 if TYPE_CHECKING:
     from icploc.config import LocalizerConfig
@@ -91,7 +92,9 @@ __all__ = [
     "InvalidInputError",
     "MapIndex",
     "Odometry",
+    "Reason",
     "Scan",
+    "Status",
     "Trajectory",
     "UsageError",
     "__version__",

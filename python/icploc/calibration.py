@@ -57,7 +57,8 @@ class OdometryCalibration:
     _w: float = 0.0
     _st: float = 0.0  # turn: sum odo_turn x heading residual, sum odo_turn^2
     _tt: float = 0.0
-    _sdr: float = 0.0  # drift: sum heading residual, sum distance
+    _td: float = 0.0  # heading: the weighted normal equations of (turn scale - 1, drift)
+    _sdr: float = 0.0
     _dd: float = 0.0
 
     @property
@@ -77,6 +78,20 @@ class OdometryCalibration:
             dth * self.turn_scale + self.drift * dist,
         )
 
+    def uncertainty(self, d: Sequence[float]) -> tuple[float, float]:
+        """The variance the factors not yet learned leave on the increment ``d``: (along
+        the motion, m^2; heading, rad^2). Each factor's spread starts at half its bound
+        and shrinks as evidence builds up against its prior; a base whose turns read 5 %
+        short is then no six-sigma surprise before the calibration has seen it turn."""
+        if not self.enabled:
+            return 0.0, 0.0
+        dist = math.hypot(float(d[0]), float(d[1]))
+        turn = abs(float(d[2]))
+        s_scale = 0.5 * self.max_scale * math.sqrt(self.prior / (self.prior + self._w))
+        s_turn = 0.5 * self.max_turn_scale * math.sqrt(self.prior_turn / (self.prior_turn + self._tt))
+        s_drift = 0.5 * self.max_drift * math.sqrt(self.prior / (self.prior + self._dd))
+        return (s_scale * dist) ** 2, (s_turn * turn) ** 2 + (s_drift * dist) ** 2
+
     def observe(self, odometry: Sequence[float], measured: Sequence[float]) -> None:
         """One pair: ``odometry`` the raw odometry increment between two accepted scans,
         ``measured`` the motion between their scan-matched poses (both in the first scan's
@@ -92,31 +107,46 @@ class OdometryCalibration:
         dist = math.hypot(ox, oy)
         turn = abs(oth)
         resid = wrap_angle(mth - oth)
-        if abs(resid) > math.radians(5.0):
-            return  # a bad pair, not a bias
-        if turn < self.min_turn and dist >= self.min_distance:
-            # a straight stretch: distance scale and heading drift per metre
+        if abs(resid) > math.radians(5.0) + self.max_turn_scale * turn + self.max_drift * dist:
+            return  # a bad pair, not a bias (factors within their bounds are a bias)
+        straight = turn < self.min_turn
+        if straight and dist < self.min_distance:
+            return
+        if straight:
+            # a straight stretch: the distance scale
             ratio = (mx * ox + my * oy) / (dist * dist)
             if abs(ratio - 1.0) > 0.2:
                 return
             f = math.exp(-dist / self.memory)
             self._sd = self._sd * f + dist * (ratio - 1.0)
             self._w = self._w * f + dist
-            self._sdr = self._sdr * f + resid
-            self._dd = self._dd * f + dist
             self.distance_seen += dist
             w0 = self.prior * math.exp(-self.distance_seen / self.memory)
             self.scale = 1.0 + _clamp(self._sd / (self._w + w0), self.max_scale)
-            self.drift = _clamp(self._sdr / (self._dd + w0), self.max_drift)
-        elif turn >= self.min_turn:
-            # a turn: the turn scale, after the drift of the distance driven meanwhile
-            r = resid - self.drift * dist
-            f = math.exp(-turn / self.memory)
-            self._st = self._st * f + oth * r
-            self._tt = self._tt * f + oth * oth
+        else:
             self.turn_seen += turn
-            w0 = self.prior_turn * math.exp(-self.turn_seen / self.memory)
-            self.turn_scale = 1.0 + _clamp(self._st / (self._tt + w0), self.max_turn_scale)
+            self.distance_seen += dist
+        # the heading: residual = (turn_scale - 1) x odometry turn + drift x distance, one
+        # weighted least-squares fit over every pair (heading noise grows with the distance
+        # and the turn); real routes seldom drive 2 m without turning, so the drift must be
+        # read from turning pairs too
+        w = 1.0 / max(dist + turn, 1e-3)
+        f = math.exp(-(dist + turn) / self.memory)
+        self._st = self._st * f + w * oth * resid
+        self._tt = self._tt * f + w * oth * oth
+        self._td = self._td * f + w * oth * dist
+        self._sdr = self._sdr * f + w * dist * resid
+        self._dd = self._dd * f + w * dist * dist
+        pa = self.prior_turn * math.exp(-self.turn_seen / self.memory)
+        pb = self.prior * math.exp(-self.distance_seen / self.memory)
+        a11, a12, a22 = self._tt + pa, self._td, self._dd + pb
+        det = a11 * a22 - a12 * a12
+        if det <= 0.0:
+            return
+        a = (self._st * a22 - self._sdr * a12) / det
+        b = (a11 * self._sdr - a12 * self._st) / det
+        self.turn_scale = 1.0 + _clamp(a, self.max_turn_scale)
+        self.drift = _clamp(b, self.max_drift)
 
 
 def _clamp(v: float, lim: float) -> float:

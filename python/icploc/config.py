@@ -400,12 +400,30 @@ class LocalizerSection(Section):
     calibration_max_scale: float = _f(0.05, "bound of the distance scale error (0.05: 5 %)", ge=0)
     calibration_max_turn_scale: float = _f(0.1, "bound of the turn scale error", ge=0)
     calibration_max_drift_deg: float = _f(2.0, "bound of the heading drift", "deg/m", ge=0)
+    calibration_uncertainty: bool = _f(
+        True,
+        "the prediction's covariance also holds what the calibration has not learned yet "
+        "(each factor's spread: half its bound, shrinking with evidence)",
+    )
+    calibrate_from_consistent: bool = _f(
+        True,
+        "the calibration also learns from fits the odometry agrees with (chi-square accepted, "
+        "at least verify_min_hit_ratio of the beams on walls) that verification turned down",
+    )
     scan_independent_beams: float = _f(
         6.0,
         "the scan match's covariance: the information of this many independent beams on "
         "a 10 cm map, inversely proportional to the map's resolution (6: NEES ~3 on real logs)",
         "beams",
         gt=0,
+    )
+    min_axis_beams: float = _f(
+        8.0,
+        "a direction the scan match constrains with fewer beams than this (the smallest "
+        "eigenvalue of its translational information, unit normals) is left unconstrained: "
+        "an aisle's length held by the odd shelf end is no measurement; 0: off",
+        "beams",
+        ge=0,
     )
     verify_min_hit_ratio: float = _f(
         0.5, "verification: at least this share of beams end on walls", ge=0, le=1
@@ -460,6 +478,14 @@ class LocalizerSection(Section):
         gt=0,
     )
     lost_sigma_xy: float = _f(2.0, "lost when the position is this uncertain", "m", gt=0)
+    lost_coasting: bool = _f(
+        True,
+        "while lost: the dead reckoning is corrected by scan fits consistent with it (the "
+        "chi-square gate, explaining the scan at least as well); the status stays lost",
+    )
+    lost_noise_gain: float = _f(
+        4.0, "while lost the odometry noise variances are this many times the learned ones", gt=0
+    )
     recover_inlier_ratio: float = _f(
         0.6, "a recovery candidate needs this inlier ratio (then verification)", ge=0, le=1
     )

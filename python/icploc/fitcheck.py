@@ -66,11 +66,26 @@ class MapQuality:
         """Learn from a verified fit."""
         if math.isfinite(check.rms):
             self._rms.append(check.rms)
-        self._hit.append(check.hit)
+        self._observe_hit(check.hit)
         self._see.append(check.see_through)
         self._n += 1
         if self._n % 5 == 0 or len(self._rms) < 10:  # medians refreshed every 5 fits
             self._refresh()
+
+    def observe_consistent(self, check: FitCheck) -> None:
+        """Learn the usual hit share from a fit the odometry agrees with (chi-square
+        accepted) that verification turned down. Learning it from verified fits alone
+        ratchets: only shares above the threshold are ever seen, so one well-mapped start
+        (a reference near 1) would keep every later fit unverified. The residual is
+        learned from verified fits only: it loosens the verification (a looser residual
+        let a wrong place 2 m off verify on a 10 cm grid)."""
+        self._observe_hit(check.hit)
+        self._n += 1
+        if self._n % 5 == 0 or len(self._rms) < 10:
+            self._refresh()
+
+    def _observe_hit(self, hit: float) -> None:
+        self._hit.append(hit)
 
     def _refresh(self) -> None:
         if len(self._rms) >= 10:

@@ -66,12 +66,28 @@ def scan_covariance(
     mse: float,
     sigma_floor: float,
     independent_beams: float,
+    min_axis_beams: float = 0.0,
 ) -> NDArray[np.float64]:
     """Covariance of an ICP pose (see the module docstring). ``information`` is the fit's
     ``H = sum J' J`` over its ``inliers`` pairs, ``mse`` their mean squared residual (m^2),
-    ``sigma_floor`` the map's expected per-beam residual (m)."""
+    ``sigma_floor`` the map's expected per-beam residual (m).
+
+    ``min_axis_beams``: the normals are unit vectors, so the smallest eigenvalue of H's
+    translational block counts the beams that constrain the position along its weakest
+    direction. Fewer than this (a corridor's or an aisle's length, held by the odd shelf
+    end or door frame) is no measurement: one ambiguous pairing moves the fit along it by
+    a gap while the covariance claims centimetres, and the prediction's own covariance
+    along it shrinks for nothing. That direction is then left unconstrained."""
     n = max(int(inliers), 1)
-    H = np.asarray(information, dtype=np.float64).reshape(3, 3).tolist()
+    Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    if min_axis_beams > 0.0 and np.all(np.isfinite(Ha)):
+        w, v = np.linalg.eigh(0.5 * (Ha[:2, :2] + Ha[:2, :2].T))
+        if w[0] < min_axis_beams:
+            u = np.array([v[0, 0], v[1, 0], 0.0])
+            # drop the information along u (and its coupling with the heading)
+            proj = np.eye(3) - np.outer(u, u)
+            Ha = proj @ Ha @ proj
+    H = Ha.tolist()
     s2 = max(float(mse) if math.isfinite(mse) else 0.0, sigma_floor * sigma_floor)
     f = min(float(independent_beams), float(n)) / (n * s2)
     eps = 1.0 / _HUGE  # a direction the scan does not constrain: variance about _HUGE

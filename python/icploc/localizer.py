@@ -31,7 +31,6 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -48,11 +47,13 @@ from icploc.motion import MotionModel
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
 from icploc.se2 import Pose, between, compose, wrap_angle
+from icploc.status import Reason, Status
 
 __all__ = [
     "Estimate",
     "Localizer",
     "OdometryBuffer",
+    "Reason",
     "Recovery",
     "Status",
     "prepare_scan",
@@ -60,13 +61,9 @@ __all__ = [
 ]
 
 
-class Status(str, Enum):
-    TRACKING = "tracking"
-    DEGRADED = "degraded"
-    LOST = "lost"
-
-    def __str__(self) -> str:
-        return self.value
+#: a fit whose translational information's smallest eigenvalue is below this share of its
+#: largest can slide along that direction (a corridor, an aisle)
+_SLIDE_DEGENERACY = 0.1
 
 
 @dataclass(frozen=True)
@@ -92,7 +89,7 @@ class Estimate:
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
     #: while lost the recovery's state (searching, confirming, ambiguous)
-    reason: str = ""
+    reason: str = Reason.NONE
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
     odometry: Pose | None = None  #: the (interpolated) odometry pose used
@@ -325,6 +322,9 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: while lost: consistent fits from the dead reckoning in a row (:meth:`_coast`)
+        self._coast_streak = 0
+        self._coast_inlier_ratio = 0.0
         #: kidnap detection while tracking (:mod:`icploc.kidnap`): the trigger, a check
         #: running on the worker thread (future, odometry then, strict), a better pose
         #: elsewhere awaiting its re-check (pose, odometry then, scan count), and whether
@@ -375,6 +375,7 @@ class Localizer:
         c.bad_in_row = 0
         self._lost_scans = 0
         self._lost_odom = None
+        self._coast_streak = 0
         self._anchor = None
         self._rejected = None
         self._forget_checks()
@@ -392,6 +393,7 @@ class Localizer:
         self.status = Status.LOST
         self._lost_scans = 0
         self._lost_odom = None
+        self._coast_streak = 0
         self._anchor = None
         self._forget_checks()
         self.recovery.reset()
@@ -460,9 +462,25 @@ class Localizer:
             if odom is not None:
                 self._last_odom = odom
             return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
-        d = self.calibration.apply(between(self._last_odom, odom))
+        raw = between(self._last_odom, odom)
+        d = self.calibration.apply(raw)
         self._last_odom = odom
-        return self.motion_model.predict(self.pose, self.covariance, d)
+        model = self.motion_model
+        gain = self.config.localizer.lost_noise_gain
+        if self.status is Status.LOST and gain != 1.0:
+            # nothing corroborates the dead reckoning: odometry that lost us is likely off
+            # by more than its usual noise (a bias, a slip), and the local search window
+            # grows with this covariance
+            model = dataclasses.replace(model, gain=model.gain * gain)
+        pred, P = model.predict(self.pose, self.covariance, d)
+        if self.config.localizer.calibration_uncertainty:
+            v_al, v_th = self.calibration.uncertainty(raw)
+            if v_al > 0.0 or v_th > 0.0:
+                P = P.copy()
+                P[0, 0] += v_al
+                P[1, 1] += v_al
+                P[2, 2] += v_th
+        return pred, P
 
     def _match_index(self, pred: Pose) -> Any:
         mc = self.config.map
@@ -564,6 +582,7 @@ class Localizer:
             float(res.mse),
             self.quality.sigma,
             self._independent_beams,
+            self.config.localizer.min_axis_beams,
         )
         return (ix, iy, wrap_angle(ith)), R
 
@@ -582,6 +601,22 @@ class Localizer:
                 <= q.see_through_reference + lc.verify_max_see_through
             )
         )
+
+    def _slid(self, res: Any, pred: Pose, z: Pose) -> bool:
+        """The fit is weakly constrained along one direction (translational degeneracy
+        below ``_SLIDE_DEGENERACY``) and moved the pose along it beyond the ICP's final
+        correspondence distance."""
+        if not float(res.degeneracy) < _SLIDE_DEGENERACY:
+            return False
+        q = self.quality
+        far = max(self.config.icp.min_correspondence_distance, 3.0 * q.sigma + 0.5 * q.resolution)
+        ux, uy = res.degenerate_direction
+        return abs((z[0] - pred[0]) * ux + (z[1] - pred[1]) * uy) > far
+
+    def _prediction_better(self, pts: NDArray[np.float64], pred: Pose, z: Pose) -> bool:
+        """The prediction verifies and explains the scan better than the fit ``z``."""
+        at_pred = self.checker.check(pts, pred)
+        return self._verified(at_pred) and at_pred.hit > self.checker.check(pts, z).hit
 
     def _confident(self, cov: NDArray[np.float64]) -> bool:
         """The covariance is tight enough to promise the pose (``tracking``)."""
@@ -625,7 +660,7 @@ class Localizer:
         cnt = self._counters
         n = pts.shape[0]
         res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
-        reason = ""
+        reason: str = Reason.NONE
         pose, cov = pred, pred_cov
         accepted = False
         inlier_ratio = 0.0
@@ -634,32 +669,46 @@ class Localizer:
         z: Pose | None = None
         R: NDArray[np.float64] | None = None
         nis = float("nan")
+        supported = False  # a rejected fit, but the prediction explains the scan better
         if res is None:
-            reason = "too_few_points" if n < self.config.scan.min_points else "icp_failed"
+            reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
         else:
             inlier_ratio = float(res.inlier_ratio)
             iterations = int(res.iterations)
             degeneracy = float(res.degeneracy)
             m = self._measurement(res)
             if m is None:
-                reason = "icp_failed"
+                reason = Reason.ICP_FAILED
             elif inlier_ratio < g.min_inlier_ratio:
-                reason = "low_inlier_ratio"
+                reason = Reason.LOW_INLIER_RATIO
             elif g.require_convergence and not res.converged:
-                reason = "not_converged"
+                reason = Reason.NOT_CONVERGED
             else:
                 z, R = m
                 jump = math.hypot(z[0] - pred[0], z[1] - pred[1])
                 turn = abs(wrap_angle(z[2] - pred[2]))
                 nis = mahalanobis2(pred, pred_cov, z, R)
                 if jump > g.max_translation_jump or turn > math.radians(g.max_rotation_jump_deg):
-                    reason = "jump"
+                    reason = Reason.JUMP
+                elif nis <= self._chi2_accept and not (
+                    self._slid(res, pred, z) and self._prediction_better(pts, pred, z)
+                ):
+                    accepted = True
                 elif nis <= self._chi2_accept:
+                    # a fit slid far along its weak axis and explains the scan less well
+                    # than the prediction: a neighbouring minimum of repetitive structure
+                    reason = Reason.INCONSISTENT
+                    supported = True
+                elif nis <= self._chi2_reject and not self._prediction_better(pts, pred, z):
                     accepted = True
-                elif nis <= self._chi2_reject:
-                    accepted = True
-                    reason = "inflated"
+                    reason = Reason.INFLATED
                     R = R * (nis / self._chi2_accept)
+                elif nis <= self._chi2_reject:
+                    # a doubtful fit (between the quantiles) that explains the scan less
+                    # well than the prediction it started from, which verifies: the fit
+                    # went astray (a neighbouring minimum of repetitive structure)
+                    reason = Reason.INCONSISTENT
+                    supported = True
                 else:
                     # prediction and scan disagree: the map arbitrates. A scan pose that
                     # explains the scan clearly better than the prediction (and verifies)
@@ -673,20 +722,25 @@ class Localizer:
                         and at_z.hit >= at_pred.hit + lc.arbitration_margin
                     ):
                         accepted = True
-                        reason = "odometry_off"
+                        reason = Reason.ODOMETRY_OFF
                         pred_cov = pred_cov * (nis / self._chi2_accept)
                     elif (
                         self._consistent_rejection(z, R, odom) >= lc.consistent_rejections
                         and self._verified(at_z)
+                        and at_z.hit >= at_pred.hit
                     ):
                         # the scans keep agreeing with each other against the prediction
                         # (a robot pushed, a pose that drifted while standing still): the
                         # prediction is off
                         accepted = True
-                        reason = "odometry_off"
+                        reason = Reason.ODOMETRY_OFF
                         pred_cov = pred_cov * (nis / self._chi2_accept)
                     else:
-                        reason = "inconsistent"
+                        reason = Reason.INCONSISTENT
+                        # the fit went astray from a prediction that explains the scan at
+                        # least as well (ICP sliding along a weak axis, a neighbouring
+                        # minimum of repetitive structure): no evidence against the pose
+                        supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                 if accepted:
                     self._rejected = None
                     self._learn_noise(nis)
@@ -697,41 +751,54 @@ class Localizer:
             # the fused pose explains far less of the scan than poses here usually do: a
             # place the map barely covers, or a fit that found something else (a local
             # minimum, a crowd). Keep the correction only if it explains more of the scan
-            # than the prediction did.
+            # than the prediction did, or if the few beams that do end on walls fit as
+            # tightly as usual: walls hidden by a crowd, not a wrong place (where chance
+            # hits scatter over the hit distance). A loose fit to a few chance hits (its
+            # own inliers under ``verify_min_hit_ratio``) is no evidence even when it
+            # explains a little more than the prediction: fused, its covariance would
+            # shrink the pose's for nothing, and on biased odometry in a place the map
+            # barely covers the pose then slides off with a covariance that says all is
+            # well.
             at_pred = self.checker.check(pts, pred)
-            # the few beams that do end on walls fit as tightly as usual: walls hidden by a
-            # crowd, not a wrong place (where chance hits scatter over the hit distance)
             tight = check.rms <= lc.crowd_residual * self.quality.sigma
-            if check.hit <= at_pred.hit + 0.02 and not tight:
+            weak = float(res.inlier_ratio) < lc.verify_min_hit_ratio if res is not None else True
+            if not tight and (weak or check.hit <= at_pred.hit + 0.02):
                 accepted = False
-                reason = "contradicted"
+                reason = Reason.CONTRADICTED
                 pose, cov = pred, pred_cov
                 check = at_pred
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
-            reason = "unverified"
+            reason = Reason.UNVERIFIED
         if verified:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
+                self._calibrate(odom, z, R)
+        elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
+            self.quality.observe_consistent(check)
+            if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
         # fit there is weak evidence, not a contradiction)
-        cnt.bad_in_row = 0 if accepted else cnt.bad_in_row + 1
+        if accepted:
+            cnt.bad_in_row = 0
+        elif not supported:
+            cnt.bad_in_row += 1
         confident = self._confident(cov)
-        if verified and confident and reason in ("", "inflated", "odometry_off"):
+        if verified and confident and reason in (Reason.NONE, Reason.INFLATED, Reason.ODOMETRY_OFF):
             status = Status.TRACKING
         else:
             status = Status.DEGRADED
             if verified and not confident and not reason:
-                reason = "uncertain"
+                reason = Reason.UNCERTAIN
         # the fit contradicted the odometry (taken against a prediction it is beyond what
         # the arbitration accepts: several rejected scans agreed) and explains less of the
         # scan than usual: a place that half fits the old pose
         jumped = (
             accepted
-            and reason == "odometry_off"
+            and reason == Reason.ODOMETRY_OFF
             and nis > lc.arbitration_max_inflation * self._chi2_accept
             and check.hit < self._trigger.doubt_jump * self.quality.hit_reference
         )
@@ -743,7 +810,7 @@ class Localizer:
         if elsewhere:
             # a distinct place explains the scans much better (checked twice): the pose
             # says nothing any more, the recovery searches the whole map at once
-            status, reason = Status.LOST, "elsewhere"
+            status, reason = Status.LOST, Reason.ELSEWHERE
             self.declare_lost()
             cov = _unknown_covariance()
         elif (
@@ -751,7 +818,7 @@ class Localizer:
             or sig_xy > lc.lost_sigma_xy
         ):
             status = Status.LOST
-            reason = reason or "lost"
+            reason = reason or Reason.LOST
             self.declare_lost()
         self.pose = pose
         self.covariance = cov
@@ -864,9 +931,9 @@ class Localizer:
             # not promised while a check is out or a better pose elsewhere awaits its
             # re-check
             if self._lock_unconfirmed:
-                status, reason = Status.DEGRADED, "unconfirmed"
+                status, reason = Status.DEGRADED, Reason.UNCONFIRMED
             elif self._elsewhere is not None or self._check_inflight is not None:
-                status, reason = Status.DEGRADED, "suspect"
+                status, reason = Status.DEGRADED, Reason.SUSPECT
         return status, reason, elsewhere
 
     def _apply_verdict(self, v: CheckVerdict, odom: Pose | None) -> bool:
@@ -1051,7 +1118,7 @@ class Localizer:
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
                 accepted=True,
-                reason="relocalized",
+                reason=Reason.RELOCALIZED,
                 degeneracy=float(res.degeneracy),
                 prediction=pred,
                 odometry=odom,
@@ -1067,6 +1134,41 @@ class Localizer:
             # nothing, search the whole map
             pred_cov = _unknown_covariance()
             self.recovery.reset()
+        elif self.config.localizer.lost_coasting:
+            pred, pred_cov, fused = self._coast(pts, pred, pred_cov)
+            self._coast_streak = self._coast_streak + 1 if fused else 0
+            if fused and self._coast_streak >= self.config.localizer.recover_after:
+                # consistent, well-hitting fits from the dead reckoning on several scans
+                # in a row: the local search around it has found the way back. Checked
+                # like any lock (no distinct pose anywhere clearly better), then the
+                # localizer tracks again from there, ``degraded`` until it verifies.
+                v = self._run_check(pts, pred, odom, True)
+                if v is not None and v.verdict == "elsewhere":
+                    self._note("refuted")
+                    self._coast_streak = 0
+                else:
+                    inflight = self._check_inflight
+                    pending = v is None and inflight is not None
+                    self.reset(pred, pred_cov, Status.DEGRADED)
+                    if pending:
+                        self._check_inflight = inflight
+                        self._lock_unconfirmed = True
+                    return Estimate(
+                        stamp=scan.stamp,
+                        pose=self.pose,
+                        covariance=self.covariance,
+                        status=Status.DEGRADED,
+                        inlier_ratio=self._coast_inlier_ratio,
+                        iterations=0,
+                        time=time.perf_counter() - t0,
+                        accepted=True,
+                        reason=Reason.RELOCALIZED,
+                        prediction=pred,
+                        odometry=odom,
+                        num_points=pts.shape[0],
+                        calibration=self.calibration.factors,
+                        hypotheses=step.hypotheses,
+                    )
         self.pose = pred
         self.covariance = pred_cov
         best = step.hypotheses[0] if step.hypotheses else None
@@ -1079,13 +1181,56 @@ class Localizer:
             iterations=0,
             time=time.perf_counter() - t0,
             accepted=False,
-            reason="refuted" if refuted else (step.state or "lost"),
+            reason=Reason.REFUTED if refuted else (step.state or Reason.LOST),
             prediction=pred,
             odometry=odom,
             num_points=pts.shape[0],
             calibration=self.calibration.factors,
             hypotheses=step.hypotheses,
         )
+
+    def _coast(
+        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64]
+    ) -> tuple[Pose, NDArray[np.float64], bool]:
+        """While lost and not locked: the dead reckoning corrected by a scan fit from it
+        that is consistent with it (chi-square within the reject quantile, within the jump
+        caps) and explains the scan at least as well as the dead-reckoned pose. Biased
+        odometry then does not carry the pose off while the verification is still unsure
+        (a place the map barely covers); the status stays ``lost`` and the pose jumps only to
+        a verified lock (or, after ``recover_after`` such fits in a row, to tracking, see
+        :meth:`_update_lost`). A pose that means nothing (unknown covariance) is not corrected."""
+        lc = self.config.localizer
+        g = self.config.gating
+        if (
+            pts.shape[0] < self.config.scan.min_points
+            or math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0)) > lc.lost_sigma_xy
+        ):
+            return pred, pred_cov, False
+        res = self._run_icp(pts, pred, pred_cov)
+        if res is None or res.inlier_ratio < lc.recover_inlier_ratio:
+            return pred, pred_cov, False
+        m = self._measurement(res)
+        if m is None:
+            return pred, pred_cov, False
+        z, R = m
+        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > g.max_translation_jump or abs(
+            wrap_angle(z[2] - pred[2])
+        ) > math.radians(g.max_rotation_jump_deg):
+            return pred, pred_cov, False
+        nis = mahalanobis2(pred, pred_cov, z, R)
+        if nis > self._chi2_reject:
+            return pred, pred_cov, False
+        at_z = self.checker.check(pts, z)
+        if at_z.hit < max(lc.verify_min_hit_ratio, lc.lost_hit_fraction * self.quality.hit_reference):
+            return pred, pred_cov, False
+        at_pred = self.checker.check(pts, pred)
+        if at_z.hit < at_pred.hit:
+            return pred, pred_cov, False
+        if nis > self._chi2_accept:
+            R = R * (nis / self._chi2_accept)
+        self._coast_inlier_ratio = float(res.inlier_ratio)
+        pose, cov = fuse(pred, pred_cov, z, R)
+        return pose, cov, True
 
     # -- start refinement: a thin wrapper of icploc.startrefine (--refine-start) ----------
     def refine_start(self, config: Any = None, **kw: Any) -> Any:

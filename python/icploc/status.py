@@ -1,0 +1,60 @@
+"""The localizer's status and the reasons it gives, as string enums.
+
+Both compare equal to their strings (``Status.TRACKING == "tracking"``) and print, format
+and write to CSV as them, so code and files that used the plain strings are unchanged.
+"""
+
+from __future__ import annotations
+
+import sys
+from enum import Enum
+
+__all__ = ["Reason", "Status"]
+
+if sys.version_info >= (3, 11):
+    from enum import StrEnum as _StrEnum
+else:  # pragma: no cover - Python 3.10
+
+    class _StrEnum(str, Enum):
+        def __str__(self) -> str:
+            return str(self.value)
+
+        def __format__(self, spec: str) -> str:
+            return str(self.value).__format__(spec)
+
+
+class Status(_StrEnum):
+    """What an :class:`~icploc.localizer.Estimate` promises."""
+
+    TRACKING = "tracking"  #: the pose is verified and tight: a promise
+    DEGRADED = "degraded"  #: a pose, not promised (see the reason)
+    LOST = "lost"  #: dead-reckoned while the recovery searches
+
+
+class Reason(_StrEnum):
+    """Why a scan is not ``tracking``, or what happened (``NONE``: tracking on a plain fit).
+    While lost the recovery's state (searching, confirming, ambiguous) is the reason."""
+
+    NONE = ""
+    TOO_FEW_POINTS = "too_few_points"
+    ICP_FAILED = "icp_failed"
+    LOW_INLIER_RATIO = "low_inlier_ratio"
+    NOT_CONVERGED = "not_converged"
+    JUMP = "jump"  #: a correction beyond the hard caps
+    INCONSISTENT = "inconsistent"  #: chi-square rejected
+    INFLATED = "inflated"  #: chi-square: the measurement inflated until consistent
+    #: chi-square failed but the map (or several scans agreeing) prefer the scan pose
+    ODOMETRY_OFF = "odometry_off"
+    CONTRADICTED = "contradicted"  #: the fused pose explains far less of the scan than usual
+    UNVERIFIED = "unverified"
+    UNCERTAIN = "uncertain"  #: verified, but the covariance is too wide to promise
+    RELOCALIZED = "relocalized"
+    SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
+    UNCONFIRMED = "unconfirmed"  #: a lock whose strict check is out
+    ELSEWHERE = "elsewhere"  #: the check found the better pose again: lost
+    REFUTED = "refuted"  #: a lock a distinct pose beats: still lost
+    LOST = "lost"
+    SEARCHING = "searching"
+    CONFIRMING = "confirming"
+    AMBIGUOUS = "ambiguous"
+    LOCKED = "locked"
