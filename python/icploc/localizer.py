@@ -787,7 +787,12 @@ class Localizer:
         elif not supported:
             cnt.bad_in_row += 1
         confident = self._confident(cov)
-        if verified and confident and reason in (Reason.NONE, Reason.INFLATED, Reason.ODOMETRY_OFF):
+        # a fit accepted against the odometry (``odometry_off``: the map preferred the scan
+        # over a prediction it contradicts beyond the chi-square gate) is the map's word
+        # against the odometry's, not agreement: on repetitive structure (doubled walls, a
+        # corridor's along axis) the neighbouring minimum also verifies. The correction is
+        # kept, the promise is not: ``degraded`` until a scan agrees with its prediction.
+        if verified and confident and reason in (Reason.NONE, Reason.INFLATED):
             status = Status.TRACKING
         else:
             status = Status.DEGRADED
