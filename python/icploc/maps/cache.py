@@ -30,7 +30,7 @@ import hashlib
 import json
 import os
 import warnings
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -101,30 +101,39 @@ def load_cached(key: str, source: str) -> Map | None:
     return m
 
 
-def store(key: str, m: Map) -> None:
-    """Write ``m`` under ``key`` (atomically); a failure only warns (once)."""
+def _write_atomic(path: Path, write: Callable[[str], object]) -> bool:
+    """Write ``path`` atomically: ``write(tmp)`` fills a temporary file in the same folder,
+    which then replaces ``path``. A failure only warns (once) and leaves no temporary file
+    behind; returns whether ``path`` was written."""
     import tempfile
 
-    from .prepared import save_prepared
-
-    d = cache_dir()
     tmp = None
     try:
-        d.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=d, prefix=".tmp-", suffix=".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
         os.close(fd)
-        save_prepared(m, tmp, [], compress=False)
-        os.replace(tmp, d / f"{key}.npz")
+        write(tmp)
+        os.replace(tmp, path)
         tmp = None
-        setattr(m, _ENTRY, d / f"{key}.npz")  # noqa: B010
+        return True
     except OSError as e:
-        _warn_once(f"cannot write to {d} ({e.strerror or e})")
+        _warn_once(f"cannot write to {path.parent} ({e.strerror or e})")
+        return False
     finally:
         if tmp is not None:
             try:
                 os.unlink(tmp)
             except OSError:
                 pass
+
+
+def store(key: str, m: Map) -> None:
+    """Write ``m`` under ``key`` (atomically); a failure only warns (once)."""
+    from .prepared import save_prepared
+
+    path = cache_dir() / f"{key}.npz"
+    if _write_atomic(path, lambda tmp: save_prepared(m, tmp, [], compress=False)):
+        setattr(m, _ENTRY, path)  # noqa: B010
 
 
 def _index_path(entry: Path, spacing: float, resolution: float) -> Path:
@@ -198,31 +207,14 @@ def store_index(
     got = grid_runs(index)
     if got is None:
         return
-    import tempfile
-
     values, lengths, res = got
-    path = _index_path(entry, spacing, res)
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(
-                fh,
-                values=values,
-                lengths=lengths,
-                resolution=np.float64(res),
-                digest=np.frombuffer(_digest(points, normals), dtype=np.uint8),
-            )
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as e:
-        _warn_once(f"cannot write to {path.parent} ({e.strerror or e})")
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+    digest = np.frombuffer(_digest(points, normals), dtype=np.uint8)
+    _write_atomic(
+        _index_path(entry, spacing, res),
+        lambda tmp: np.savez(
+            tmp, values=values, lengths=lengths, resolution=np.float64(res), digest=digest
+        ),
+    )
 
 
 def _remember(index: MapIndex, entry: Path, spacing: float) -> None:
@@ -268,27 +260,6 @@ def global_localizer(index: MapIndex, resolution: float, **settings: Any) -> Glo
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, IcpError) as e:
             _warn_once(f"ignoring unreadable likelihood field file {path} ({e})")
     glob = GlobalLocalizer(index, resolution, **settings)
-    import tempfile
-
-    tmp = None
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        with os.fdopen(fd, "wb") as out:
-            np.savez(
-                out,
-                distances=glob.distances(),
-                digest=np.frombuffer(
-                    digest or _digest(index.points, index.normals), dtype=np.uint8
-                ),
-            )
-        os.replace(tmp, path)
-        tmp = None
-    except OSError as e:
-        _warn_once(f"cannot write to {path.parent} ({e.strerror or e})")
-    finally:
-        if tmp is not None:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
+    mark = np.frombuffer(digest or _digest(index.points, index.normals), dtype=np.uint8)
+    _write_atomic(path, lambda tmp: np.savez(tmp, distances=glob.distances(), digest=mark))
     return glob
