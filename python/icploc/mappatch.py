@@ -464,8 +464,7 @@ def grid_from_scans(
     ``poses`` into one grid whose cell corners lie on ``align`` + multiples of
     ``resolution``; the beams start at ``mounting``. The occupancy rules are
     :func:`icploc.maps.build.build_grid`'s. None without a point."""
-    from icploc._core import cast_rays
-    from icploc.maps.build import BUILD_DEFAULTS, BuiltGrid
+    from icploc.maps.build import BUILD_DEFAULTS, grid_from_rays
 
     res = float(resolution)
     if not (math.isfinite(res) and res > 0):
@@ -492,27 +491,14 @@ def grid_from_scans(
     o = np.ascontiguousarray(np.concatenate(origins))
     lo = np.minimum(e.min(axis=0), o.min(axis=0)) - margin
     hi = np.maximum(e.max(axis=0), o.max(axis=0)) + margin
-    a = np.asarray(align, dtype=np.float64)
-    origin = a + np.floor((lo - a) / res) * res
-    w = int(math.ceil((hi[0] - origin[0]) / res))
-    h = int(math.ceil((hi[1] - origin[1]) / res))
-    if w * h > 400_000_000:
-        raise ValueError(f"map patch: a {w} x {h} grid at {res} m is too large")
-    hit = np.ones(len(e), dtype=bool)
-    hits, passes = cast_rays(o, e, hit, (float(origin[0]), float(origin[1])), res, w, h)
-    total = hits.astype(np.float64) + passes
     need = BUILD_DEFAULTS["min_hits"] if min_hits is None else int(min_hits)
-    occupied = (hits >= need) & (hits >= BUILD_DEFAULTS["occupied_ratio"] * total)
-    free = (passes > 0) & ~occupied
-    return BuiltGrid(
-        occupied=occupied,
-        free=free,
-        resolution=res,
-        origin=(float(origin[0]), float(origin[1]), 0.0),
-        scans_used=used,
-        hits=hits,
-        passes=passes,
-    )
+    try:
+        return grid_from_rays(
+            o, e, np.ones(len(e), dtype=bool), lo, hi, res, align=align, min_hits=need,
+            occupied_ratio=BUILD_DEFAULTS["occupied_ratio"], scans_used=used,
+        )  # fmt: skip
+    except ValueError as exc:
+        raise ValueError(f"map patch: {exc}") from None
 
 
 def patch_grid(

@@ -123,7 +123,6 @@ def build_grid(
     file, or an (N, 3) array aligned with the scans. ``scans`` selects scans (e.g. every
     other one, to hold the rest out for evaluation).
     """
-    from icploc._core import cast_rays
 
     src = None
     if isinstance(log, str | os.PathLike):
@@ -189,13 +188,45 @@ def build_grid(
     pts = np.concatenate([e[h], o[:1]]) if h.any() else o
     lo = np.minimum(pts.min(axis=0), o.min(axis=0)) - margin
     hi = np.maximum(pts.max(axis=0), o.max(axis=0)) + margin
-    origin_xy = np.floor(lo / res) * res
+    try:
+        return grid_from_rays(
+            o, e, h, lo, hi, res, min_hits=min_hits, occupied_ratio=occupied_ratio, scans_used=used
+        )
+    except ValueError as exc:
+        raise MapError(src, "resolution", str(exc)) from None
+
+
+def grid_from_rays(
+    origins: NDArray[np.float64],
+    ends: NDArray[np.float64],
+    hit: NDArray[np.bool_],
+    lo: NDArray[np.float64],
+    hi: NDArray[np.float64],
+    resolution: float,
+    *,
+    align: tuple[float, float] = (0.0, 0.0),
+    min_hits: int = BUILD_DEFAULTS["min_hits"],
+    occupied_ratio: float = BUILD_DEFAULTS["occupied_ratio"],
+    scans_used: int = 0,
+) -> BuiltGrid:
+    """The occupancy rules, in one place (:func:`build_grid`, :mod:`icploc.mappatch`): beams
+    from ``origins`` to ``ends`` (``hit``: the beam ended on something) ray-cast into a grid
+    covering ``lo``..``hi`` whose cell corners lie on ``align`` + multiples of
+    ``resolution``. A cell is occupied with at least ``min_hits`` hits that are at least
+    ``occupied_ratio`` of the beams that reached it, free when a beam passed it otherwise.
+    ValueError when the grid would exceed 400M cells."""
+    from icploc._core import cast_rays
+
+    res = float(resolution)
+    a = np.asarray(align, dtype=np.float64)
+    origin_xy = a + np.floor((lo - a) / res) * res
     w = int(math.ceil((hi[0] - origin_xy[0]) / res))
     hgt = int(math.ceil((hi[1] - origin_xy[1]) / res))
     if w * hgt > 400_000_000:
-        raise MapError(
-            src, "resolution", f"a {w} x {hgt} grid at {res} m is too large (limit 400M cells)"
-        )
+        raise ValueError(f"a {w} x {hgt} grid at {res} m is too large (limit 400M cells)")
+    o = np.ascontiguousarray(origins, dtype=np.float64)
+    e = np.ascontiguousarray(ends, dtype=np.float64)
+    h = np.ascontiguousarray(hit, dtype=bool)
     hits, passes = cast_rays(o, e, h, (float(origin_xy[0]), float(origin_xy[1])), res, w, hgt)
     total = hits.astype(np.float64) + passes
     occupied = (hits >= min_hits) & (hits >= occupied_ratio * total)
@@ -205,7 +236,7 @@ def build_grid(
         free=free,
         resolution=res,
         origin=(float(origin_xy[0]), float(origin_xy[1]), 0.0),
-        scans_used=used,
+        scans_used=scans_used,
         hits=hits,
         passes=passes,
     )
