@@ -260,8 +260,12 @@ def test_run_with_two_pls_merges_both(tmp_path: Path) -> None:
         res = live.run_hardware(m, a.port, None, config=LocalizerConfig.from_dict(TWO), initial_pose=(3.05, 0.02, 0.01),
                                 duration=3.0, extra_lasers=[b.port], laser_baud=500000)  # fmt: skip
     last = res.estimates[-1]
-    # both lasers' beams in one scan (each PLS gives 361; the front one's are all walls)
-    assert last.num_points > 361 and math.hypot(last.x - 3.0, last.y) < 0.02
+    # both lasers' beams in one scan (each PLS gives 361; the front one's are all walls); a
+    # round closed early by a starved host (a laser silent for 0.5 s) may hold one laser, so
+    # most rounds, not every one, must hold both
+    merged = [e for e in res.estimates if e.num_points > 361]
+    assert 2 * len(merged) >= len(res.estimates) > 0
+    assert math.hypot(last.x - 3.0, last.y) < 0.02
 
 
 def test_run_with_two_ports_needs_the_lasers_listed(tmp_path: Path) -> None:
