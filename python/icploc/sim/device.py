@@ -23,6 +23,7 @@ import shutil
 import tempfile
 import threading
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
@@ -205,7 +206,7 @@ def stream_alias(attr: str, doc: str) -> Any:
     return property(get, put, doc=doc)
 
 
-class StreamingEngine:
+class StreamingEngine(ABC):
     """The engine half both device simulators share: replies queued on an
     :class:`OutputSchedule`, a :class:`PeriodicStream`, fault injection on every frame,
     vanishing and coming back. A subclass provides ``faults``, ``realtime``,
@@ -219,16 +220,19 @@ class StreamingEngine:
     stream: PeriodicStream
     _baud: int
 
+    @abstractmethod
     def power_on(self) -> None:
-        raise NotImplementedError
+        """Reset to the device's power-on state."""
 
+    @abstractmethod
     def _stream_frame(self, now: float) -> bytes:
-        raise NotImplementedError
+        """The next stream frame, as built (before fault injection)."""
 
+    @abstractmethod
     def _mark(self, intact: bool) -> None:
-        raise NotImplementedError
+        """Record whether the frame logged last went out intact."""
 
-    def _tick(self, now: float) -> None:
+    def _tick(self, now: float) -> None:  # noqa: B027 (an optional hook: nothing by default)
         """Called before every output poll (the PowerBot's watchdog)."""
 
     @property
