@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         for line in mon.summary_lines(len(ests)):
             print("  " + line)
-        g = patch_grid(mon.stretches, resolution=float(m.resolution))
+        g = patch_grid(mon.stretches, resolution=float(m.resolution), walls=mon.walls)
         if g is None:
             continue
         occ = np.argwhere(g.occupied)

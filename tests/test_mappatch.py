@@ -58,7 +58,7 @@ def test_grid_from_scans_lays_its_cells_on_the_given_alignment() -> None:
 
 def _patch():  # type: ignore[no-untyped-def]
     run, m, _, mon = localized()
-    g = patch_grid(mon.stretches, resolution=0.05)
+    g = patch_grid(mon.stretches, resolution=0.05, walls=mon.walls)
     assert g is not None
     return run, m, g
 

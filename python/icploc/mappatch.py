@@ -39,6 +39,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "PATCH_RESOLUTION",
+    "MappedWalls",
     "corrected_poses",
     "graph_poses",
     "grid_from_scans",
@@ -274,6 +275,7 @@ def graph_poses(
     rounds: int = 1,
     min_inliers: float = 0.6,
     outlier_chi2: float = 16.0,
+    walls: MappedWalls | None = None,
 ) -> NDArray[np.float64]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
@@ -331,7 +333,73 @@ def graph_poses(
         # wrong wall) is dropped and the graph solved without it
         keep_loop = [e for e in loop if _chi2(y, e) <= outlier_chi2]
         x = _solve_graph(y, [*edges, *keep_loop], priors) if len(keep_loop) < len(loop) else y
+        edges = [*edges, *keep_loop]
+    if walls is not None:
+        mp = walls.priors(x, scans)
+        if mp:
+            y = _solve_graph(x, edges, [*priors, *mp])
+            keep_p = [q for q in mp if _prior_chi2(y, q) <= outlier_chi2]
+            x = _solve_graph(y, edges, [*priors, *keep_p]) if len(keep_p) < len(mp) else y
     return x[1:]
+
+
+def _prior_chi2(x: NDArray[np.float64], q: tuple[int, Pose, NDArray[np.float64]]) -> float:
+    k, p, w = q
+    r = np.array([x[k, 0] - p[0], x[k, 1] - p[1], wrap_angle(x[k, 2] - p[2])])
+    return float(r @ w @ r)
+
+
+@dataclass
+class MappedWalls:
+    """The map a stretch left and came back to: its index (walls) and where it knows
+    anything (:class:`icploc.outside.MappedArea`). A stretch's scan whose beams partly end
+    on mapped walls (the hall seen through the door behind, the mapped walls near the
+    exit and the re-entry) is matched against them: a prior on its pose in the
+    directions those walls constrain."""
+
+    index: Any
+    area: Any
+    min_points: int = 30
+    min_inliers: float = 0.8
+    max_shift: float = 0.3
+    min_axis_beams: float = 8.0
+
+    def priors(
+        self, x: NDArray[np.float64], scans: Sequence[NDArray[np.float64]]
+    ) -> list[tuple[int, Pose, NDArray[np.float64]]]:
+        from icploc._core import IcpConfig, IcpError, icp
+        from icploc.fusion import scan_covariance
+
+        cfg = IcpConfig(
+            window_search=False, max_correspondence_distance=0.3, min_correspondence_distance=0.05
+        )
+        out: list[tuple[int, Pose, NDArray[np.float64]]] = []
+        for k in range(1, len(x)):
+            pts = scans[k - 1]
+            guess = (float(x[k, 0]), float(x[k, 1]), float(x[k, 2]))
+            w = _to_world(guess, pts)
+            on = ~self.area.unmapped(w)
+            if int(on.sum()) < self.min_points:
+                continue
+            d, _ = self.index.nearest(np.ascontiguousarray(w[on]))
+            sub = np.ascontiguousarray(pts[on][np.asarray(d) < 0.3])
+            if len(sub) < self.min_points:
+                continue
+            try:
+                r = icp(sub, self.index, guess, cfg)
+            except IcpError:
+                continue
+            if not (r.converged and r.inlier_ratio >= self.min_inliers):
+                continue
+            z = (float(r.pose[0]), float(r.pose[1]), float(r.pose[2]))
+            if math.hypot(z[0] - guess[0], z[1] - guess[1]) > self.max_shift:
+                continue
+            R = scan_covariance(
+                r.information, int(r.inliers), float(r.mse), 0.02, 5.0, self.min_axis_beams
+            )
+            info = np.linalg.inv(np.asarray(R, dtype=np.float64) + np.eye(3) * 1e-12)
+            out.append((k, z, 0.5 * (info + info.T)))
+        return out
 
 
 def _chi2(x: NDArray[np.float64], e: _Edge) -> float:
@@ -429,7 +497,9 @@ def _scan_normals(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
     return n, ok
 
 
-def _stretch_poses(st: Stretch, refine: bool = True) -> NDArray[np.float64]:
+def _stretch_poses(
+    st: Stretch, refine: bool = True, walls: MappedWalls | None = None
+) -> NDArray[np.float64]:
     coasted: list[Pose] = [p for _, _, p in st.scans]
     if not coasted:
         return np.zeros((0, 3))
@@ -440,7 +510,7 @@ def _stretch_poses(st: Stretch, refine: bool = True) -> NDArray[np.float64]:
         coasted[-1] = (lock[0] - c[0], lock[1] - c[1], wrap_angle(lock[2] - c[2]))
     scans = [pts for _, pts, _ in st.scans]
     if refine and closed and st.lock_pose is not None:
-        return graph_poses(st.exit_pose, scans, coasted, st.lock_pose)
+        return graph_poses(st.exit_pose, scans, coasted, st.lock_pose, walls=walls)
     if refine:
         # not back yet: no second anchor; the loop edges alone measured worse (belgioioso
         # 31 % -> 26 % of the patch's walls within 10 cm) than the re-chained odometry
@@ -508,15 +578,17 @@ def patch_grid(
     align: tuple[float, float] = (0.0, 0.0),
     mounting: Pose = (0.0, 0.0, 0.0),
     refine: bool = True,
+    walls: MappedWalls | None = None,
 ) -> BuiltGrid | None:
     """The recorded scans of ``stretches`` ray-cast at their corrected poses
-    (:func:`grid_from_scans`; ``refine``: re-chained by :func:`refined_poses` first).
-    None when no stretch recorded a scan."""
+    (:func:`grid_from_scans`; ``refine``: re-chained by :func:`refined_poses` first, a
+    stretch back in the map by :func:`graph_poses`, with ``walls``: its scans also matched
+    against the mapped walls they see). None when no stretch recorded a scan."""
     scans: list[NDArray[np.float64]] = []
     poses: list[NDArray[np.float64]] = []
     for st in stretches:
         scans.extend(pts for _, pts, _ in st.scans)
-        poses.extend(_stretch_poses(st, refine))
+        poses.extend(_stretch_poses(st, refine, walls))
     return grid_from_scans(scans, poses, resolution=resolution, align=align, mounting=mounting)
 
 
@@ -547,15 +619,16 @@ def write_patch(
     map_: Any = None,
     *,
     mounting: Pose = (0.0, 0.0, 0.0),
+    walls: MappedWalls | None = None,
 ) -> BuiltGrid | None:
     """Write the patch of ``stretches`` as a map_server YAML + PGM at ``path`` (a ``.yaml``)
-    in ``map_``'s cell layout; returns the grid (None and nothing written without a
-    recorded scan outside the map)."""
+    in ``map_``'s cell layout (``walls``: see :func:`patch_grid`); returns the grid (None
+    and nothing written without a recorded scan outside the map)."""
     p = Path(path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise ValueError(f"--map-patch {p}: a map patch is a map_server .yaml file")
     res, align = patch_layout(map_)
-    g = patch_grid(stretches, resolution=res, align=align, mounting=mounting)
+    g = patch_grid(stretches, resolution=res, align=align, mounting=mounting, walls=walls)
     if g is None:
         return None
     g.save(p)

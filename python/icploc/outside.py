@@ -348,6 +348,9 @@ class OutsideMonitor:
         mounting: Pose = (0.0, 0.0, 0.0),
     ) -> None:
         self.area = area
+        #: the map's walls and mapped area for the patch (:class:`icploc.mappatch.MappedWalls`;
+        #: set by :func:`attach`)
+        self.walls: Any = None
         self.config = (config or OutsideConfig()).validate()
         self.record = record
         self.mounting = mounting
@@ -362,6 +365,10 @@ class OutsideMonitor:
         self._reentry_start: int | None = None
         self._last_pose: Pose | None = None
         self._last_odom: Pose | None = None
+        #: the stretch's own dead reckoning (the calibrated odometry from the exit): while
+        #: re-entering, the localizer's lost coasting may pull its pose onto the map scan
+        #: by scan; the patch and the lock's correction need the odometry alone
+        self._dr: Pose | None = None
 
     # -- the localizer's hook --------------------------------------------------------------
     def before(
@@ -377,17 +384,22 @@ class OutsideMonitor:
         """Called before the localizer matches ``scan``: an Estimate when the scan is
         outside the map (coasted), None to let the localizer go on."""
         from icploc.localizer import Status
+        from icploc.se2 import between, compose
 
         share = self.area.unmapped_share(pts, pred)
         self.last_share = share
         cfg = self.config
         k = loc.scans_processed
         known = share == share and pts.shape[0] >= loc.config.scan.min_points
+        if self.state != "inside" and self._dr is not None:
+            # the odometry step the localizer predicts with, from its last pose
+            self._dr = compose(self._dr, between(loc.pose, pred))
         if self.state == "inside":
             if not known or share < cfg.enter_share:
                 return None
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
                 return None
+            self._dr = pred
             self.stretches.append(
                 Stretch(k, float(scan.stamp), self._last_pose if self._last_pose else pred)
             )
@@ -437,7 +449,7 @@ class OutsideMonitor:
             st.end, st.end_stamp = k, float(est.stamp)
             st.reentry_scans = k - (self._reentry_start or k) + 1
             st.lock_pose = est.pose
-            pred = est.prediction
+            pred = self._dr if self._dr is not None else est.prediction
             st.correction = (
                 est.pose[0] - pred[0],
                 est.pose[1] - pred[1],
@@ -449,7 +461,8 @@ class OutsideMonitor:
             self._reentry_start = None
             self._restore(loc)
         elif self.state == "reentering" and self.record and self.stretches:
-            self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), est.pose))
+            dr = self._dr if self._dr is not None else est.pose
+            self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
         if est.mapped != mapped:
@@ -489,7 +502,7 @@ class OutsideMonitor:
         sig = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
         st.max_sigma_xy = max(st.max_sigma_xy, sig)
         if self.record:
-            st.scans.append((loc.scans_processed, np.array(pts), pred))
+            st.scans.append((loc.scans_processed, np.array(pts), self._dr or pred))
         status = Status.LOST if sig > loc.config.localizer.lost_sigma_xy else Status.DEGRADED
         loc.pose, loc.covariance = pred, pred_cov
         loc.status = Status.DEGRADED  # the monitor keeps the scans; no recovery runs
@@ -524,7 +537,7 @@ class OutsideMonitor:
             return
         from icploc.mappatch import write_patch
 
-        g = write_patch(patch, self.stretches, map_, mounting=self.mounting)
+        g = write_patch(patch, self.stretches, map_, mounting=self.mounting, walls=self.walls)
         if g is None:
             res.notes.append(f"map patch: nothing to write to {patch} (never outside the map)")
             return
@@ -571,6 +584,9 @@ def attach(
 ) -> OutsideMonitor:
     """Give ``loc`` an outside-the-map monitor (its ``outside`` hook) and return it."""
     area = MappedArea.of(loc.map, loc.index, config)
+    from icploc.mappatch import MappedWalls
+
     mon = OutsideMonitor(area, config, record=record, mounting=loc.config.scan.mounting)
+    mon.walls = MappedWalls(loc.index, area)
     loc.outside = mon
     return mon
