@@ -35,6 +35,7 @@ import argparse
 import json
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -192,18 +193,18 @@ def evaluate(
         row: dict[str, Any] = {"log": name, "method": m, "map_res_m": RES, "scans_in_log": n}
         try:
             if m.startswith("icploc"):
-                patch = cache / "partial" / f"{name}_patch.yaml" if m == "icploc" else None
-                if patch is not None:
-                    patch.unlink(missing_ok=True)
-                got = run_icploc(
-                    log_path,
-                    maps["full" if m == "icploc-full" else "partial"],
-                    pose,
-                    m == "icploc",
-                    patch,
-                )
-                if patch is not None and patch.exists():
-                    got["patch"] = patch_quality(patch, maps["full"])
+                # the patch in a directory of this run's own (the cache is shared)
+                with tempfile.TemporaryDirectory(prefix="icploc-patch-") as tmp:
+                    patch = Path(tmp) / f"{name}_patch.yaml" if m == "icploc" else None
+                    got = run_icploc(
+                        log_path,
+                        maps["full" if m == "icploc-full" else "partial"],
+                        pose,
+                        m == "icploc",
+                        patch,
+                    )
+                    if patch is not None and patch.exists():
+                        got["patch"] = patch_quality(patch, maps["full"])
             elif m == "mrpt":
                 import real_mrpt
 

@@ -90,8 +90,18 @@ class OutsideConfig:
     probe_min_radius: float = 1.0
     #: scans a re-entry candidate must stay put (by odometry) before it locks
     reentry_confirm: int = 2
-    #: scans of the local re-entry search before the localizer's own recovery takes over
+    #: scans of the local re-entry search alone; after them the localizer's own recovery
+    #: (global) runs beside it on every scan (the local search goes on: a scan may land
+    #: on known space a while before it explains the walls there)
     reentry_local_scans: int = 10
+    #: the local search's probe grid: positions this far apart [m] over the whole
+    #: uncertainty (a disc of the watch's radius) ...
+    reentry_step: float = 0.4
+    #: ... times headings this far apart [rad] within ``probe_sigmas`` sigma
+    reentry_heading_step: float = math.radians(4.0)
+    #: probe poses (by beams on walls) refined by ICP, and of those verified
+    reentry_starts: int = 12
+    reentry_verify: int = 3
 
     def validate(self) -> OutsideConfig:
         if not (0.0 < self.exit_share < self.enter_share <= 1.0):
@@ -103,10 +113,13 @@ class OutsideConfig:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
         if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
             raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
+        if self.reentry_starts < 1 or self.reentry_verify < 1:
+            raise ValueError("outside: reentry_starts and reentry_verify must be >= 1")
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
-                  "probe_min_radius"):  # fmt: skip
+                  "probe_min_radius", "reentry_step", "reentry_heading_step"):  # fmt: skip
             v = getattr(self, k)
-            if not (math.isfinite(v) and v >= 0.0) or (k == "resolution" and v <= 0.0):
+            positive = k in ("resolution", "reentry_step", "reentry_heading_step")
+            if not (math.isfinite(v) and v >= 0.0) or (positive and v <= 0.0):
                 raise ValueError(f"outside: {k} must be a finite number >= 0, got {v!r}")
         return self
 
@@ -220,13 +233,38 @@ def _probe_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> ND
     return np.vstack([np.asarray(pose, dtype=np.float64)[None, :], out])
 
 
+def _search_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> NDArray[np.float64]:
+    """The re-entry search's probe poses: positions ``reentry_step`` apart on the disc of
+    :func:`_probe_poses`'s radius, times headings ``reentry_heading_step`` apart within
+    ``probe_sigmas`` sigma (at most 45 deg); (K, 3) with ``pose`` first."""
+    sxy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
+    sth = math.sqrt(max(float(cov[2, 2]), 0.0))
+    r = min(max(cfg.probe_sigmas * sxy, cfg.probe_min_radius), cfg.probe_radius)
+    dth = min(cfg.probe_sigmas * sth, math.radians(45.0))
+    n = int(math.floor(r / cfg.reentry_step))
+    g = np.arange(-n, n + 1) * cfg.reentry_step
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    disc = gx * gx + gy * gy <= r * r + 1e-9
+    m = int(math.floor(dth / cfg.reentry_heading_step))
+    h = np.arange(-m, m + 1) * cfg.reentry_heading_step
+    dx = np.repeat(gx[disc], len(h))
+    dy = np.repeat(gy[disc], len(h))
+    dt = np.tile(h, int(disc.sum()))
+    out = np.column_stack([pose[0] + dx, pose[1] + dy, pose[2] + dt])
+    return np.vstack([np.asarray(pose, dtype=np.float64)[None, :], out])
+
+
 class ReentryRecovery:
     """The recovery (:class:`icploc.recovery.Recovery`) a localizer uses while it comes
-    back into the map: first a verified local search around the dead-reckoned pose over
-    its whole uncertainty (the probe poses ranked by the share of beams that end on map
-    walls, the best few refined by ICP and verified by the localizer; a pose that stays
-    put by odometry for ``reentry_confirm`` scans locks), then — after
-    ``reentry_local_scans`` scans without a lock — the localizer's own recovery (global)."""
+    back into the map: a verified local search around the dead-reckoned pose over its
+    whole uncertainty (:func:`_search_poses`: the probe poses ranked by the share of beams
+    that end on map walls, the best ``reentry_starts`` distinct ones refined by ICP, the
+    best ``reentry_verify`` fits verified by the localizer; a pose that stays put by
+    odometry for ``reentry_confirm`` scans locks). After ``reentry_local_scans`` scans the
+    localizer's own recovery (global) runs beside it on every scan, and whichever locks
+    first wins: a scan may land on known space well before it explains the walls there
+    (a corridor the map saw from its far end), and the dead reckoning still says where
+    to look."""
 
     def __init__(
         self,
@@ -234,8 +272,6 @@ class ReentryRecovery:
         index: Any,
         hit_distance: float,
         config: OutsideConfig,
-        *,
-        starts: int = 4,
     ) -> None:
         self.fallback = fallback
         self.index = index
@@ -243,7 +279,6 @@ class ReentryRecovery:
         self.config = config
         self.confirm = config.reentry_confirm
         self.local_scans = config.reentry_local_scans
-        self.starts = starts
         self._leader: Pose | None = None
         self._streak = 0
         self.scans = 0
@@ -258,41 +293,81 @@ class ReentryRecovery:
         return getattr(self.fallback, name)
 
     def _ranked(self, view: Any, points: NDArray[np.float64]) -> list[Pose]:
-        poses = _probe_poses(view.pose, view.covariance, self.config)
-        p = points[:: max(1, points.shape[0] // 45)]
-        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-        x = poses[:, 0:1] + c * p[:, 0] - s * p[:, 1]
-        y = poses[:, 1:2] + s * p[:, 0] + c * p[:, 1]
-        d, _ = self.index.nearest(np.ascontiguousarray(np.column_stack([x.ravel(), y.ravel()])))
-        hit = (np.asarray(d).reshape(len(poses), -1) < self.hit_distance).mean(axis=1)
+        """The dead-reckoned pose and the best distinct probe poses by beams on walls."""
+        cfg = self.config
+        poses = _search_poses(view.pose, view.covariance, cfg)
+        p = points[:: max(1, points.shape[0] // 30)]
+        hit = np.zeros(len(poses))
+        for a in range(0, len(poses), 4096):  # bounded memory
+            q = poses[a : a + 4096]
+            c, s = np.cos(q[:, 2])[:, None], np.sin(q[:, 2])[:, None]
+            x = q[:, 0:1] + c * p[:, 0] - s * p[:, 1]
+            y = q[:, 1:2] + s * p[:, 0] + c * p[:, 1]
+            d, _ = self.index.nearest(np.ascontiguousarray(np.column_stack([x.ravel(), y.ravel()])))
+            hit[a : a + 4096] = (np.asarray(d).reshape(len(q), -1) < self.hit_distance).mean(axis=1)
         order = np.argsort(-hit, kind="stable")
         out: list[Pose] = [(float(poses[0, 0]), float(poses[0, 1]), float(poses[0, 2]))]
+        sep = max(2.0 * cfg.reentry_step, 0.5)
         for i in order:
-            q = (float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2]))
-            if all(math.hypot(q[0] - o[0], q[1] - o[1]) > 0.5 for o in out):
-                out.append(q)
-            if len(out) >= self.starts:
+            cand = (float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2]))
+            if all(
+                math.hypot(cand[0] - o[0], cand[1] - o[1]) > sep
+                or abs(math.remainder(cand[2] - o[2], 2 * math.pi)) > math.radians(10.0)
+                for o in out
+            ):
+                out.append(cand)
+            if len(out) >= cfg.reentry_starts:
                 break
         return out
+
+    def _local(self, view: Any, points: NDArray[np.float64]) -> tuple[Pose, Any] | None:
+        """The best verified fit from the local search's starts (None: none verified)."""
+        from icploc._core import IcpError, icp_batch
+
+        starts = self._ranked(view, points)
+        try:
+            results = icp_batch(
+                [points], view.index, np.asarray(starts, dtype=np.float64), view.icp_config
+            )
+        except IcpError:
+            return None
+        fits = sorted(
+            (r for r in results if r.converged and all(math.isfinite(v) for v in r.pose)),
+            key=lambda r: (r.inlier_ratio, -r.mse),
+            reverse=True,
+        )
+        tried: list[Pose] = []
+        for r in fits:
+            z = (float(r.pose[0]), float(r.pose[1]), float(r.pose[2]))
+            if any(math.hypot(z[0] - t[0], z[1] - t[1]) <= 0.15 for t in tried):
+                continue
+            tried.append(z)
+            ok, res, pose = view.verify(points, z)
+            if ok and res is not None:
+                return pose, res
+            if len(tried) >= self.config.reentry_verify:
+                break
+        return None
 
     def recover(self, view: Any, points: NDArray[np.float64]) -> Any:
         from icploc.recovery import Candidate, RecoveryStep
         from icploc.se2 import compose, wrap_angle
 
         self.scans += 1
-        if self.scans > self.local_scans:
-            return self.fallback.recover(view, points)
         if self._leader is not None and view.motion is not None:
             self._leader = compose(self._leader, view.motion)
-        best = None
-        for start in self._ranked(view, points):
-            ok, res, pose = view.verify(points, start)
-            if ok and res is not None:
-                best = (pose, res)
-                break
+        fallback = None
+        if self.scans > self.local_scans:
+            # the global recovery beside the local search (every scan: it follows the
+            # odometry between its calls)
+            fallback = self.fallback.recover(view, points)
+            if fallback.state == "locked":
+                self._leader, self._streak = None, 0
+                return fallback
+        best = self._local(view, points)
         if best is None:
             self._leader, self._streak = None, 0
-            return RecoveryStep("searching")
+            return fallback if fallback is not None else RecoveryStep("searching")
         pose, res = best
         lead = self._leader
         if (
