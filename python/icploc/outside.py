@@ -88,6 +88,9 @@ class OutsideConfig:
     #: ... and at least this far [m] (long dead reckoning drifts more than its covariance
     #: says: real odometry errors are systematic)
     probe_min_radius: float = 1.0
+    #: a stretch's exit anchor is the last ``tracking`` pose when the odometry from it to
+    #: the first scan outside is at most this long [m] (else the last believed pose)
+    exit_odometry: float = 3.0
     #: scans a re-entry candidate must stay put (by odometry) before it locks
     reentry_confirm: int = 2
     #: scans of the local re-entry search alone; after them the localizer's own recovery
@@ -116,7 +119,8 @@ class OutsideConfig:
         if self.reentry_starts < 1 or self.reentry_verify < 1:
             raise ValueError("outside: reentry_starts and reentry_verify must be >= 1")
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
-                  "probe_min_radius", "reentry_step", "reentry_heading_step"):  # fmt: skip
+                  "probe_min_radius", "reentry_step", "reentry_heading_step",
+                  "exit_odometry"):  # fmt: skip
             v = getattr(self, k)
             positive = k in ("resolution", "reentry_step", "reentry_heading_step")
             if not (math.isfinite(v) and v >= 0.0) or (positive and v <= 0.0):
@@ -444,6 +448,12 @@ class OutsideMonitor:
         #: re-entering, the localizer's lost coasting may pull its pose onto the map scan
         #: by scan; the patch and the lock's correction need the odometry alone
         self._dr: Pose | None = None
+        #: inside the map: the last ``tracking`` pose and the odometry since it (the exit
+        #: anchor of a stretch: the degraded scans just before leaving are often the
+        #: worst, half their beams already off the map)
+        self._tracked: Pose | None = None
+        self._since: Pose | None = None
+        self._since_m = 0.0
 
     # -- the localizer's hook --------------------------------------------------------------
     def before(
@@ -466,18 +476,28 @@ class OutsideMonitor:
         cfg = self.config
         k = loc.scans_processed
         known = share == share and pts.shape[0] >= loc.config.scan.min_points
+        # the odometry step the localizer predicts with, from its last pose
+        step = between(loc.pose, pred)
         if self.state != "inside" and self._dr is not None:
-            # the odometry step the localizer predicts with, from its last pose
-            self._dr = compose(self._dr, between(loc.pose, pred))
+            self._dr = compose(self._dr, step)
+        elif self.state == "inside" and self._since is not None:
+            self._since = compose(self._since, step)
+            self._since_m += math.hypot(step[0], step[1])
         if self.state == "inside":
             if not known or share < cfg.enter_share:
                 return None
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
                 return None
+            exit_pose = self._last_pose if self._last_pose else pred
             self._dr = pred
-            self.stretches.append(
-                Stretch(k, float(scan.stamp), self._last_pose if self._last_pose else pred)
-            )
+            if (
+                self._tracked is not None
+                and self._since is not None
+                and self._since_m <= cfg.exit_odometry
+            ):
+                # from the last tracking pose by odometry (not the degraded poses since)
+                exit_pose, self._dr = self._tracked, self._since
+            self.stretches.append(Stretch(k, float(scan.stamp), exit_pose))
             self.state = "outside"
             self._below = 0
             return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
@@ -540,6 +560,11 @@ class OutsideMonitor:
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
+        if self.state == "inside" and est.status is Status.TRACKING:
+            self._tracked = self._since = est.pose
+            self._since_m = 0.0
+        elif self.state != "inside":
+            self._tracked = self._since = None
         if est.mapped != mapped:
             est = dataclasses.replace(est, mapped=mapped)
         if self.state == "reentering" and est.status is Status.LOST:
