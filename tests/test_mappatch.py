@@ -73,13 +73,13 @@ def _wing_wall_distances(run, g):  # type: ignore[no-untyped-def]
 
 @pytest.mark.slow
 def test_the_patch_walls_lie_mostly_within_ten_centimetres_of_the_true_ones() -> None:
-    # measured (pose graph): 89 % of the wing's wall cells within 10 cm, p95 12.5 cm, max
-    # 17.5 (seed 0; seeds 1 / 2: 95 % / 90 %; cell centres, 5 cm cells; the exit and the
-    # lock are each ~4.5 cm off along the corridor). Before the pose graph (seeds 0 / 1 /
-    # 2): 73 / 78 / 77 %. The target (all within 10 cm) is not met yet.
+    # measured (pose graph, scans matched against the mapped walls they see, the exit
+    # anchored at the last tracking pose): 99 % of the wing's wall cells within 10 cm, p95
+    # 7.5 cm, max 12.5 (seed 0; seeds 1 / 2: 93 % / 94 %; cell centres, 5 cm cells). The
+    # issue's target (all within 10 cm) is not met on every seed.
     run, _, g = _patch()
     d = _wing_wall_distances(run, g)
-    assert [len(d) > 500, float(np.mean(d <= 0.10)) >= 0.85, float(np.percentile(d, 95)) <= 0.13] == [
+    assert [len(d) > 500, float(np.mean(d <= 0.10)) >= 0.95, float(np.percentile(d, 95)) <= 0.10] == [
         True, True, True,
     ]  # fmt: skip
 
