@@ -194,6 +194,18 @@ class _Edge:
     j: int
     z: Pose  #: the pose of j in the frame of i
     info: NDArray[np.float64]
+    #: an odometry step: its translation is scaled by the stretch's odometry scale
+    scaled: bool = False
+
+
+@dataclass
+class _Scale:
+    """The stretch's odometry scale, a variable of the graph (prior 1 +- ``sigma``): the
+    calibrated odometry's residual scale error along a corridor no scan constrains is
+    what the loop matches elsewhere in the stretch (the room toured) measure."""
+
+    sigma: float
+    value: float = 1.0
 
 
 def _solve_graph(
@@ -201,14 +213,19 @@ def _solve_graph(
     edges: Sequence[_Edge],
     priors: Sequence[tuple[int, Pose, NDArray[np.float64]]],
     iterations: int = 15,
+    scale: _Scale | None = None,
 ) -> NDArray[np.float64]:
     """Gauss-Newton on the SE(2) pose graph: ``edges`` (relative constraints),
-    ``priors`` (absolute ones: node, pose, information). Returns the poses (N, 3)."""
+    ``priors`` (absolute ones: node, pose, information); with ``scale`` the ``scaled``
+    edges' translations are multiplied by a variable (updated in place). Returns the
+    poses (N, 3)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import spsolve
 
     x = np.array(x0, dtype=np.float64).reshape(-1, 3)
     n = len(x)
+    nv = 3 * n + (1 if scale is not None else 0)
+    sv = scale.value if scale is not None else 1.0
     # per edge the square root of its information (the residuals are whitened)
     sq_e = [np.linalg.cholesky(e.info + np.eye(3) * 1e-12).T for e in edges]
     sq_p = [np.linalg.cholesky(w + np.eye(3) * 1e-12).T for _, _, w in priors]
@@ -216,15 +233,16 @@ def _solve_graph(
         rows: list[NDArray[Any]] = []
         cols: list[NDArray[Any]] = []
         vals: list[NDArray[Any]] = []
-        res = np.zeros(3 * (len(edges) + len(priors)))
+        res = np.zeros(3 * (len(edges) + len(priors)) + (1 if scale is not None else 0))
         for k, (e, L) in enumerate(zip(edges, sq_e, strict=True)):
             xi, xj = x[e.i], x[e.j]
             c, s = math.cos(xi[2]), math.sin(xi[2])
             dx, dy = xj[0] - xi[0], xj[1] - xi[1]
+            f = sv if (scale is not None and e.scaled) else 1.0
             r = np.array(
                 [
-                    c * dx + s * dy - e.z[0],
-                    -s * dx + c * dy - e.z[1],
+                    c * dx + s * dy - f * e.z[0],
+                    -s * dx + c * dy - f * e.z[1],
                     wrap_angle(xj[2] - xi[2] - e.z[2]),
                 ]
             )
@@ -236,6 +254,10 @@ def _solve_graph(
                 rows.append(rr.ravel())
                 cols.append(cc.ravel())
                 vals.append(jac.ravel())
+            if scale is not None and e.scaled:
+                rows.append(np.arange(3) + 3 * k)
+                cols.append(np.full(3, 3 * n))
+                vals.append(L @ np.array([-e.z[0], -e.z[1], 0.0]))
         base = 3 * len(edges)
         for k, ((node, p, _), L) in enumerate(zip(priors, sq_p, strict=True)):
             r = np.array([x[node, 0] - p[0], x[node, 1] - p[1], wrap_angle(x[node, 2] - p[2])])
@@ -246,15 +268,24 @@ def _solve_graph(
             rows.append(rr.ravel())
             cols.append(cc.ravel())
             vals.append(L.ravel())
+        if scale is not None:
+            last = len(res) - 1
+            res[last] = (sv - 1.0) / scale.sigma
+            rows.append(np.array([last]))
+            cols.append(np.array([3 * n]))
+            vals.append(np.array([1.0 / scale.sigma]))
         J = coo_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(len(res), 3 * n),
+            shape=(len(res), nv),
         ).tocsc()
         H = (J.T @ J).tocsc()
         g = J.T @ res
         dx = spsolve(H, -g)
-        x += dx.reshape(-1, 3)
+        x += dx[: 3 * n].reshape(-1, 3)
         x[:, 2] = np.angle(np.exp(1j * x[:, 2]))
+        if scale is not None:
+            sv += float(dx[3 * n])
+            scale.value = sv
         if float(np.abs(dx).max()) < 1e-6:
             break
     return x
@@ -276,6 +307,7 @@ def graph_poses(
     min_inliers: float = 0.6,
     outlier_chi2: float = 16.0,
     walls: MappedWalls | None = None,
+    scale_sigma: float = 0.02,
 ) -> NDArray[np.float64]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
@@ -299,9 +331,12 @@ def graph_poses(
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
     edges = [
-        _Edge(k, k + 1, between(nodes[k], nodes[k + 1]), _relative_info(nodes[k], covs[k]))
+        _Edge(
+            k, k + 1, between(nodes[k], nodes[k + 1]), _relative_info(nodes[k], covs[k]), True
+        )
         for k in range(n)
     ]
+    sc = _Scale(scale_sigma) if (scale_sigma > 0 and lock is not None) else None
     sx, sth = anchor_sigma
     w_anchor = np.diag([1 / sx**2, 1 / sx**2, 1 / sth**2])
     priors: list[tuple[int, Pose, NDArray[np.float64]]] = [(0, s0, w_anchor)]
@@ -310,7 +345,7 @@ def graph_poses(
     x = np.asarray(nodes, dtype=np.float64)
     if lock is not None:
         x[1:] = corrected_poses(s0, chain, chain[-1], lock)
-        x = _solve_graph(x, edges, priors)
+        x = _solve_graph(x, edges, priors, scale=sc)
     # loop edges: keyframes against earlier keyframes nearby
     cfg = IcpConfig(
         window_search=False, max_correspondence_distance=0.3, min_correspondence_distance=0.05
@@ -328,18 +363,24 @@ def graph_poses(
         loop = _loop_edges(x, keys, scans, cfg, loop_radius, loop_gap, nearest, min_inliers)
         if not loop:
             break
-        y = _solve_graph(x, [*edges, *loop], priors)
+        y = _solve_graph(x, [*edges, *loop], priors, scale=sc)
         # a loop match the rest of the graph disagrees with (an aliased corridor, a
         # wrong wall) is dropped and the graph solved without it
         keep_loop = [e for e in loop if _chi2(y, e) <= outlier_chi2]
-        x = _solve_graph(y, [*edges, *keep_loop], priors) if len(keep_loop) < len(loop) else y
+        if len(keep_loop) < len(loop):
+            x = _solve_graph(y, [*edges, *keep_loop], priors, scale=sc)
+        else:
+            x = y
         edges = [*edges, *keep_loop]
     if walls is not None:
         mp = walls.priors(x, scans)
         if mp:
-            y = _solve_graph(x, edges, [*priors, *mp])
+            y = _solve_graph(x, edges, [*priors, *mp], scale=sc)
             keep_p = [q for q in mp if _prior_chi2(y, q) <= outlier_chi2]
-            x = _solve_graph(y, edges, [*priors, *keep_p]) if len(keep_p) < len(mp) else y
+            if len(keep_p) < len(mp):
+                x = _solve_graph(y, edges, [*priors, *keep_p], scale=sc)
+            else:
+                x = y
     return x[1:]
 
 
