@@ -132,3 +132,12 @@ def test_a_stretch_records_the_odometry_not_the_poses_the_lost_localizer_drew() 
         for a, b, c, d in zip(rec, rec[1:], odom, odom[1:], strict=False)
     ]
     assert max(dev) < 0.005
+
+
+@pytest.mark.slow
+def test_a_stretch_records_the_scans_after_its_lock_for_the_patch() -> None:
+    # (their poses by odometry from the lock tie the lock to the mapped walls)
+    _, _, _, mon = localized()
+    st = mon.stretches[0]
+    assert st.end is not None
+    assert [k for k, _, _ in st.lead_out] == list(range(st.end + 1, st.end + 21))

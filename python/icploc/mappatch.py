@@ -308,6 +308,7 @@ def graph_poses(
     outlier_chi2: float = 16.0,
     walls: MappedWalls | None = None,
     scale_sigma: float = 0.02,
+    lead: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
 ) -> NDArray[np.float64]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
@@ -321,12 +322,23 @@ def graph_poses(
     (chi-square above ``outlier_chi2``) is dropped and the graph solved again. Heading is
     a variable like position, so a heading drift is undone where the scans constrain it.
     ``rounds`` > 1 re-matches at each new solution (measured in the simulated wing: it
-    drifts away, 1 is best). Returns (N, 3)."""
+    drifts away, 1 is best). ``lead``: scans after the lock and their poses by odometry
+    from it (map frame): more nodes chained on from the lock, matched against the mapped
+    walls with the rest (``walls``; the lock is one scan, they tie it to many), not
+    returned. Returns (N, 3)."""
     from icploc._core import IcpConfig
 
     n = len(coasted)
     if n == 0:
         return np.zeros((0, 3))
+    lead_poses: list[Pose] = []
+    if lead is not None and lock is not None and len(lead[0]):
+        l0 = (float(lock[0]), float(lock[1]), float(lock[2]))
+        lead_poses = [(float(p[0]), float(p[1]), float(p[2])) for p in lead[1]]
+        # in the dead reckoning's frame, on from its pose at the lock
+        coasted = [*coasted, *(compose(coasted[-1], between(l0, p)) for p in lead_poses)]
+        scans = [*scans, *lead[0]]
+    total = len(coasted)
     chain, _, covs = _chain(start, scans, coasted, keep=keep, min_inliers=min_inliers)
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
@@ -334,7 +346,7 @@ def graph_poses(
         _Edge(
             k, k + 1, between(nodes[k], nodes[k + 1]), _relative_info(nodes[k], covs[k]), True
         )
-        for k in range(n)
+        for k in range(total)
     ]
     sc = _Scale(scale_sigma) if (scale_sigma > 0 and lock is not None) else None
     sx, sth = anchor_sigma
@@ -344,14 +356,16 @@ def graph_poses(
         priors.append((n, (float(lock[0]), float(lock[1]), float(lock[2])), w_anchor))
     x = np.asarray(nodes, dtype=np.float64)
     if lock is not None:
-        x[1:] = corrected_poses(s0, chain, chain[-1], lock)
+        x[1 : n + 1] = corrected_poses(s0, chain[:n], chain[n - 1], lock)
+        if lead_poses:
+            x[n + 1 :] = lead_poses
         x = _solve_graph(x, edges, priors, scale=sc)
     # loop edges: keyframes against earlier keyframes nearby
     cfg = IcpConfig(
         window_search=False, max_correspondence_distance=0.3, min_correspondence_distance=0.05
     )
     keys: list[int] = []
-    for k in range(1, n + 1):
+    for k in range(1, total + 1):
         if scans[k - 1].shape[0] < 20:
             continue
         if not keys or (
@@ -381,7 +395,7 @@ def graph_poses(
                 x = _solve_graph(y, edges, [*priors, *keep_p], scale=sc)
             else:
                 x = y
-    return x[1:]
+    return x[1 : n + 1]
 
 
 def _prior_chi2(x: NDArray[np.float64], q: tuple[int, Pose, NDArray[np.float64]]) -> float:
@@ -551,7 +565,8 @@ def _stretch_poses(
         coasted[-1] = (lock[0] - c[0], lock[1] - c[1], wrap_angle(lock[2] - c[2]))
     scans = [pts for _, pts, _ in st.scans]
     if refine and closed and st.lock_pose is not None:
-        return graph_poses(st.exit_pose, scans, coasted, st.lock_pose, walls=walls)
+        lead = ([q for _, q, _ in st.lead_out], [p for _, _, p in st.lead_out])
+        return graph_poses(st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead)
     if refine:
         # not back yet: no second anchor; the loop edges alone measured worse (belgioioso
         # 31 % -> 26 % of the patch's walls within 10 cm) than the re-chained odometry

@@ -91,6 +91,8 @@ class OutsideConfig:
     #: a stretch's exit anchor is the last ``tracking`` pose when the odometry from it to
     #: the first scan outside is at most this long [m] (else the last believed pose)
     exit_odometry: float = 3.0
+    #: with ``record``: scans recorded after a stretch's lock (:attr:`Stretch.lead_out`)
+    lead_out_scans: int = 20
     #: scans a re-entry candidate must stay put (by odometry) before it locks
     reentry_confirm: int = 2
     #: scans of the local re-entry search alone; after them the localizer's own recovery
@@ -116,6 +118,8 @@ class OutsideConfig:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
         if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
             raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
+        if self.lead_out_scans < 0:
+            raise ValueError(f"outside: lead_out_scans must be >= 0, got {self.lead_out_scans}")
         if self.reentry_starts < 1 or self.reentry_verify < 1:
             raise ValueError("outside: reentry_starts and reentry_verify must be >= 1")
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
@@ -409,6 +413,12 @@ class Stretch:
     lock_pose: Pose | None = None
     #: with ``record``: per scan (index, points in the robot frame, coasted pose)
     scans: list[tuple[int, NDArray[np.float64], Pose]] = field(default_factory=list, repr=False)
+    #: with ``record``: the scans after the lock (inside the map: not in the patch), their
+    #: poses by odometry from the lock (they tie the lock to the mapped walls for the
+    #: patch's pose graph)
+    lead_out: list[tuple[int, NDArray[np.float64], Pose]] = field(
+        default_factory=list, repr=False
+    )
 
     @property
     def closed(self) -> bool:
@@ -454,6 +464,9 @@ class OutsideMonitor:
         self._tracked: Pose | None = None
         self._since: Pose | None = None
         self._since_m = 0.0
+        #: after a lock: scans still to record into the stretch's lead-out, their odometry
+        self._lead_left = 0
+        self._lead_dr: Pose | None = None
 
     # -- the localizer's hook --------------------------------------------------------------
     def before(
@@ -483,11 +496,14 @@ class OutsideMonitor:
         elif self.state == "inside" and self._since is not None:
             self._since = compose(self._since, step)
             self._since_m += math.hypot(step[0], step[1])
+        if self.state == "inside" and self._lead_dr is not None:
+            self._lead_dr = compose(self._lead_dr, step)
         if self.state == "inside":
             if not known or share < cfg.enter_share:
                 return None
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
                 return None
+            self._lead_left, self._lead_dr = 0, None
             exit_pose = self._last_pose if self._last_pose else pred
             self._dr = pred
             if (
@@ -555,6 +571,13 @@ class OutsideMonitor:
             self.state = "inside"
             self._reentry_start = None
             self._restore(loc)
+            if self.record and self.config.lead_out_scans > 0:
+                self._lead_left, self._lead_dr = self.config.lead_out_scans, est.pose
+        elif self.state == "inside" and self._lead_left > 0 and self._lead_dr is not None:
+            self.stretches[-1].lead_out.append((loc.scans_processed, np.array(pts), self._lead_dr))
+            self._lead_left -= 1
+            if self._lead_left == 0:
+                self._lead_dr = None
         elif self.state == "reentering" and self.record and self.stretches:
             dr = self._dr if self._dr is not None else est.pose
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
