@@ -72,16 +72,15 @@ def _wing_wall_distances(run, g):  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.slow
-def test_the_patch_walls_lie_mostly_within_ten_centimetres_of_the_true_ones() -> None:
-    # measured (pose graph, scans matched against the mapped walls they see, the exit
-    # anchored at the last tracking pose): 99 % of the wing's wall cells within 10 cm, p95
-    # 7.5 cm, max 12.5 (seed 0; seeds 1 / 2: 93 % / 94 %; cell centres, 5 cm cells). The
-    # issue's target (all within 10 cm) is not met on every seed.
+def test_every_patch_wall_lies_within_ten_centimetres_of_the_true_ones() -> None:
+    # the target. Measured (seed 0; cell centres, 5 cm cells): 1689 wall cells,
+    # median 2.5 cm, max 7.5 (pose graph with the odometry scale, the scans matched
+    # against the mapped walls they see, the exit at the last tracking pose, the fringe
+    # thinned); seeds 1 / 2: 100 % (max 7.9 cm) / 98 % (max 12.5: a corner's wall drawn
+    # twice). Before (main 5895837): 88 % within 10 cm, max 17.5 cm.
     run, _, g = _patch()
     d = _wing_wall_distances(run, g)
-    assert [len(d) > 500, float(np.mean(d <= 0.10)) >= 0.95, float(np.percentile(d, 95)) <= 0.10] == [
-        True, True, True,
-    ]  # fmt: skip
+    assert [len(d) > 1000, float(d.max()) <= 0.10] == [True, True]
 
 
 def test_graph_poses_close_a_loop_the_odometry_drifted_on() -> None:
