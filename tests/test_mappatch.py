@@ -164,3 +164,15 @@ def test_replay_refuses_a_patch_that_is_not_a_yaml(tmp_path: Path) -> None:
 
     with pytest.raises(OutputError, match=r"\.yaml"):
         replay([], tmp_path / "map.yaml", map_patch=tmp_path / "patch.png")
+
+
+def test_the_patch_drops_a_walls_faint_fringe_but_keeps_a_faint_wall_alone() -> None:
+    # 20 scans end on the cell at x 2.0..2.1, 2 on the one behind it (x 2.1..2.2: a
+    # fringe), 2 on a cell a metre to the side (a faint wall of its own)
+    strong = [np.array([[2.05, 0.05]])] * 20
+    weak = [np.array([[2.15, 0.05], [2.05, 1.05]])] * 2
+    g = grid_from_scans(strong + weak, [(0.0, 0.0, 0.0)] * 22, resolution=0.1, peak_share=0.25)
+    assert g is not None
+    occ = np.argwhere(g.occupied)
+    xy = (np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution).round(2).tolist()
+    assert sorted(xy) == [[2.05, 0.05], [2.05, 1.05]]
