@@ -16,7 +16,10 @@ stretch's own previous scans (:func:`refined_poses`; never against the map, whos
 are not there): the odometry steps become scan-matched steps where the walls allow.
 The patch's poses then come from a least-squares pose graph (:func:`graph_poses`): those
 chain steps, keyframe scans matched against the stretch's earlier keyframes nearby (the
-wing toured, the corridor driven back), the exit and the lock as priors; heading included.
+wing toured, the corridor driven back), the exit and the lock as priors; heading included;
+one odometry scale for the whole stretch (:class:`_Scale`); and, with :class:`MappedWalls`,
+each scan's beams that end on mapped walls matched against them (the stretch's ends tied
+to the map). The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's faint fringe goes.
 """
 
 from __future__ import annotations

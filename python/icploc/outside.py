@@ -12,14 +12,15 @@ near, so :class:`OutsideMonitor` takes over the scan instead:
   ``localizer.lost_sigma_xy``), reason ``outside_map``, ``Estimate.mapped`` False.
 * **re-entry**: once the scan lands mostly on mapped space again (``exit_share``, for
   ``confirm_scans`` scans in a row) the localizer is declared lost *at the dead-reckoned
-  pose with its covariance*, so its recovery (:mod:`icploc.recovery`,
-  :mod:`icploc.relocalize`) first searches locally around it, verifies, and only then
-  goes global. The scans from re-entry to the lock are counted per stretch; they report
+  pose with its covariance*, and :class:`ReentryRecovery` searches around it over that
+  whole uncertainty and verifies; after a few scans the localizer's own recovery
+  (:mod:`icploc.recovery`, :mod:`icploc.relocalize`: global) runs beside it. The scans from re-entry to the lock are counted per stretch; they report
   the dead-reckoned pose as ``degraded``, reason ``reentering`` (``lost`` once the
   covariance is wider than ``localizer.lost_sigma_xy``).
 * **where the map is missing**: every stretch (first outside scan .. the re-entry lock)
   is kept in :attr:`OutsideMonitor.stretches`; with ``record=True`` also the scans' points
-  and coasted poses, for :mod:`icploc.mappatch`.
+  and their poses by odometry alone from the exit (the last ``tracking`` pose), and the
+  scans just after the lock, for :mod:`icploc.mappatch`.
 
 A localizer gets a monitor with :func:`attach`; the :class:`~icploc.localizer.Localizer`
 calls :meth:`OutsideMonitor.before` ahead of its own matching and
