@@ -300,9 +300,11 @@ def main(argv: list[str] | None = None) -> int:
         rows += evaluate(p, methods, a.cache, a.seed, a.max_range)
     a.out_dir.mkdir(parents=True, exist_ok=True)
     table = "\n".join([HEADER, *(md_row(r) for r in rows)])
+    cmd = " ".join(["python benches/eval_partial.py", *(sys.argv[1:] if argv is None else argv)])
     (a.out_dir / "partial.md").write_text(
         "Partial maps (benches/eval_partial.py): a 10 cm map of each log's first half, the whole "
         "log localized, raw odometry of the real error model (good), sparse scans.\n\n"
+        f"Command: `{cmd}`\n\n"
         + table
         + "\n"
     )
