@@ -15,7 +15,7 @@ from partial_world import localized
 
 
 def test_the_search_grid_covers_the_uncertainty_disc_at_its_step() -> None:
-    cfg = OutsideConfig(reentry_step=0.4, probe_radius=5.0)
+    cfg = OutsideConfig(reentry_step=0.4, probe_radius=5.0, reentry_max_probes=10**6)
     cov = np.diag([4.0, 4.0, math.radians(5.0) ** 2])  # sigma 2.8 m: 3 sigma capped at 5 m
     p = _search_poses((10.0, -3.0, 0.5), cov, cfg)
     # every point of the 5 m disc is within half a diagonal step of a probe position
@@ -24,6 +24,12 @@ def test_the_search_grid_covers_the_uncertainty_disc_at_its_step() -> None:
     q = np.column_stack([10.0 + r * np.cos(a), -3.0 + r * np.sin(a)])
     d = np.hypot(q[:, None, 0] - p[None, :, 0], q[:, None, 1] - p[None, :, 1]).min(axis=1)
     assert float(d.max()) <= 0.4 * math.sqrt(2) / 2 + 0.2  # + the rim beyond the last ring
+
+
+def test_the_search_grid_keeps_to_its_budget_of_probe_poses() -> None:
+    cfg = OutsideConfig(reentry_max_probes=3000)
+    cov = np.diag([9.0, 9.0, math.radians(12.0) ** 2])  # 5 m and +-36 deg: 19 headings
+    assert len(_search_poses((0.0, 0.0, 0.0), cov, cfg)) <= 1.1 * 3000
 
 
 def test_the_search_grid_spans_three_heading_sigmas() -> None:

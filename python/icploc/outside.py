@@ -105,6 +105,11 @@ class OutsideConfig:
     reentry_step: float = 0.4
     #: ... times headings this far apart [rad] within ``probe_sigmas`` sigma
     reentry_heading_step: float = math.radians(4.0)
+    #: at most about this many probe poses per scan (the position step grows beyond it;
+    #: the default grid at its widest, 5 m and +-45 deg, is about 11,300: a slower
+    #: machine may trade the search's reach for time here: 3,000 made belgioioso's lock
+    #: 2 scans later and its patch 10 points worse)
+    reentry_max_probes: int = 12000
     #: probe poses (by beams on walls) refined by ICP, and of those verified
     reentry_starts: int = 12
     reentry_verify: int = 3
@@ -121,8 +126,10 @@ class OutsideConfig:
             raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
         if self.lead_out_scans < 0:
             raise ValueError(f"outside: lead_out_scans must be >= 0, got {self.lead_out_scans}")
-        if self.reentry_starts < 1 or self.reentry_verify < 1:
-            raise ValueError("outside: reentry_starts and reentry_verify must be >= 1")
+        if self.reentry_starts < 1 or self.reentry_verify < 1 or self.reentry_max_probes < 1:
+            raise ValueError(
+                "outside: reentry_starts, reentry_verify and reentry_max_probes must be >= 1"
+            )
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
                   "probe_min_radius", "reentry_step", "reentry_heading_step",
                   "exit_odometry"):  # fmt: skip
@@ -244,18 +251,21 @@ def _probe_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> ND
 
 def _search_poses(pose: Pose, cov: NDArray[np.float64], cfg: OutsideConfig) -> NDArray[np.float64]:
     """The re-entry search's probe poses: positions ``reentry_step`` apart on the disc of
-    :func:`_probe_poses`'s radius, times headings ``reentry_heading_step`` apart within
-    ``probe_sigmas`` sigma (at most 45 deg); (K, 3) with ``pose`` first."""
+    :func:`_probe_poses`'s radius (farther apart when more than about
+    ``reentry_max_probes`` poses would be probed), times headings ``reentry_heading_step``
+    apart within ``probe_sigmas`` sigma (at most 45 deg); (K, 3) with ``pose`` first."""
     sxy = math.sqrt(max(float(cov[0, 0] + cov[1, 1]), 0.0))
     sth = math.sqrt(max(float(cov[2, 2]), 0.0))
     r = min(max(cfg.probe_sigmas * sxy, cfg.probe_min_radius), cfg.probe_radius)
     dth = min(cfg.probe_sigmas * sth, math.radians(45.0))
-    n = int(math.floor(r / cfg.reentry_step))
-    g = np.arange(-n, n + 1) * cfg.reentry_step
-    gx, gy = np.meshgrid(g, g, indexing="ij")
-    disc = gx * gx + gy * gy <= r * r + 1e-9
     m = int(math.floor(dth / cfg.reentry_heading_step))
     h = np.arange(-m, m + 1) * cfg.reentry_heading_step
+    # the position step grows when the disc times the headings would exceed the budget
+    step = max(cfg.reentry_step, math.sqrt(math.pi * r * r * len(h) / cfg.reentry_max_probes))
+    n = int(math.floor(r / step))
+    g = np.arange(-n, n + 1) * step
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    disc = gx * gx + gy * gy <= r * r + 1e-9
     dx = np.repeat(gx[disc], len(h))
     dy = np.repeat(gy[disc], len(h))
     dt = np.tile(h, int(disc.sum()))
