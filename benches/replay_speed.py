@@ -14,13 +14,15 @@ process times its stages:
 
 * ``start``: interpreter start until the child's first line (parent's launch clock to the
   child's ``time.time()``);
-* ``import``: ``import icploc.replay`` (+ the log and map readers it uses);
+* ``import``: ``import icploc.cli`` (the command's process set-up, ``start_command_process``)
+  and ``icploc.replay`` (+ the log and map readers it uses);
 * ``map``: ``icploc.replay.load_map`` (YAML + PGM, line fit, or a prepared-map cache hit:
   the ``cache`` column says which; ``--cold`` sets ``ICPLOC_NO_CACHE``);
 * ``index``: the map's ``MapIndex`` (k-d tree + closest-point grid) at the configured spacing;
 * ``log``: reading and parsing the log (``ReplayResult.load_time``);
 * ``loc``: the localize loop incl. the Localizer's set-up (``ReplayResult.localize_time``);
-* ``rest``: the remainder of the whole process (result handling, interpreter exit).
+* ``rest``: the remainder of the whole process (result handling, the command's
+  ``end_command_process``, interpreter exit).
 
 ``wall`` is the whole process as the parent saw it; ``cpu`` its user + system time. MRPT:
 ``pf-localization``'s own process (after the conversions, which are not counted), as in
@@ -55,6 +57,10 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
     t_first = time.time()
     p0 = time.process_time()  # CPU of the interpreter start (and up to here)
     c0 = time.perf_counter()
+    # the process as the ``icploc`` command sets it up (and ends it): icploc.cli.main
+    from icploc.cli import end_command_process, start_command_process
+
+    start_command_process()
     import icploc.logs
     import icploc.maps  # noqa: F401
     from icploc.config import LocalizerConfig
@@ -92,6 +98,7 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
     for p in got["poses"]:
         p[:] = [v if math.isfinite(v) else None for v in p]
     Path(out).write_text(json.dumps(got))
+    end_command_process()
 
 
 def _children_cpu() -> float:
