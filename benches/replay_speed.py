@@ -6,6 +6,7 @@ stage, side by side with MRPT ``pf-localization`` on the same files (ratios from
     .venv/bin/python benches/replay_speed.py --save /tmp/before.json      # keep the poses ...
     .venv/bin/python benches/replay_speed.py --check /tmp/before.json     # ... and compare later
     .venv/bin/python benches/replay_speed.py --cold                # no prepared-map cache
+    .venv/bin/python benches/replay_speed.py --long intel          # a whole log, one process
 
 The cells are those of ``benches/eval_real.py`` (3 folds per log: each fold is one log file,
 one map and one start pose, read from its cache ``~/.cache/icploc-bench-real``; run
@@ -27,6 +28,12 @@ process times its stages:
 ``wall`` is the whole process as the parent saw it; ``cpu`` its user + system time. MRPT:
 ``pf-localization``'s own process (after the conversions, which are not counted), as in
 eval_real. The machine is shared: compare the ratios of one run, not figures across runs.
+
+``--long NAME,...``: instead of the folds, each named log as ONE process over the whole log (its
+scans 0.5 m / 0.5 rad apart, as real logs keep them, with the ``--bases`` odometry), against a
+map rasterised at ``--res`` from all its scans at the reference poses (as the issue's real
+2-hour run was); short folds are dominated by the interpreter's start, a long run by the
+localize loop. Its log and map are written once to ``~/.cache/icploc-bench-real/long``.
 
 Python source files are byte-compiled first (``compileall``) when the environment says not
 to write ``.pyc`` files (``PYTHONDONTWRITEBYTECODE``): an installed package has them, and
@@ -58,8 +65,14 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
     p0 = time.process_time()  # CPU of the interpreter start (and up to here)
     c0 = time.perf_counter()
     # the process as the ``icploc`` command sets it up (and ends it): icploc.cli.main
-    from icploc.cli import end_command_process, start_command_process
+    try:
+        from icploc.cli import end_command_process, start_command_process
+    except ImportError:  # a --before version without them: its command did neither
 
+        def start_command_process() -> None:
+            pass
+
+        end_command_process = start_command_process
     start_command_process()
     import icploc.logs
     import icploc.maps  # noqa: F401
@@ -168,6 +181,43 @@ def cells_for(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
     return out
 
 
+def long_cells(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
+    """One cell per log, base and resolution: the whole log (sparsified) as one process."""
+    import eval_real as er
+    import real_grid as rg
+    import real_logs as rl
+    import real_odometry as ro
+
+    out_dir = er.cache_dir() / "long"
+    (out_dir / "maps").mkdir(parents=True, exist_ok=True)
+    models = er.fit_bases(er.DATA)
+    out = []
+    for p in er.find_logs(er.DATA, names):
+        log = rl.read_flaser(p)
+        name = p.name.replace("-corrected.log.gz", "")
+        ref = log.poses
+        keep = rl.sparsify(ref, distance=0.5, angle=0.5)
+        max_range = min(30.0, log.no_return)
+        stamps = er._stamps(log)
+        for base in bases:
+            log_path = out_dir / f"{name}_{base}_all_s0.log"
+            if not log_path.exists():
+                odom = ro.apply_model(models[base], ref, seed=er._seed(0, name, base))
+                rl.write_flaser(log_path, log.ranges[keep], odom[keep], stamps[keep])
+            for r in res:
+                map_yaml = out_dir / "maps" / f"{name}_all_{r}cm.yaml"
+                if not map_yaml.exists():
+                    grid = rg.rasterise(log.ranges, log.angles, ref, r / 100.0, max_range)
+                    rg.write_map_server(grid, map_yaml)
+                out.append({
+                    "log": name, "base": base, "res": r, "fold": "all", "scans": len(keep),
+                    "log_path": str(log_path), "map": str(map_yaml),
+                    "pose": [float(v) for v in ref[keep[0]]],
+                    "ranges": log.ranges[keep], "max_range": max_range,
+                })  # fmt: skip
+    return out
+
+
 def run_mrpt(cell: dict, tmp: Path) -> float:
     import numpy as np
     import real_logs as rl
@@ -216,6 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-compile", dest="compile", action="store_false")
     ap.add_argument("--save", type=Path, help="write the poses and times (JSON)")
     ap.add_argument("--check", type=Path, help="compare the poses and status with a --save file")
+    ap.add_argument("--long", type=lambda s: s.split(","), metavar="NAME,...",
+                    help="each named log whole, as one process (instead of the folds)")  # fmt: skip
     a = ap.parse_args(argv)
     if a.compile:
         from eval_real import compile_measured_package
@@ -223,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         compile_measured_package(a.python)
         if a.before:
             compile_measured_package(a.before)
-    cells = cells_for(a.names, a.bases, a.res)
+    cells = long_cells(a.long, a.bases, a.res) if a.long else cells_for(a.names, a.bases, a.res)
     if a.mrpt:
         import real_mrpt
 
@@ -246,6 +298,8 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(td)
         for cell in cells:
             key = f"{cell['log']} {cell['base']} {cell['res']} cm f{cell['fold']}"
+            if cell["fold"] == "all":
+                key = f"{cell['log']} {cell['base']} {cell['res']} cm whole log"
             old = run_icploc(a.before, cell, tmp, a.cold) if a.before else None
             got = run_icploc(a.python, cell, tmp, a.cold)
             if old is not None:
