@@ -119,6 +119,25 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def run_cli(python: str, cell: dict, tmp: Path, cold: bool) -> tuple[float, float]:
+    """(wall s, CPU s) of the ``icploc replay`` command itself on the cell (its TUM file and
+    summary written, as a user runs it), beside the interpreter ``python``."""
+    env = dict(os.environ)
+    if cold:
+        env["ICPLOC_NO_CACHE"] = "1"
+    exe = Path(python).parent / "icploc"
+    cmd = [str(exe), "replay", cell["log_path"], "--map", cell["map"],
+           "--initial-pose=" + ",".join(repr(v) for v in cell["pose"]),
+           "--out", str(tmp / "cli.tum"), "--no-progress"]  # fmt: skip
+    cpu0 = _children_cpu()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    if proc.returncode not in (0, 3):  # 3: finished, lost more than --max-lost
+        raise RuntimeError(f"icploc replay exit {proc.returncode}: {proc.stderr.strip()[-400:]}")
+    return wall, _children_cpu() - cpu0
+
+
 def run_icploc(python: str, cell: dict, tmp: Path, cold: bool) -> dict:
     out = tmp / "icploc.json"
     env = dict(os.environ)
@@ -266,6 +285,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-compile", dest="compile", action="store_false")
     ap.add_argument("--save", type=Path, help="write the poses and times (JSON)")
     ap.add_argument("--check", type=Path, help="compare the poses and status with a --save file")
+    ap.add_argument("--cli", action="store_true",
+                    help="also time the icploc replay command itself on every cell (typer's "
+                    "option parsing included) and give its ratio to MRPT")  # fmt: skip
     ap.add_argument("--long", type=lambda s: s.split(","), metavar="NAME,...",
                     help="each named log whole, as one process (instead of the folds)")  # fmt: skip
     a = ap.parse_args(argv)
@@ -286,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
             a.mrpt = False
     ref = json.loads(a.check.read_text()) if a.check else None
     cpu_rows: list[str] = []
+    cli_rows: list[str] = []
+    cli_tot = [0.0, 0.0, 0.0]  # wall, CPU, MRPT
     befores: list[tuple[str, int, dict, dict, float, int]] = []
     print("| cell | scans | cache | " + " | ".join(f"{s} ms" for s in STAGES)
           + " | icploc wall s | cpu s | scans/s | MRPT s | MRPT scans/s | icploc / MRPT | same as --check |")  # fmt: skip
@@ -307,6 +331,11 @@ def main(argv: list[str] | None = None) -> int:
                 befores.append((key, cell["scans"], old, got, d, ns))
             mrpt_s = run_mrpt(cell, tmp) if a.mrpt else math.nan
             n = cell["scans"]
+            if a.cli:
+                cw, cc = run_cli(a.python, cell, tmp, a.cold)
+                cli_tot = [cli_tot[0] + cw, cli_tot[1] + cc, cli_tot[2] + mrpt_s]
+                cli_rows.append(f"| {key} | {n} | {cw:.3f} | {cc:.3f} | {got['wall']:.3f} | "
+                                f"{mrpt_s:.3f} | {mrpt_s / cw:.2f} |")  # fmt: skip
             same = "–"
             if ref is not None and key in ref:
                 d, ns = _same(got, ref[key])
@@ -344,6 +373,14 @@ def main(argv: list[str] | None = None) -> int:
             + " | ".join(f"{sum(r[1]['cpu'][c] for r in rows) / k * 1000:.0f}" for c in keys)
             + " |"
         )
+    if cli_rows:
+        print("\nThe icploc replay command itself on the same cells (wall / CPU s of its process; "
+              "the staged API process's wall beside it):\n")  # fmt: skip
+        print("| cell | scans | command wall | command CPU | API wall | MRPT wall | MRPT / command |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        print("\n".join(cli_rows))
+        print(f"| all | {n_all} | {cli_tot[0]:.3f} | {cli_tot[1]:.3f} | {tot_wall:.3f} | "
+              f"{cli_tot[2]:.3f} | {cli_tot[2] / cli_tot[0]:.2f} |")  # fmt: skip
     if befores:
         print(f"\nBefore ({a.before}) and after, the same cells in the same run (wall s / CPU s of the "
               "whole process; poses compared):\n")  # fmt: skip
