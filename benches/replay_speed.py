@@ -6,6 +6,7 @@ stage, side by side with MRPT ``pf-localization`` on the same files (ratios from
     .venv/bin/python benches/replay_speed.py --save /tmp/before.json      # keep the poses ...
     .venv/bin/python benches/replay_speed.py --check /tmp/before.json     # ... and compare later
     .venv/bin/python benches/replay_speed.py --cold                # no prepared-map cache
+    .venv/bin/python benches/replay_speed.py --long intel          # a whole log, one process
 
 The cells are those of ``benches/eval_real.py`` (3 folds per log: each fold is one log file,
 one map and one start pose, read from its cache ``~/.cache/icploc-bench-real``; run
@@ -14,17 +15,25 @@ process times its stages:
 
 * ``start``: interpreter start until the child's first line (parent's launch clock to the
   child's ``time.time()``);
-* ``import``: ``import icploc.replay`` (+ the log and map readers it uses);
+* ``import``: ``import icploc.cli`` (the command's process set-up, ``start_command_process``)
+  and ``icploc.replay`` (+ the log and map readers it uses);
 * ``map``: ``icploc.replay.load_map`` (YAML + PGM, line fit, or a prepared-map cache hit:
   the ``cache`` column says which; ``--cold`` sets ``ICPLOC_NO_CACHE``);
 * ``index``: the map's ``MapIndex`` (k-d tree + closest-point grid) at the configured spacing;
 * ``log``: reading and parsing the log (``ReplayResult.load_time``);
 * ``loc``: the localize loop incl. the Localizer's set-up (``ReplayResult.localize_time``);
-* ``rest``: the remainder of the whole process (result handling, interpreter exit).
+* ``rest``: the remainder of the whole process (result handling, the command's
+  ``end_command_process``, interpreter exit).
 
 ``wall`` is the whole process as the parent saw it; ``cpu`` its user + system time. MRPT:
 ``pf-localization``'s own process (after the conversions, which are not counted), as in
 eval_real. The machine is shared: compare the ratios of one run, not figures across runs.
+
+``--long NAME,...``: instead of the folds, each named log as ONE process over the whole log (its
+scans 0.5 m / 0.5 rad apart, as real logs keep them, with the ``--bases`` odometry), against a
+map rasterised at ``--res`` from all its scans at the reference poses (as the issue's real
+2-hour run was); short folds are dominated by the interpreter's start, a long run by the
+localize loop. Its log and map are written once to ``~/.cache/icploc-bench-real/long``.
 
 Python source files are byte-compiled first (``compileall``) when the environment says not
 to write ``.pyc`` files (``PYTHONDONTWRITEBYTECODE``): an installed package has them, and
@@ -55,6 +64,16 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
     t_first = time.time()
     p0 = time.process_time()  # CPU of the interpreter start (and up to here)
     c0 = time.perf_counter()
+    # the process as the ``icploc`` command sets it up (and ends it): icploc.cli.main
+    try:
+        from icploc.cli import end_command_process, start_command_process
+    except ImportError:  # a --before version without them: its command did neither
+
+        def start_command_process() -> None:
+            pass
+
+        end_command_process = start_command_process
+    start_command_process()
     import icploc.logs
     import icploc.maps  # noqa: F401
     from icploc.config import LocalizerConfig
@@ -92,11 +111,31 @@ def child(log: str, map_yaml: str, pose: list[float], out: str, launched: float)
     for p in got["poses"]:
         p[:] = [v if math.isfinite(v) else None for v in p]
     Path(out).write_text(json.dumps(got))
+    end_command_process()
 
 
 def _children_cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
+
+
+def run_cli(python: str, cell: dict, tmp: Path, cold: bool) -> tuple[float, float]:
+    """(wall s, CPU s) of the ``icploc replay`` command itself on the cell (its TUM file and
+    summary written, as a user runs it), beside the interpreter ``python``."""
+    env = dict(os.environ)
+    if cold:
+        env["ICPLOC_NO_CACHE"] = "1"
+    exe = Path(python).parent / "icploc"
+    cmd = [str(exe), "replay", cell["log_path"], "--map", cell["map"],
+           "--initial-pose=" + ",".join(repr(v) for v in cell["pose"]),
+           "--out", str(tmp / "cli.tum"), "--no-progress"]  # fmt: skip
+    cpu0 = _children_cpu()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    if proc.returncode not in (0, 3):  # 3: finished, lost more than --max-lost
+        raise RuntimeError(f"icploc replay exit {proc.returncode}: {proc.stderr.strip()[-400:]}")
+    return wall, _children_cpu() - cpu0
 
 
 def run_icploc(python: str, cell: dict, tmp: Path, cold: bool) -> dict:
@@ -161,6 +200,43 @@ def cells_for(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
     return out
 
 
+def long_cells(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
+    """One cell per log, base and resolution: the whole log (sparsified) as one process."""
+    import eval_real as er
+    import real_grid as rg
+    import real_logs as rl
+    import real_odometry as ro
+
+    out_dir = er.cache_dir() / "long"
+    (out_dir / "maps").mkdir(parents=True, exist_ok=True)
+    models = er.fit_bases(er.DATA)
+    out = []
+    for p in er.find_logs(er.DATA, names):
+        log = rl.read_flaser(p)
+        name = p.name.replace("-corrected.log.gz", "")
+        ref = log.poses
+        keep = rl.sparsify(ref, distance=0.5, angle=0.5)
+        max_range = min(30.0, log.no_return)
+        stamps = er._stamps(log)
+        for base in bases:
+            log_path = out_dir / f"{name}_{base}_all_s0.log"
+            if not log_path.exists():
+                odom = ro.apply_model(models[base], ref, seed=er._seed(0, name, base))
+                rl.write_flaser(log_path, log.ranges[keep], odom[keep], stamps[keep])
+            for r in res:
+                map_yaml = out_dir / "maps" / f"{name}_all_{r}cm.yaml"
+                if not map_yaml.exists():
+                    grid = rg.rasterise(log.ranges, log.angles, ref, r / 100.0, max_range)
+                    rg.write_map_server(grid, map_yaml)
+                out.append({
+                    "log": name, "base": base, "res": r, "fold": "all", "scans": len(keep),
+                    "log_path": str(log_path), "map": str(map_yaml),
+                    "pose": [float(v) for v in ref[keep[0]]],
+                    "ranges": log.ranges[keep], "max_range": max_range,
+                })  # fmt: skip
+    return out
+
+
 def run_mrpt(cell: dict, tmp: Path) -> float:
     import numpy as np
     import real_logs as rl
@@ -209,6 +285,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-compile", dest="compile", action="store_false")
     ap.add_argument("--save", type=Path, help="write the poses and times (JSON)")
     ap.add_argument("--check", type=Path, help="compare the poses and status with a --save file")
+    ap.add_argument("--cli", action="store_true",
+                    help="also time the icploc replay command itself on every cell (typer's "
+                    "option parsing included) and give its ratio to MRPT")  # fmt: skip
+    ap.add_argument("--long", type=lambda s: s.split(","), metavar="NAME,...",
+                    help="each named log whole, as one process (instead of the folds)")  # fmt: skip
     a = ap.parse_args(argv)
     if a.compile:
         from eval_real import compile_measured_package
@@ -216,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         compile_measured_package(a.python)
         if a.before:
             compile_measured_package(a.before)
-    cells = cells_for(a.names, a.bases, a.res)
+    cells = long_cells(a.long, a.bases, a.res) if a.long else cells_for(a.names, a.bases, a.res)
     if a.mrpt:
         import real_mrpt
 
@@ -227,6 +308,8 @@ def main(argv: list[str] | None = None) -> int:
             a.mrpt = False
     ref = json.loads(a.check.read_text()) if a.check else None
     cpu_rows: list[str] = []
+    cli_rows: list[str] = []
+    cli_tot = [0.0, 0.0, 0.0]  # wall, CPU, MRPT
     befores: list[tuple[str, int, dict, dict, float, int]] = []
     print("| cell | scans | cache | " + " | ".join(f"{s} ms" for s in STAGES)
           + " | icploc wall s | cpu s | scans/s | MRPT s | MRPT scans/s | icploc / MRPT | same as --check |")  # fmt: skip
@@ -239,6 +322,8 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(td)
         for cell in cells:
             key = f"{cell['log']} {cell['base']} {cell['res']} cm f{cell['fold']}"
+            if cell["fold"] == "all":
+                key = f"{cell['log']} {cell['base']} {cell['res']} cm whole log"
             old = run_icploc(a.before, cell, tmp, a.cold) if a.before else None
             got = run_icploc(a.python, cell, tmp, a.cold)
             if old is not None:
@@ -246,6 +331,11 @@ def main(argv: list[str] | None = None) -> int:
                 befores.append((key, cell["scans"], old, got, d, ns))
             mrpt_s = run_mrpt(cell, tmp) if a.mrpt else math.nan
             n = cell["scans"]
+            if a.cli:
+                cw, cc = run_cli(a.python, cell, tmp, a.cold)
+                cli_tot = [cli_tot[0] + cw, cli_tot[1] + cc, cli_tot[2] + mrpt_s]
+                cli_rows.append(f"| {key} | {n} | {cw:.3f} | {cc:.3f} | {got['wall']:.3f} | "
+                                f"{mrpt_s:.3f} | {mrpt_s / cw:.2f} |")  # fmt: skip
             same = "–"
             if ref is not None and key in ref:
                 d, ns = _same(got, ref[key])
@@ -283,6 +373,14 @@ def main(argv: list[str] | None = None) -> int:
             + " | ".join(f"{sum(r[1]['cpu'][c] for r in rows) / k * 1000:.0f}" for c in keys)
             + " |"
         )
+    if cli_rows:
+        print("\nThe icploc replay command itself on the same cells (wall / CPU s of its process; "
+              "the staged API process's wall beside it):\n")  # fmt: skip
+        print("| cell | scans | command wall | command CPU | API wall | MRPT wall | MRPT / command |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
+        print("\n".join(cli_rows))
+        print(f"| all | {n_all} | {cli_tot[0]:.3f} | {cli_tot[1]:.3f} | {tot_wall:.3f} | "
+              f"{cli_tot[2]:.3f} | {cli_tot[2] / cli_tot[0]:.2f} |")  # fmt: skip
     if befores:
         print(f"\nBefore ({a.before}) and after, the same cells in the same run (wall s / CPU s of the "
               "whole process; poses compared):\n")  # fmt: skip

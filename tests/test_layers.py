@@ -33,6 +33,7 @@ LAYERS: dict[str, int] = {
     "icploc.median": BASICS,
     "icploc.outputs": BASICS,
     "icploc.laser_mounts": BASICS,
+    "icploc.lazy_model": BASICS,
     "icploc.config": BASICS,
     # formats and devices: map and log files, trajectories, serial devices, the simulator
     "icploc.trajectory": FORMATS,

@@ -39,7 +39,6 @@ from icploc._core import (
     raycast,
 )
 from icploc.errors import ConfigError, DeviceError, FileFormatError, IcplocError, UsageError
-from icploc.messages import Odometry, Scan
 from icploc.status import Reason, Status
 
 if TYPE_CHECKING:
@@ -47,10 +46,14 @@ if TYPE_CHECKING:
     from icploc.localizer import Estimate, Localizer
     from icploc.logs import open_log
     from icploc.maps import Map, MapError
+    from icploc.messages import Odometry, Scan
     from icploc.trajectory import Trajectory, evaluate, read_tum
 
-# Heavier parts load on first use, so ``import icploc`` stays fast.
+# Heavier parts load on first use, so ``import icploc`` stays fast (it imports no numpy:
+# the ``icploc`` command can still choose how numpy starts, see icploc.cli.main).
 _LAZY = {
+    "Scan": ("icploc.messages", "Scan"),
+    "Odometry": ("icploc.messages", "Odometry"),
     "Map": ("icploc.maps", "Map"),
     "MapError": ("icploc.maps", "MapError"),
     "Localizer": ("icploc.localizer", "Localizer"),

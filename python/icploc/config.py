@@ -32,19 +32,12 @@ from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, get_args
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    ValidationError,
-    ValidationInfo,
-    field_validator,
-    model_validator,
-)
-
 from icploc.errors import ConfigError
+from icploc.lazy_model import LazyModel, field_validator, model_validator
+from icploc.lazy_model import field as _field
 
 if TYPE_CHECKING:
+    from pydantic import ValidationError, ValidationInfo
     from typing_extensions import Self
 
     from icploc._core import IcpConfig
@@ -86,46 +79,30 @@ def _core_default(name: str) -> Any:
 def _f(default: Any, doc: str, unit: str = "", **limits: Any) -> Any:
     """A field: its default, its description, its unit (m, rad, deg, s, Hz, scans, ...)
     and its range (``gt`` / ``ge`` / ``lt`` / ``le``)."""
-    return Field(
-        default, description=doc, json_schema_extra={"unit": unit} if unit else None, **limits
-    )
+    return _field(default, doc, unit, **limits)
 
 
-class Section(BaseModel):
+class Section(LazyModel):
     """Base of the config sections: strict types (an int is an int, a bool is no number),
     finite floats, no unknown keys, validated at construction, on assignment and in
-    :meth:`replace`; a :class:`ConfigError` names the section and the field."""
+    :meth:`replace`; a :class:`ConfigError` names the section and the field.
 
-    model_config = ConfigDict(
-        extra="forbid",
-        strict=True,
-        allow_inf_nan=False,
-        validate_assignment=True,
-        defer_build=True,
-    )
+    The sections are :class:`icploc.lazy_model.LazyModel` classes: written as pydantic
+    models and validated by one (their twin, built on first use); the defaults take no
+    validator, so a process that only uses them never imports pydantic (~70 ms)."""
+
+    model_settings: ClassVar[dict[str, Any]] = {
+        "extra": "forbid",
+        "strict": True,
+        "allow_inf_nan": False,
+        "validate_assignment": True,
+    }
     #: the section's key in a config file
     section: ClassVar[str] = ""
 
-    def __init__(self, **data: Any) -> None:
-        if not data:  # the defaults: no field to validate, only the section's _check
-            _defaults(self)
-            check = getattr(type(self), "_check", None)  # its model_validator, if any
-            try:
-                if check is not None:
-                    check(self)
-                return
-            except ValueError:
-                pass  # the validated construction below words the error
-        try:
-            super().__init__(**data)
-        except ValidationError as e:
-            raise _config_error(e, type(self)) from None
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        try:
-            super().__setattr__(name, value)
-        except ValidationError as e:
-            raise _config_error(e, type(self)) from None
+    @classmethod
+    def validation_error(cls, e: ValidationError) -> Exception:
+        return _config_error(e, cls)
 
     def replace(self, **changes: Any) -> Self:
         """A validated copy with some values changed (``dataclasses.replace`` for a section)."""
@@ -137,16 +114,6 @@ class Section(BaseModel):
 
     def to_dict(self) -> dict[str, Any]:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.__dict__.items()}
-
-
-def _defaults(model: BaseModel) -> None:
-    """Set ``model`` (in its ``__init__``, given no values) to its fields' defaults without
-    the validator: what the validated construction gives, as defaults are not validated field
-    by field (``validate_default`` is off) and the section's ``_check`` runs after this
-    (tests/test_config_defaults.py compares each section with its validated construction).
-    The models are built lazily (``defer_build``): a process that only uses the defaults
-    never pays for building the validators (~30 ms) nor for pydantic's plugin discovery."""
-    model.__setstate__(type(model).model_construct().__getstate__())
 
 
 def _tuple(v: Any) -> Any:
@@ -750,22 +717,25 @@ _SECTIONS: tuple[type[Section], ...] = (
 )
 
 
-class LocalizerConfig(BaseModel):
+class LocalizerConfig(LazyModel):
     """Every setting of the localizer, by section (see the module docstring)."""
 
-    model_config = ConfigDict(
-        extra="forbid", strict=True, validate_assignment=True, defer_build=True
-    )
+    model_settings: ClassVar[dict[str, Any]] = {
+        "extra": "forbid",
+        "strict": True,
+        "validate_assignment": True,
+        "arbitrary_types_allowed": True,  # a section is checked by _a_section
+    }
 
-    icp: IcpSection = Field(default_factory=IcpSection)
-    scan: ScanSection = Field(default_factory=ScanSection)
-    gating: GatingSection = Field(default_factory=GatingSection)
-    localizer: LocalizerSection = Field(default_factory=LocalizerSection)
-    map: MapSection = Field(default_factory=MapSection)
-    relocalize: RelocalizeSection = Field(default_factory=RelocalizeSection)
-    global_search: GlobalSearchSection = Field(default_factory=GlobalSearchSection)
-    recovery: RecoverySection = Field(default_factory=RecoverySection)
-    kidnap: KidnapSection = Field(default_factory=KidnapSection)
+    icp: IcpSection = _field(default_factory=IcpSection)
+    scan: ScanSection = _field(default_factory=ScanSection)
+    gating: GatingSection = _field(default_factory=GatingSection)
+    localizer: LocalizerSection = _field(default_factory=LocalizerSection)
+    map: MapSection = _field(default_factory=MapSection)
+    relocalize: RelocalizeSection = _field(default_factory=RelocalizeSection)
+    global_search: GlobalSearchSection = _field(default_factory=GlobalSearchSection)
+    recovery: RecoverySection = _field(default_factory=RecoverySection)
+    kidnap: KidnapSection = _field(default_factory=KidnapSection)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -775,20 +745,9 @@ class LocalizerConfig(BaseModel):
             raise ValueError(f"expected a {want.__name__}, got {type(v).__name__}")
         return v
 
-    def __init__(self, **sections: Any) -> None:
-        if not sections:  # every section's defaults (see _defaults)
-            _defaults(self)
-            return
-        try:
-            super().__init__(**sections)
-        except ValidationError as e:
-            raise _config_error(e, None) from None
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        try:
-            super().__setattr__(name, value)
-        except ValidationError as e:
-            raise _config_error(e, None) from None
+    @classmethod
+    def validation_error(cls, e: ValidationError) -> Exception:
+        return _config_error(e, None)
 
     def validate(self) -> LocalizerConfig:  # type: ignore[override]
         """Every section is valid from construction on: returns self (kept for callers)."""

@@ -17,8 +17,6 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-from icploc.drivers import arcos_protocol as ap
-from icploc.drivers import sick_protocol as sp
 from icploc.drivers.recording import (
     KIND_META,
     KIND_RX,
@@ -52,6 +50,8 @@ def _sick_stream(path: str | os.PathLike[str], dev: int, meta: dict[str, Any]) -
     flipped = bool(meta.get("flipped", False))
     bits = int(meta.get("bits_per_byte", 11 if variant == "pls" else 10))
     max_range = meta.get("max_range")
+    from icploc.drivers import sick_protocol as sp  # on reading one (~8 ms to import)
+
     parser = sp.TelegramParser(addresses=frozenset(range(0x80, 0x85)))
     seq = 0
     for rec in iter_records(path):
@@ -78,6 +78,8 @@ def _sick_stream(path: str | os.PathLike[str], dev: int, meta: dict[str, Any]) -
 def _powerbot_stream(
     path: str | os.PathLike[str], dev: int, meta: dict[str, Any]
 ) -> Iterator[Odometry]:
+    from icploc.drivers import arcos_protocol as ap  # on reading one (~5 ms to import)
+
     parser = ap.PacketParser(byte_time=10.0 / float(meta.get("baudrate", 9600)))
     decoder = ap.SipDecoder(ap.POWERBOT)
     forced = False

@@ -84,7 +84,7 @@ fn bench_build(c: &mut Criterion) {
         g.bench_function("kdtree+grid_2cm", |b| {
             b.iter(|| black_box(with_grid(&p, &n)))
         });
-        let (values, lengths) = runs::encode(idx.cache_cells().expect("a grid"));
+        let (values, lengths) = runs::encode(&idx.cache_cells().expect("a grid"));
         println!(
             "{name}: {} runs of {} cells",
             values.len(),
@@ -97,6 +97,17 @@ fn bench_build(c: &mut Criterion) {
                     MapIndex::new(p.clone(), Some(n.clone()))
                         .unwrap()
                         .with_cache_cells(DEFAULT_CACHE_RESOLUTION, cells)
+                        .unwrap(),
+                )
+            })
+        });
+        // what a cached map's load does: the runs decoded block by block on first use
+        g.bench_function("kdtree+grid_lazy_runs", |b| {
+            b.iter(|| {
+                black_box(
+                    MapIndex::new(p.clone(), Some(n.clone()))
+                        .unwrap()
+                        .with_cache_runs(DEFAULT_CACHE_RESOLUTION, values.clone(), &lengths)
                         .unwrap(),
                 )
             })

@@ -203,7 +203,7 @@ impl MapIndex {
     /// The closest-point grid's cells in storage order (map point indices, `u32::MAX` for
     /// none), to save them and rebuild the same index with [`MapIndex::with_cache_cells`]
     /// without computing them again; `None` without a grid.
-    pub fn cache_cells(&self) -> Option<&[u32]> {
+    pub fn cache_cells(&self) -> Option<std::borrow::Cow<'_, [u32]>> {
         self.cache.as_ref().map(|c| c.cells())
     }
 
@@ -235,6 +235,53 @@ impl MapIndex {
             CACHE_REACH,
             MAX_CACHE_CELLS,
             cells,
+        ) {
+            Ok(Ok(g)) => self.cache = Some(g),
+            Ok(Err(why)) => return Err(bad(why)),
+            Err(why) => return Err(bad(format!("no grid at this resolution: {why}"))),
+        }
+        Ok(self)
+    }
+
+    /// [`MapIndex::with_cache_cells`] with the cells given as [`runs::encode`]'s runs
+    /// (`values`, `lengths`) and decoded block by block when queries first reach them, not
+    /// all at once: a saved grid of a building is tens of MB of cells, of which a replay
+    /// reads a part, so loading the index costs little more than reading the runs. Runs that
+    /// do not decode are an error naming the "grid runs"; cells that do not fit the layout
+    /// are one as in `with_cache_cells`.
+    pub fn with_cache_runs(
+        mut self,
+        resolution: f64,
+        values: Vec<u32>,
+        lengths: &[u32],
+    ) -> Result<Self> {
+        if !(resolution > 0.0 && resolution.is_finite()) {
+            return Err(IcpError::InvalidConfig {
+                field: "cache_resolution",
+                value: resolution.to_string(),
+                reason: "must be positive and finite",
+            });
+        }
+        runs::total(&values, lengths, MAX_CACHE_CELLS).map_err(|reason| {
+            IcpError::InvalidInput {
+                what: "grid runs".into(),
+                reason,
+            }
+        })?;
+        self.cache = None;
+        self.cache_fallback = None;
+        let bad = |reason: String| IcpError::InvalidInput {
+            what: "closest-point grid cells".into(),
+            reason,
+        };
+        match ClosestGrid::with_runs(
+            &self.points,
+            self.bounds,
+            resolution,
+            CACHE_REACH,
+            MAX_CACHE_CELLS,
+            values,
+            lengths,
         ) {
             Ok(Ok(g)) => self.cache = Some(g),
             Ok(Err(why)) => return Err(bad(why)),
@@ -558,7 +605,7 @@ mod tests {
             .unwrap()
             .with_cache(Some(0.02))
             .unwrap();
-        let (v, n) = runs::encode(built.cache_cells().unwrap());
+        let (v, n) = runs::encode(&built.cache_cells().unwrap());
         let cells = runs::decode(&v, &n, MAX_CACHE_CELLS).unwrap();
         assert!(
             v.len() * 10 < cells.len(),
@@ -575,6 +622,41 @@ mod tests {
             let q = [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)];
             assert_eq!(loaded.correspondence(q), built.correspondence(q));
         }
+    }
+
+    #[test]
+    fn saved_grid_runs_rebuild_the_same_index_lazily() {
+        let mut rng = crate::testkit::Rng::new(22);
+        let mut pts = wall_points();
+        pts.extend((0..200).map(|_| [rng.range(-1.0, 6.0), rng.range(-1.0, 6.0)]));
+        let built = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache(Some(0.02))
+            .unwrap();
+        let (v, n) = runs::encode(&built.cache_cells().unwrap());
+        let loaded = MapIndex::new(pts.clone(), None)
+            .unwrap()
+            .with_cache_runs(0.02, v.clone(), &n)
+            .unwrap();
+        for _ in 0..2000 {
+            let q = [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)];
+            assert_eq!(loaded.correspondence(q), built.correspondence(q));
+        }
+        assert_eq!(loaded.cache_cells(), built.cache_cells());
+        let fresh = || MapIndex::new(pts.clone(), None).unwrap();
+        let k = v.len() - 1;
+        let short = fresh()
+            .with_cache_runs(0.02, v[..k].to_vec(), &n[..k])
+            .unwrap_err();
+        assert!(short.to_string().contains("cells given"), "{short}");
+        let unpaired = fresh()
+            .with_cache_runs(0.02, v.clone(), &n[..k])
+            .unwrap_err();
+        assert!(unpaired.to_string().contains("grid runs"), "{unpaired}");
+        let mut wrong = v.clone();
+        wrong[0] = pts.len() as u32;
+        let e = fresh().with_cache_runs(0.02, wrong, &n).unwrap_err();
+        assert!(e.to_string().contains("cell 0 names point"), "{e}");
     }
 
     #[test]

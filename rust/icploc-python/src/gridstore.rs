@@ -22,7 +22,7 @@ type Runs<'py> = (Bound<'py, PyArray1<u32>>, Bound<'py, PyArray1<u32>>, f64);
 fn grid_runs<'py>(py: Python<'py>, index: &PyMapIndex) -> Option<Runs<'py>> {
     let inner = index.inner.clone();
     let res = inner.cache_resolution()?;
-    let (v, n) = py.detach(|| runs::encode(inner.cache_cells().unwrap_or(&[])));
+    let (v, n) = py.detach(|| runs::encode(&inner.cache_cells().unwrap_or_default()));
     Some((v.into_pyarray(py), n.into_pyarray(py), res))
 }
 
@@ -53,18 +53,9 @@ fn index_from_grid_runs(
     };
     let pv = p.pairs().to_vec();
     let nv = n.as_ref().map(|a| a.pairs().to_vec());
+    let values = v.to_vec();
     let idx = py
-        .detach(|| {
-            guarded(|| {
-                let cells = runs::decode(v, l, core::index::MAX_CACHE_CELLS).map_err(|reason| {
-                    core::IcpError::InvalidInput {
-                        what: "grid runs".into(),
-                        reason,
-                    }
-                })?;
-                core::MapIndex::new(pv, nv)?.with_cache_cells(resolution, cells)
-            })
-        })
+        .detach(|| guarded(|| core::MapIndex::new(pv, nv)?.with_cache_runs(resolution, values, l)))
         .map_err(|e| to_py(py, e))?;
     Ok(PyMapIndex {
         inner: Arc::new(idx),

@@ -24,7 +24,10 @@
 //! at least as far as `p*`), or no answer where there is no tile (the index then asks the
 //! k-d tree).
 
+use std::borrow::Cow;
 use std::collections::HashSet;
+
+use super::runs;
 
 /// Version of the cells' computation and storage order: saved cells are valid only for
 /// the version that made them (bump on any change to either).
@@ -99,7 +102,10 @@ pub(super) struct ClosestGrid {
     /// is then row-major over the box (a query is one multiply-add, as in a plain grid)
     full: Option<[u64; 4]>,
     /// TILE_CELLS map indices per tile, tiles in row-major order of their coordinates
+    /// (empty when `lazy` holds them)
     cells: Vec<u32>,
+    /// the cells of a saved grid, decoded block by block as queries reach them
+    lazy: Option<runs::Lazy>,
 }
 
 /// Tile coordinates → tile slot: a dense array over the tiles' bounding box when that has at
@@ -235,10 +241,44 @@ impl ClosestGrid {
         Self::build_with(points, bounds, res, reach, max_cells, Fill::Given(cells))
     }
 
+    /// The grid [`ClosestGrid::with_cells`] makes from the cells as [`runs::encode`]'s runs,
+    /// decoded only where queries reach (`Ok(Err(why))` also for runs that do not decode).
+    pub(super) fn with_runs(
+        points: &[[f64; 2]],
+        bounds: [f64; 4],
+        res: f64,
+        reach: f64,
+        max_cells: usize,
+        values: Vec<u32>,
+        lengths: &[u32],
+    ) -> Result<std::result::Result<Self, String>, Unbuilt> {
+        let lazy = match runs::Lazy::new(values, lengths, max_cells) {
+            Ok(l) => l,
+            Err(why) => return Ok(Err(why)),
+        };
+        Self::build_with(points, bounds, res, reach, max_cells, Fill::Runs(lazy))
+    }
+
     /// The cells (map point indices, `u32::MAX` for none) in storage order, for
     /// [`ClosestGrid::with_cells`].
-    pub(super) fn cells(&self) -> &[u32] {
-        &self.cells
+    pub(super) fn cells(&self) -> Cow<'_, [u32]> {
+        match &self.lazy {
+            Some(l) => Cow::Owned(l.to_vec()),
+            None => Cow::Borrowed(&self.cells),
+        }
+    }
+
+    /// Cell `i` in storage order.
+    #[inline(always)]
+    fn cell_at(&self, i: usize) -> u32 {
+        match &self.lazy {
+            Some(l) => l.get(i),
+            None => self.cells[i],
+        }
+    }
+
+    fn cell_count(&self) -> usize {
+        self.lazy.as_ref().map_or(self.cells.len(), |l| l.len())
     }
 
     /// [`ClosestGrid::build`] with the cells filled as `fill` says (`Ok(Err(why))`: given
@@ -370,6 +410,7 @@ impl ClosestGrid {
             dir: Directory::new(&keys, full),
             full: None,
             cells: Vec::new(),
+            lazy: None,
         };
         // the tiles' bounding box in cells
         let b = [
@@ -395,6 +436,26 @@ impl ClosestGrid {
                     return Ok(Err(format!("cell {i} names point {} of {n}", cells[i])));
                 }
                 grid.cells = cells;
+                grid.full = full.map(|_| b);
+                return Ok(Ok(grid));
+            }
+            Fill::Runs(lazy) => {
+                let want = match full {
+                    Some(_) => (b[2] * b[3]) as usize,
+                    None => keys.len() * TILE_CELLS,
+                };
+                if lazy.len() != want {
+                    return Ok(Err(format!(
+                        "{} cells given, the layout has {want}",
+                        lazy.len()
+                    )));
+                }
+                let n = points.len() as u32;
+                if let Some(r) = lazy.run_values().iter().position(|&j| j != NONE && j >= n) {
+                    let (i, j) = (lazy.run_start(r), lazy.run_values()[r]);
+                    return Ok(Err(format!("cell {i} names point {j} of {n}")));
+                }
+                grid.lazy = Some(lazy);
                 grid.full = full.map(|_| b);
                 return Ok(Ok(grid));
             }
@@ -472,13 +533,13 @@ impl ClosestGrid {
             if !(x < w && y < h) {
                 return None;
             }
-            let j = self.cells[(y * w + x) as usize];
+            let j = self.cell_at((y * w + x) as usize);
             return (j != NONE).then_some(j as usize);
         }
         let s = self.slot_of(key(gx >> TILE_SHIFT, gy >> TILE_SHIFT))?;
         let lx = (gx as usize) & (TILE - 1);
         let ly = (gy as usize) & (TILE - 1);
-        let j = self.cells[s * TILE_CELLS + (ly << TILE_SHIFT) + lx];
+        let j = self.cell_at(s * TILE_CELLS + (ly << TILE_SHIFT) + lx);
         (j != NONE).then_some(j as usize)
     }
 
@@ -493,9 +554,9 @@ impl ClosestGrid {
             Some([_, _, w, _]) => {
                 let tw = w as usize / TILE;
                 let (sx, sy) = (s % tw, s / tw);
-                self.cells[(sy * TILE + ly) * w as usize + sx * TILE + lx]
+                self.cell_at((sy * TILE + ly) * w as usize + sx * TILE + lx)
             }
-            None => self.cells[s * TILE_CELLS + ly * TILE + lx],
+            None => self.cell_at(s * TILE_CELLS + ly * TILE + lx),
         }
     }
 
@@ -535,12 +596,14 @@ impl ClosestGrid {
 
     /// Number of tiles.
     pub(super) fn tiles(&self) -> usize {
-        self.cells.len() / TILE_CELLS
+        self.cell_count() / TILE_CELLS
     }
 
     /// Heap bytes held (cells and hash table).
     pub(super) fn bytes(&self) -> usize {
-        self.cells.len() * std::mem::size_of::<u32>() + self.dir.bytes()
+        self.cells.len() * std::mem::size_of::<u32>()
+            + self.lazy.as_ref().map_or(0, |l| l.bytes())
+            + self.dir.bytes()
     }
 
     /// Seed and propagate. `keys` are the tile keys in slot order (sorted row-major).
@@ -773,6 +836,8 @@ enum Fill {
     Tiled,
     /// given (an earlier build's cells)
     Given(Vec<u32>),
+    /// given as runs, decoded on first use
+    Runs(runs::Lazy),
 }
 
 /// Squared distance from map point `j` to (qx, qy), written as everywhere in this module
