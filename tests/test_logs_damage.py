@@ -182,3 +182,18 @@ def test_saturation_value_found_under_a_tail_of_absurd_readings(tmp_path: Path) 
     p.write_text(text)
     d = read_carmen(p)
     assert math.isclose(d.info.max_range, 81.91 - 0.25)
+
+
+@pytest.mark.parametrize(("fmt", "cut"), [("ROBOTLASER1", "ROBOTLASE"), ("FLASER", "FLAS")])
+def test_a_line_torn_inside_its_type_word_is_listed_as_malformed(
+    tmp_path: Path, fmt: str, cut: str
+) -> None:
+    """A write that stopped inside the first word (``ROBOTLASE``) is damage at that line, not
+    an unknown message type skipped in silence (hypothesis found it: seed 267789403)."""
+    lines = _clean_text(tmp_path, fmt).split("\n")
+    k = next(i for i, ln in enumerate(lines) if ln.startswith(fmt))
+    lines[k] = cut
+    p = tmp_path / "torn.log"
+    p.write_text("\n".join(lines))
+    dropped = read_carmen(p).info.dropped
+    assert [(ln, cut in why) for ln, why in dropped] == [(k + 1, True)]

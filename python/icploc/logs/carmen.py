@@ -173,6 +173,12 @@ _BINARY = re.compile(r"[^\t\r\x20-\x7e]")
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
+def _cut_type(tok: str) -> str | None:
+    """The message type this reader reads that ``tok`` is the start of, cut short (a line torn
+    inside its first word, ``ROBOTLASE``), or None."""
+    return next((k for k in CARMEN_TYPES if k != tok and k.startswith(tok)), None)
+
+
 def _is_type_word(tok: str) -> bool:
     """A CARMEN message type: an upper-case ASCII word (``FLASER``, ``GPS_NMEA`` ...)."""
     return tok.isascii() and tok.replace("_", "").isalnum() and tok.isupper()
@@ -690,6 +696,8 @@ def read_carmen(
             raw.append(i)
         elif not _is_type_word(kind) or _BINARY.search(line):
             damage.drop(LogFormatError(spath, "not a CARMEN message (unreadable line)", i + 1))
+        elif len(t) == 1 and (whole := _cut_type(kind)):
+            damage.drop(LogFormatError(spath, f"torn line: {kind!r} is a cut-off {whole}", i + 1))
         else:
             if kind == "PARAM" and len(t) == 3:
                 params[t[1]] = t[2].split(None, 1)[0] if t[2].split() else ""
