@@ -89,7 +89,7 @@ pub struct Fit {
 /// Distance from the map-frame point `q` to the map: point-to-line through the nearest
 /// map point when it is near (a sparsely sampled wall is a line, not its samples).
 #[inline]
-fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64) -> f64 {
+pub(crate) fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64) -> f64 {
     let (d2, j) = index.correspondence(q);
     if d2 <= near2 {
         let (x, n) = (index.points()[j], normals[j]);
