@@ -50,6 +50,7 @@ fn main() {
             cs.retain(|c| c.scan.len() >= 10);
             let n = cs.len();
             let mut times = vec![f64::INFINITY; n];
+            let mut paths = vec![StartPath::Plain; n];
             let (mut ok, mut win) = (0, 0);
             for pass in 0..3 {
                 for (k, c) in cs.iter().enumerate() {
@@ -65,6 +66,7 @@ fn main() {
                     if pass > 0 {
                         continue;
                     }
+                    paths[k] = r.start;
                     let dt = (r.pose.x - c.truth.x).hypot(r.pose.y - c.truth.y);
                     let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
                     let good = dt < 0.02 && dth < 0.5f64.to_radians();
@@ -126,6 +128,30 @@ fn main() {
             }
             if std::env::var("CASE").is_ok() {
                 continue;
+            }
+            if std::env::var("BYPATH").is_ok() {
+                for p in [
+                    StartPath::Plain,
+                    StartPath::Local,
+                    StartPath::Window,
+                    StartPath::WindowKeptPlain,
+                ] {
+                    let mut t: Vec<f64> = (0..n)
+                        .filter(|&k| paths[k] == p)
+                        .map(|k| times[k])
+                        .collect();
+                    if t.is_empty() {
+                        continue;
+                    }
+                    t.sort_by(f64::total_cmp);
+                    println!(
+                        "    {:?}: {} cases, median {:.3} ms, p95 {:.3} ms",
+                        p,
+                        t.len(),
+                        t[t.len() / 2],
+                        t[t.len() * 95 / 100]
+                    );
+                }
             }
             times.sort_by(f64::total_cmp);
             println!(

@@ -593,7 +593,7 @@ fn align_unchecked(
     let plain_score = if plain.termination == Termination::TooFewInliers {
         -1.0
     } else {
-        fit.score
+        rank(&fit, cfg)
     };
     let mut pick = Pick {
         best: plain.clone(),
@@ -629,7 +629,7 @@ fn align_unchecked(
             window::KEEP_RATIO,
             window::WINDOW_SEEDS,
         ) {
-            refine_seeds(scan, index, field, &win.seeds, cfg, ws, &mut pick);
+            refine_seeds(scan, index, field, &win.seeds, center, cfg, ws, &mut pick);
             if let Some(f) = pick.best.fit {
                 if acceptable(&pick.best, &f, center, cfg) && pick.from_window {
                     let mut best = pick.best;
@@ -653,7 +653,7 @@ fn align_unchecked(
         best.start = StartPath::WindowKeptPlain;
         return best;
     };
-    refine_seeds(scan, index, field, &win.seeds, cfg, ws, &mut pick);
+    refine_seeds(scan, index, field, &win.seeds, center, cfg, ws, &mut pick);
     // no pose of the window explains the scan without beams through walls: the right one
     // may have scored well below the first pass's seeds on the pyramid (which cannot see
     // through-wall beams), so search the window again, wider, skipping the seeds tried
@@ -666,7 +666,7 @@ fn align_unchecked(
             window::WIDE_KEEP_RATIO,
             window::WIDE_SEEDS,
         ) {
-            refine_seeds(scan, index, field, &wide.seeds, cfg, ws, &mut pick);
+            refine_seeds(scan, index, field, &wide.seeds, center, cfg, ws, &mut pick);
         }
     }
     let mut best = pick.best;
@@ -711,8 +711,8 @@ fn settle(
 ) -> Option<IcpResult> {
     let fit = r.fit?;
     let ok = acceptable(&r, &fit, center, cfg);
-    if r.termination != Termination::TooFewInliers && fit.score > pick.score {
-        pick.score = fit.score;
+    if r.termination != Termination::TooFewInliers && rank(&fit, cfg) > pick.score {
+        pick.score = rank(&fit, cfg);
         pick.best = r.clone();
         pick.from_window = true;
     }
@@ -753,13 +753,13 @@ fn settle(
         }
         let ff = assess(scan, index, rr.pose, cfg);
         rr.fit = Some(ff);
-        if ff.score > best_fit.score + SLIDE_MARGIN {
+        if rank(&ff, cfg) > rank(&best_fit, cfg) + SLIDE_MARGIN {
             (best, best_fit, moved) = (rr, ff, true);
         }
     }
     if moved {
-        if best_fit.score > pick.score {
-            pick.score = best_fit.score;
+        if rank(&best_fit, cfg) > pick.score {
+            pick.score = rank(&best_fit, cfg);
             pick.best = best.clone();
             pick.from_window = true;
         }
@@ -835,9 +835,27 @@ fn polish(
     (f.score > score).then_some((r, f))
 }
 
+/// The ranking of candidate poses: the fit's score, times `TIGHT_REF · expected_noise /
+/// rms` when the inliers' RMS exceeds `TIGHT_REF · expected_noise`. A right fit's RMS is
+/// the range noise; on the clinic and the apartment the wrong poses that outscore the
+/// truth (people and furniture ends make up for a door frame) do so with an RMS of
+/// 0.55-1 σ against the truth's 0.4-0.55 σ.
+fn rank(fit: &Fit, cfg: &IcpConfig) -> f64 {
+    let knee = TIGHT_REF * cfg.expected_noise;
+    if fit.rms > knee {
+        fit.score * knee / fit.rms
+    } else {
+        fit.score
+    }
+}
+
+/// See [`rank`].
+const TIGHT_REF: f64 = 0.5;
+
 /// The best pose so far among the plain fit and the window's refinements.
 struct Pick {
     best: IcpResult,
+    /// its [`rank`]
     score: f64,
     from_window: bool,
     /// seeds already refined
@@ -846,13 +864,17 @@ struct Pick {
 
 /// Rank the coarse `seeds` not yet tried by how well they explain the scan (see-through included: the
 /// pyramid's likelihood alone cannot tell a pose whose beams pass through walls), with the
-/// noise widened to the lattice's error; refine the best few by ICP, polish each
-/// ([`polish`]), and keep the one whose fit scores best in `pick`.
+/// noise widened to the lattice's error; refine the best few by ICP, polish each whose
+/// RMS is loose ([`polish`], [`POLISH_RMS`]), and keep the one whose fit scores best in
+/// `pick` (stopping early once one explains the scan and the next ranks well below it,
+/// [`RANK_GAP`]).
+#[allow(clippy::too_many_arguments)]
 fn refine_seeds(
     scan: &[[f64; 2]],
     index: &MapIndex,
     field: &crate::likelihood::LikelihoodField,
     seeds: &[(Pose2, f64)],
+    center: Pose2,
     cfg: &IcpConfig,
     ws: &mut Workspace,
     pick: &mut Pick,
@@ -869,7 +891,7 @@ fn refine_seeds(
         .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
     let refine_cfg = refine_config(field, cfg);
-    for &(_, seed) in ranked.iter().take(window::WINDOW_REFINED) {
+    for (k, &(seed_rank, seed)) in ranked.iter().take(window::WINDOW_REFINED).enumerate() {
         pick.tried.push(seed);
         let mut r = align_plain(scan, index, seed, &refine_cfg, ws);
         // an iteration limit reached from a good seed is still a pose: the fit decides
@@ -877,17 +899,34 @@ fn refine_seeds(
             continue;
         }
         let mut f = assess(scan, index, r.pose, cfg);
-        if let Some((p, pf)) = polish(scan, index, r.pose, f.score, cfg, ws) {
-            (r, f) = (p, pf);
+        if f.rms > POLISH_RMS * cfg.expected_noise {
+            if let Some((p, pf)) = polish(scan, index, r.pose, f.score, cfg, ws) {
+                (r, f) = (p, pf);
+            }
         }
-        if f.score > pick.score {
+        let accepted = acceptable(&r, &f, center, cfg) && r.degeneracy >= SLIDE_DEGENERACY;
+        if rank(&f, cfg) > pick.score {
             r.fit = Some(f);
-            pick.score = f.score;
+            pick.score = rank(&f, cfg);
             pick.best = r;
             pick.from_window = true;
         }
+        // this seed explains the scan outside a corridor, and the next ranks well below it:
+        // the rest would only cost
+        let next = ranked.get(k + 1).map_or(0.0, |n| n.0);
+        if accepted
+            && pick.from_window
+            && pick.score == rank(&f, cfg)
+            && next < RANK_GAP * seed_rank
+        {
+            break;
+        }
     }
 }
+
+/// Seeds ranking below this fraction of a refined seed that explains the scan (outside a
+/// corridor) are not refined.
+const RANK_GAP: f64 = 0.85;
 
 /// The ICP of a start within a lattice step of its optimum (a window seed, a place along
 /// a corridor): a wide first threshold would only let clutter pull it away.
