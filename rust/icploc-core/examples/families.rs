@@ -108,19 +108,24 @@ fn main() {
                     ..cfg.clone()
                 };
                 let (mut tp, mut ta) = (Vec::new(), Vec::new());
+                let mut iters = Vec::new();
                 for c in &cs {
                     let t0 = Instant::now();
                     let r = align(&c.scan, &idx, c.initial, &plain_cfg).unwrap();
                     tp.push(t0.elapsed().as_secs_f64() * 1e3);
+                    iters.push(r.iterations);
                     let t0 = Instant::now();
                     std::hint::black_box(icploc_core::icp::assess(&c.scan, &idx, r.pose, &cfg));
                     ta.push(t0.elapsed().as_secs_f64() * 1e3);
                 }
                 tp.sort_by(f64::total_cmp);
                 ta.sort_by(f64::total_cmp);
+                iters.sort();
                 println!(
-                    "{:9} {name}: plain ICP median {:.3} ms p95 {:.3}; assess median {:.3} ms",
+                    "{:9} {name}: plain ICP iterations median {} p95 {}, median {:.3} ms p95 {:.3}; assess median {:.3} ms",
                     w.name,
+                    iters[n / 2],
+                    iters[n * 95 / 100],
                     tp[n / 2],
                     tp[n * 95 / 100],
                     ta[n / 2]

@@ -641,6 +641,9 @@ fn align_unchecked(
             }
         }
     }
+    // the full window's seeds are refined afresh: near a wrong prior heading the narrow
+    // window's seeds lie within `DISTINCT_ANGLE` of the right ones
+    pick.tried.clear();
     let Some(win) = window::search(
         field,
         scan,
