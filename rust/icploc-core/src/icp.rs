@@ -887,12 +887,25 @@ fn refine_seeds(
         ..cfg.clone()
     };
     let sub = window::subsample(scan, scan.len().div_ceil(window::RANKING_POINTS), 3);
-    let mut ranked: Vec<(f64, Pose2)> = seeds
+    // the score is the distances' likelihood times the see-through factor (at most 1): the
+    // see-through (the costly part) only for seeds whose likelihood could still reach the
+    // best few, which gives exactly the ranking of scoring them all
+    let mut bounds: Vec<(f64, Pose2)> = seeds
         .iter()
         .filter(|(seed, _)| pick.tried.iter().all(|t| window::distinct(seed, t)))
-        .map(|&(seed, _)| (assess(&sub, index, seed, &coarse_cfg).score, seed))
+        .map(|&(seed, _)| (window::distances(&sub, index, seed, &coarse_cfg).2, seed))
         .collect();
-    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    bounds.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut ranked: Vec<(f64, Pose2)> = Vec::new();
+    for (bound, seed) in bounds {
+        // one more than are refined: the early stop compares with the next seed
+        if ranked.len() > window::WINDOW_REFINED && bound < ranked[window::WINDOW_REFINED].0 {
+            break;
+        }
+        let score = bound * (1.0 - window::see_through(&sub, index, seed)).powi(2);
+        let at = ranked.partition_point(|r| r.0 >= score);
+        ranked.insert(at, (score, seed));
+    }
     let refine_cfg = refine_config(field, cfg);
     for (k, &(seed_rank, seed)) in ranked.iter().take(window::WINDOW_REFINED).enumerate() {
         pick.tried.push(seed);
