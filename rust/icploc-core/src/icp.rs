@@ -389,9 +389,9 @@ impl Termination {
 pub enum StartPath {
     /// The ICP from the initial pose explained the scan: no search.
     Plain,
-    /// It did not, or it lay in a corridor: the result is the ICP from a cheap local
-    /// candidate (a place along the corridor, or the heading at which the scan's wall
-    /// directions match the map's) that explains the scan; no window search.
+    /// It lay in a corridor (or did not explain the scan, and nothing the window search
+    /// found explained it better): the result is the ICP from another place along the
+    /// corridor.
     Local,
     /// It did not; the window search ran and its refinement did not beat the plain fit.
     WindowKeptPlain,
@@ -598,7 +598,7 @@ fn align_unchecked(
     let mut pick = Pick {
         best: plain.clone(),
         score: plain_score,
-        from_window: false,
+        path: StartPath::Plain,
         tried: Vec::new(),
     };
     if let Some(r) = settle(scan, index, plain, center, cfg, ws, &mut pick) {
@@ -606,9 +606,7 @@ fn align_unchecked(
     }
     // no field (a map too large for its grid): nothing to search
     let Some(field) = index.likelihood_field() else {
-        let mut best = pick.best;
-        best.start = StartPath::WindowKeptPlain;
-        return best;
+        return pick.result();
     };
     // the heading at which the scan's walls line up with the map's: the window at a few
     // headings around it first (a fraction of the full window's cost), and the full window
@@ -631,9 +629,8 @@ fn align_unchecked(
         ) {
             refine_seeds(scan, index, field, &win.seeds, center, cfg, ws, &mut pick);
             if let Some(f) = pick.best.fit {
-                if acceptable(&pick.best, &f, center, cfg) && pick.from_window {
-                    let mut best = pick.best;
-                    best.start = StartPath::Window;
+                if acceptable(&pick.best, &f, center, cfg) && pick.path == StartPath::Window {
+                    let mut best = pick.result();
                     best.window_score = Some(win.seeds[0].1);
                     best.window_second = Some(win.second);
                     return best;
@@ -652,9 +649,7 @@ fn align_unchecked(
         window::KEEP_RATIO,
         window::WINDOW_SEEDS,
     ) else {
-        let mut best = pick.best;
-        best.start = StartPath::WindowKeptPlain;
-        return best;
+        return pick.result();
     };
     refine_seeds(scan, index, field, &win.seeds, center, cfg, ws, &mut pick);
     // no pose of the window explains the scan without beams through walls: the right one
@@ -672,12 +667,7 @@ fn align_unchecked(
             refine_seeds(scan, index, field, &wide.seeds, center, cfg, ws, &mut pick);
         }
     }
-    let mut best = pick.best;
-    best.start = if pick.from_window {
-        StartPath::Window
-    } else {
-        StartPath::WindowKeptPlain
-    };
+    let mut best = pick.result();
     best.window_score = Some(win.seeds[0].1);
     best.window_second = Some(win.second);
     best
@@ -717,7 +707,7 @@ fn settle(
     if r.termination != Termination::TooFewInliers && rank(&fit, cfg) > pick.score {
         pick.score = rank(&fit, cfg);
         pick.best = r.clone();
-        pick.from_window = true;
+        pick.path = StartPath::Local;
     }
     if !ok {
         return None;
@@ -764,7 +754,7 @@ fn settle(
         if rank(&best_fit, cfg) > pick.score {
             pick.score = rank(&best_fit, cfg);
             pick.best = best.clone();
-            pick.from_window = true;
+            pick.path = StartPath::Local;
         }
         if !acceptable(&best, &best_fit, center, cfg) {
             return None;
@@ -860,9 +850,23 @@ struct Pick {
     best: IcpResult,
     /// its [`rank`]
     score: f64,
-    from_window: bool,
+    /// where it came from: the plain fit, a place along a corridor, or a window seed
+    path: StartPath,
     /// seeds already refined
     tried: Vec<Pose2>,
+}
+
+impl Pick {
+    /// The best pose as the result of a verified start that did not accept the plain fit
+    /// as it was (the plain fit itself: `WindowKeptPlain`).
+    fn result(self) -> IcpResult {
+        let mut best = self.best;
+        best.start = match self.path {
+            StartPath::Plain => StartPath::WindowKeptPlain,
+            p => p,
+        };
+        best
+    }
 }
 
 /// Rank the coarse `seeds` not yet tried by how well they explain the scan (see-through included: the
@@ -925,13 +929,13 @@ fn refine_seeds(
             r.fit = Some(f);
             pick.score = rank(&f, cfg);
             pick.best = r;
-            pick.from_window = true;
+            pick.path = StartPath::Window;
         }
         // this seed explains the scan outside a corridor, and the next ranks well below it:
         // the rest would only cost
         let next = ranked.get(k + 1).map_or(0.0, |n| n.0);
         if accepted
-            && pick.from_window
+            && pick.path == StartPath::Window
             && pick.score == rank(&f, cfg)
             && next < RANK_GAP * seed_rank
         {
