@@ -13,8 +13,9 @@
 //! Start errors (0.3 m, 0.3 m, 10°) and (1.0 m, 0.5 m, 25°), random signs. Before timing
 //! each cell it prints the success rate (within 2 cm and 0.5°), the median and the p95 over
 //! the 200 cases of each case's fastest of three passes (so that other processes on a
-//! shared machine do not set the p95), and how often the window search ran; criterion then
-//! times repeated passes.
+//! shared machine do not set the p95), how often the window search ran and how often the
+//! result came from a place along a corridor (`StartPath::Local`); criterion then times
+//! repeated passes.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -57,11 +58,16 @@ fn queries() -> Vec<[f64; 2]> {
 }
 
 /// Passes over the cases: (successes, median, p95 of each case's fastest of `PASSES`
-/// passes, window searches).
-fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration, Duration, usize) {
+/// passes, window searches, results from a place along a corridor).
+fn success(
+    idx: &MapIndex,
+    cs: &[Case],
+    cfg: &IcpConfig,
+) -> (usize, Duration, Duration, usize, usize) {
     const PASSES: usize = 3;
     let mut ok = 0;
     let mut windows = 0;
+    let mut locals = 0;
     let mut times: Vec<Duration> = vec![Duration::MAX; cs.len()];
     for pass in 0..PASSES {
         for (k, c) in cs.iter().enumerate() {
@@ -76,7 +82,8 @@ fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration, Du
             if dt < 0.02 && dth < 0.5f64.to_radians() {
                 ok += 1;
             }
-            windows += (r.start != StartPath::Plain) as usize;
+            windows += matches!(r.start, StartPath::Window | StartPath::WindowKeptPlain) as usize;
+            locals += (r.start == StartPath::Local) as usize;
         }
     }
     times.sort();
@@ -85,6 +92,7 @@ fn success(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig) -> (usize, Duration, Du
         times[times.len() / 2],
         times[(times.len() * 95 / 100).min(times.len() - 1)],
         windows,
+        locals,
     )
 }
 
@@ -105,9 +113,9 @@ fn bench_families(c: &mut Criterion) {
             .expect("the map fits the window grid"); // built on first use: not part of an alignment
         for (name, err) in STARTS {
             let cs = world_cases(&w, 200, err, 7);
-            let (ok, med, p95, win) = success(&idx, &cs, &cfg);
+            let (ok, med, p95, win, loc) = success(&idx, &cs, &cfg);
             eprintln!(
-                "align {} {name} start error, default config: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}",
+                "align {} {name} start error, default config: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}, local in {loc}",
                 w.name,
                 cs.len(),
                 100.0 * ok as f64 / cs.len() as f64,
@@ -191,9 +199,9 @@ fn bench_align(c: &mut Criterion) {
                 let idx = cached_index(n);
                 idx.likelihood_field()
                     .expect("the map fits the window grid");
-                let (ok, med, p95, win) = success(&idx, &cs, &cfg);
+                let (ok, med, p95, win, loc) = success(&idx, &cs, &cfg);
                 eprintln!(
-                    "align office {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}",
+                    "align office {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}, local in {loc}",
                     cs.len(),
                     100.0 * ok as f64 / cs.len() as f64,
                 );

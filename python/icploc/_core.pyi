@@ -50,16 +50,22 @@ class IcpConfig:
     The verified start (``window_search``, on by default): when the ICP result does not
     explain the scan -- fewer than ``accept_inlier_ratio`` of the points within
     3 x ``expected_noise`` of the map, their RMS above 2 x ``expected_noise``, or more than
-    ``accept_see_through`` of the beams passing through mapped walls -- a branch-and-bound
-    search over +-``window_position`` (m) and +-``window_heading`` (rad, every
-    ``window_angle_step``) around the initial pose on the map's likelihood pyramid
-    (5 cm cells, built once per MapIndex on first use; 10 or 20 cm on maps whose bounds need
-    more than 2**23 cells, and no search beyond that) finds the best poses there, and ICP
-    from them gives the result that explains the scan best. When the plain fit explains
-    the scan nothing more runs. A fit outside corridors (degeneracy >= 0.25) with no more
-    see-through than ``accept_see_through`` and an RMS within 0.75 x ``expected_noise``
-    explains it with 55 % inliers already (the rest: unmapped things in front of walls); a
-    corridor fit explaining less than 90 % of the scan always gets the search."""
+    ``accept_see_through`` of the beams passing through mapped walls; or it lies outside
+    the window below -- cheap local checks run first, and a branch-and-bound search over
+    +-``window_position`` (m) and +-``window_heading`` (rad, every ``window_angle_step``)
+    around the initial pose on the map's likelihood pyramid (10 cm cells, built once per
+    MapIndex on first use; 20 or 40 cm on maps whose bounds need more than 2**23 cells, and
+    no search beyond that) only when they find nothing that explains the scan; ICP from the
+    best poses gives the result that explains the scan best. When the plain fit explains
+    the scan nothing more runs. A fit with an RMS within 0.75 x ``expected_noise`` and no
+    more see-through than ``accept_see_through`` explains it with 55 % inliers already (the
+    rest: unmapped things in front of walls); one with an RMS within 0.6 x
+    ``expected_noise`` with 50 % inliers and, outside corridors, up to 15 % of the beams
+    through mapped walls (mapped glass). A corridor fit (degeneracy < 0.25) is compared
+    with the other places along the corridor (a 1-D look along its free axis, ICP from the
+    ones that score about as well). When the fit does not explain the scan, the window is
+    searched first at +-4 degrees around the heading at which the scan's wall directions
+    match the map's, and in full only when nothing there explains the scan."""
 
     metric: Metric
     max_iterations: int
@@ -153,9 +159,10 @@ class IcpResult:
         """Why it stopped: mse_below_threshold, mse_change_below_epsilon, step_below_tolerance,
         max_iterations or too_few_inliers."""
     @property
-    def start(self) -> Literal["plain", "window_kept_plain", "window"]:
+    def start(self) -> Literal["plain", "local", "window_kept_plain", "window"]:
         """Which start the result came from: ``plain`` (the ICP from the initial pose explained
-        the scan), ``window_kept_plain`` (it did not; the window search ran but nothing it
+        the scan), ``local`` (the ICP from another place along the corridor the plain fit lay
+        in explained it better), ``window_kept_plain`` (it did not; the window search ran but nothing it
         found explained the scan better -- or, with ``window_score`` None, it could not run: a
         map too large for its grid) or ``window`` (ICP from a window-search pose)."""
     @property

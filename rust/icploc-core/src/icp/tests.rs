@@ -468,3 +468,85 @@ proptest! {
         }
     }
 }
+
+fn fit(inlier_ratio: f64, rms: f64, score: f64) -> Fit {
+    Fit {
+        inlier_ratio,
+        rms,
+        see_through: 0.0,
+        score,
+    }
+}
+
+#[test]
+fn a_loose_fit_ranks_below_a_tight_one_that_scores_a_little_less() {
+    // the clinic's pattern: a wrong pose explains more points (0.68) at an RMS of 0.9 σ,
+    // the truth fewer (0.59) at 0.42 σ
+    let cfg = IcpConfig::default();
+    let wrong = fit(0.88, 0.9 * cfg.expected_noise, 0.68);
+    let truth = fit(0.63, 0.42 * cfg.expected_noise, 0.59);
+    assert!(rank(&truth, &cfg) > rank(&wrong, &cfg));
+}
+
+#[test]
+fn ranks_of_tight_fits_are_their_scores() {
+    let cfg = IcpConfig::default();
+    let f = fit(0.8, 0.3 * cfg.expected_noise, 0.7);
+    assert_eq!(rank(&f, &cfg), 0.7);
+}
+
+#[test]
+fn a_fit_beyond_the_window_does_not_explain_the_scan() {
+    // a right fit in a room explains the scan from a start 10° off; the same fit seen from
+    // a start 40° off lies outside the ±30° window (ICP turned that far: a symmetry)
+    let segs = crate::testkit::rectangle(8.0, 5.0);
+    let (p, n) = sample_segments(&segs, 0.025);
+    let idx = MapIndex::new(p, Some(n)).unwrap();
+    let truth = Pose2::new(3.0, 2.0, 0.2);
+    let mut rng = Rng::new(8);
+    let scan = crate::testkit::make_scan(&segs, truth, 361, 30.0, 0.005, 0.0, &mut rng);
+    let cfg = IcpConfig::default();
+    let r = align(&scan, &idx, truth, &cfg).unwrap();
+    let f = r.fit.unwrap();
+    let near = Pose2::new(3.0, 2.0, 0.2 + 10f64.to_radians());
+    let far = Pose2::new(3.0, 2.0, 0.2 + 40f64.to_radians());
+    assert_eq!(
+        (
+            acceptable(&r, &f, near, &cfg),
+            acceptable(&r, &f, far, &cfg)
+        ),
+        (true, false)
+    );
+}
+
+#[test]
+fn places_along_a_corridor_only_replace_the_fit_when_right() {
+    // the clinic and the warehouse from the small start: every result taken from a place
+    // along the corridor (`local`) is right
+    let mut local = 0;
+    let mut wrong = Vec::new();
+    for w in [
+        crate::testkit::clinic_world(),
+        crate::testkit::warehouse_world(),
+    ] {
+        let (p, n) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        for c in crate::testkit::world_cases(&w, 60, (0.3, 0.3, 10f64.to_radians()), 7) {
+            let r = align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap();
+            if r.start == StartPath::Local {
+                local += 1;
+                let d = (r.pose.x - c.truth.x).hypot(r.pose.y - c.truth.y);
+                if d >= 0.02
+                    || wrap_angle(r.pose.theta - c.truth.theta).abs() >= 0.5f64.to_radians()
+                {
+                    wrong.push((w.name, d));
+                }
+            }
+        }
+    }
+    eprintln!("{local} local results");
+    assert_eq!(wrong, Vec::<(&str, f64)>::new());
+}

@@ -89,7 +89,7 @@ pub struct Fit {
 /// Distance from the map-frame point `q` to the map: point-to-line through the nearest
 /// map point when it is near (a sparsely sampled wall is a line, not its samples).
 #[inline]
-fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64) -> f64 {
+pub(crate) fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64) -> f64 {
     let (d2, j) = index.correspondence(q);
     if d2 <= near2 {
         let (x, n) = (index.points()[j], normals[j]);
@@ -101,6 +101,25 @@ fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], near2: f64)
 
 /// How well `pose` explains `scan` (sensor-frame points, sensor at the origin).
 pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig) -> Fit {
+    let (inlier_ratio, rms, lik) = distances(scan, index, pose, cfg);
+    let st = see_through(scan, index, pose);
+    Fit {
+        inlier_ratio,
+        rms,
+        see_through: st,
+        score: lik * (1.0 - st).powi(2),
+    }
+}
+
+/// The point-distance part of [`assess`]: (inlier ratio, RMS of the inliers, mean
+/// Gaussian likelihood) — the last an upper bound of the score (the see-through factor is
+/// at most 1).
+pub(crate) fn distances(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    pose: Pose2,
+    cfg: &IcpConfig,
+) -> (f64, f64, f64) {
     let normals = index.normals();
     let sigma = cfg.expected_noise;
     let band = 3.0 * sigma;
@@ -118,17 +137,12 @@ pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig)
         }
     }
     let n = scan.len().max(1) as f64;
-    let st = see_through(scan, index, pose);
-    Fit {
-        inlier_ratio: inl as f64 / n,
-        rms: if inl > 0 {
-            (sq / inl as f64).sqrt()
-        } else {
-            f64::INFINITY
-        },
-        see_through: st,
-        score: lik / n * (1.0 - st).powi(2),
-    }
+    let rms = if inl > 0 {
+        (sq / inl as f64).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    (inl as f64 / n, rms, lik / n)
 }
 
 /// Share of (at most [`SEE_THROUGH_BEAMS`]) beams, sensor to return, that cross a mapped

@@ -1,0 +1,311 @@
+//! The cheap local checks of the verified start of [`crate::icp::align`], tried before the
+//! window search:
+//!
+//! * [`slide_candidates`]: in a corridor or an aisle a fit is free along one axis, and ICP
+//!   from a start a few decimetres off can settle one door frame or rack upright along it.
+//!   A 1-D scan of the likelihood field along that axis (±`window_position`, half-cell
+//!   steps) finds the other places along the corridor that explain the scan about as well;
+//!   the caller refines them by ICP and keeps the best. A few hundred field look-ups instead
+//!   of the window's tens of thousands.
+//! * [`heading_prior`]: the heading at which the scan's wall directions line up with the
+//!   map's (a correlation of two histograms of line directions modulo π, 1° bins, over
+//!   ±`window_heading` around the start): a second ICP start when the first fit kept most
+//!   of a large heading error (racks and people pull the first iterations to wrong walls).
+//!   The map's histogram ([`map_directions`]) is built once with the likelihood field.
+
+use std::f64::consts::PI;
+
+use crate::icp::window::map_distance;
+use crate::index::MapIndex;
+use crate::se2::{wrap_angle, Pose2};
+
+/// Bins of the direction histograms over [0, π): 1° each.
+pub(crate) const DIRECTION_BINS: usize = 180;
+/// Half-width (bins) of the triangular kernel that smooths the histograms.
+const SMOOTH_BINS: usize = 2;
+/// A scan line piece spans 4 beam steps; it counts when that chord is this long (m) at
+/// least (shorter: the range noise dominates its direction) ...
+const MIN_CHORD: f64 = 0.08;
+/// ... at most this long (longer: a depth jump, not a wall) ...
+const MAX_CHORD: f64 = 0.6;
+/// ... and its middle points lie within this fraction of its length of the chord.
+const MAX_BEND: f64 = 0.08;
+/// The heading prior needs at least this many line pieces.
+const MIN_PIECES: usize = 12;
+/// Candidates along the corridor are kept when they score at least this fraction of the
+/// best place along it ...
+pub(crate) const SLIDE_KEEP: f64 = 0.85;
+/// ... and at most this many, best first ...
+pub(crate) const SLIDE_CANDIDATES: usize = 3;
+/// ... at least this far (m) from the fit itself.
+const SLIDE_MIN_OFFSET: f64 = 0.12;
+
+/// Triangular smoothing of a circular histogram, normalised to sum 1 (all zeros stays so).
+fn smooth(h: &[f64]) -> Vec<f32> {
+    let n = h.len();
+    let mut out = vec![0.0f64; n];
+    for (i, o) in out.iter_mut().enumerate() {
+        for d in 0..=2 * SMOOTH_BINS {
+            let w = (SMOOTH_BINS + 1 - SMOOTH_BINS.abs_diff(d)) as f64;
+            *o += w * h[(i + n + d - SMOOTH_BINS) % n];
+        }
+    }
+    let total: f64 = out.iter().sum();
+    if total > 0.0 {
+        out.iter_mut().for_each(|v| *v /= total);
+    }
+    out.into_iter().map(|v| v as f32).collect()
+}
+
+#[inline]
+fn bin_of(angle: f64) -> usize {
+    let a = angle.rem_euclid(PI);
+    ((a / PI * DIRECTION_BINS as f64) as usize).min(DIRECTION_BINS - 1)
+}
+
+/// The map's histogram of line directions (the direction at each map point: its normal
+/// turned by 90°), smoothed and normalised.
+pub(crate) fn map_directions(normals: &[[f64; 2]]) -> Vec<f32> {
+    let mut h = vec![0.0f64; DIRECTION_BINS];
+    for n in normals {
+        if n[0].is_finite() && n[1].is_finite() && (n[0] != 0.0 || n[1] != 0.0) {
+            h[bin_of(n[1].atan2(n[0]) + 0.5 * PI)] += 1.0;
+        }
+    }
+    smooth(&h)
+}
+
+/// The scan's histogram of line directions in the sensor frame: the points in bearing
+/// order (so not dependent on the order of the array), and for each the chord from the
+/// point two beams before to the one two after, when it is a straight wall piece; each
+/// piece weighted by its length. `None` with fewer than [`MIN_PIECES`] pieces.
+pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
+    let mut pts: Vec<(f64, [f64; 2])> = scan
+        .iter()
+        .filter(|p| p[0].is_finite() && p[1].is_finite() && p[0].hypot(p[1]) > 0.05)
+        .map(|p| (p[1].atan2(p[0]), *p))
+        .collect();
+    if pts.len() < 5 {
+        return None;
+    }
+    pts.sort_unstable_by(|a, b| {
+        a.0.total_cmp(&b.0)
+            .then(a.1[0].total_cmp(&b.1[0]))
+            .then(a.1[1].total_cmp(&b.1[1]))
+    });
+    let mut h = vec![0.0f64; DIRECTION_BINS];
+    let mut pieces = 0usize;
+    for w in pts.windows(5) {
+        let (a, b) = (w[0].1, w[4].1);
+        let c = [b[0] - a[0], b[1] - a[1]];
+        let len = c[0].hypot(c[1]);
+        if !(MIN_CHORD..=MAX_CHORD).contains(&len) {
+            continue;
+        }
+        let straight = w[1..4].iter().all(|(_, m)| {
+            let off = (c[0] * (m[1] - a[1]) - c[1] * (m[0] - a[0])).abs() / len;
+            off <= MAX_BEND * len
+        });
+        if straight {
+            h[bin_of(c[1].atan2(c[0]))] += len;
+            pieces += 1;
+        }
+    }
+    (pieces >= MIN_PIECES).then(|| smooth(&h))
+}
+
+/// The heading within ±`half_range` of `center` at which the scan's directions `scan_h`
+/// best match the map's `map_h` (correlation on 1° shifts, refined by a parabola through
+/// the peak); `None` when nothing correlates.
+pub(crate) fn heading_prior(
+    scan_h: &[f32],
+    map_h: &[f32],
+    center: f64,
+    half_range: f64,
+) -> Option<f64> {
+    let n = DIRECTION_BINS as i64;
+    let step = PI / DIRECTION_BINS as f64;
+    let c0 = (center / step).round() as i64;
+    let k = (half_range / step).ceil() as i64;
+    let corr = |shift: i64| -> f64 {
+        (0..DIRECTION_BINS)
+            .map(|b| {
+                let m = (b as i64 + shift).rem_euclid(n) as usize;
+                scan_h[b] as f64 * map_h[m] as f64
+            })
+            .sum()
+    };
+    let vals: Vec<f64> = (-k - 1..=k + 1).map(|d| corr(c0 + d)).collect();
+    let (mut bi, mut bv) = (0usize, 0.0f64);
+    for (i, &v) in vals.iter().enumerate().skip(1).take(vals.len() - 2) {
+        if v > bv {
+            (bi, bv) = (i, v);
+        }
+    }
+    if !(bv > 0.0) {
+        return None;
+    }
+    let (l, r) = (vals[bi - 1], vals[bi + 1]);
+    let den = l - 2.0 * bv + r;
+    let frac = if den < 0.0 {
+        (0.5 * (l - r) / den).clamp(-0.5, 0.5)
+    } else {
+        0.0
+    };
+    let shift = (c0 + bi as i64 - k - 1) as f64 + frac;
+    Some(wrap_angle(shift * step))
+}
+
+/// Step (m) of the look along the corridor.
+pub(crate) const SLIDE_STEP: f64 = 0.04;
+
+/// Places along the unit map-frame direction `dir` from `pose` (same heading), at offsets
+/// in [`t_lo`, `t_hi`] m every [`SLIDE_STEP`], where the sensor-frame points `sub` score at
+/// least [`SLIDE_KEEP`] of the best place and lie at least [`SLIDE_MIN_OFFSET`] from `pose`:
+/// local maxima, best first, at most [`SLIDE_CANDIDATES`]. The score: the mean Gaussian
+/// likelihood of the points' distances to the map (point-to-line near a wall; σ the
+/// expected noise widened by half a step), as [`crate::icp::assess`] scores a pose — the
+/// likelihood field's 10 cm cells are too coarse to tell the places along a corridor
+/// apart (a few door jambs and furniture ends are all that differ).
+pub(crate) fn slide_candidates(
+    index: &MapIndex,
+    sub: &[[f64; 2]],
+    pose: Pose2,
+    dir: [f64; 2],
+    (t_lo, t_hi): (f64, f64),
+    expected_noise: f64,
+) -> Vec<Pose2> {
+    let (k_lo, k_hi) = (
+        (t_lo / SLIDE_STEP).ceil() as i64,
+        (t_hi / SLIDE_STEP).floor() as i64,
+    );
+    if k_hi <= k_lo || sub.is_empty() {
+        return Vec::new();
+    }
+    let normals = index.normals();
+    let sigma = expected_noise + 0.5 * SLIDE_STEP;
+    let band = 3.0 * sigma;
+    let near = 2.0 * index.spacing() + band;
+    let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+    let moved: Vec<[f64; 2]> = sub.iter().map(|p| pose.transform(*p)).collect();
+    let scores: Vec<f64> = (k_lo..=k_hi)
+        .map(|i| {
+            let t = i as f64 * SLIDE_STEP;
+            moved
+                .iter()
+                .map(|q| {
+                    let e = map_distance(
+                        index,
+                        normals,
+                        [q[0] + t * dir[0], q[1] + t * dir[1]],
+                        near * near,
+                    );
+                    (-e * e * inv2s2).exp()
+                })
+                .sum()
+        })
+        .collect();
+    let best = scores.iter().copied().fold(0.0, f64::max);
+    let keep = SLIDE_KEEP * best;
+    let last = scores.len() - 1;
+    let mut peaks: Vec<(f64, i64)> = (0..=last)
+        .filter(|&i| {
+            let s = scores[i];
+            let t = (i as i64 + k_lo) as f64 * SLIDE_STEP;
+            s >= keep
+                && s > 0.0
+                && t.abs() >= SLIDE_MIN_OFFSET
+                && i > 0
+                && i < last
+                && s >= scores[i - 1]
+                && s > scores[i + 1]
+        })
+        .map(|i| (scores[i], i as i64 + k_lo))
+        .collect();
+    // best first; ties nearest the fit
+    peaks.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.abs().cmp(&b.1.abs())));
+    peaks
+        .into_iter()
+        .take(SLIDE_CANDIDATES)
+        .map(|(_, i)| {
+            let t = i as f64 * SLIDE_STEP;
+            Pose2::new(pose.x + t * dir[0], pose.y + t * dir[1], pose.theta)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testkit::{make_scan, rectangle, sample_segments, Rng};
+
+    fn deg(d: f64) -> f64 {
+        d.to_radians()
+    }
+
+    #[test]
+    fn the_heading_prior_finds_a_turned_room() {
+        // a room with a diagonal wall; the scan seen at 0.4 rad, the start 20° off
+        let mut segs = rectangle(8.0, 5.0);
+        segs.push([1.0, 1.0, 3.0, 2.5]);
+        let (_, n) = sample_segments(&segs, 0.025);
+        let map_h = map_directions(&n);
+        let truth = Pose2::new(4.0, 3.0, 0.4);
+        let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.0, &mut Rng::new(3));
+        let scan_h = scan_directions(&scan).expect("a room has walls");
+        let th = heading_prior(&scan_h, &map_h, 0.4 + deg(20.0), deg(30.0)).unwrap();
+        assert!(wrap_angle(th - 0.4).abs() < deg(1.5), "{}", th.to_degrees());
+    }
+
+    #[test]
+    fn scan_directions_do_not_depend_on_the_point_order() {
+        let segs = rectangle(8.0, 5.0);
+        let scan = make_scan(
+            &segs,
+            Pose2::new(3.0, 2.0, 0.3),
+            361,
+            30.0,
+            0.01,
+            0.2,
+            &mut Rng::new(9),
+        );
+        let mut rev = scan.clone();
+        rev.reverse();
+        rev.rotate_left(77);
+        assert_eq!(scan_directions(&scan), scan_directions(&rev));
+    }
+
+    #[test]
+    fn too_few_wall_pieces_give_no_prior() {
+        // scattered points: no straight pieces
+        let mut rng = Rng::new(4);
+        let scan: Vec<[f64; 2]> = (0..40)
+            .map(|_| [rng.range(1.0, 9.0), rng.range(-4.0, 4.0)])
+            .collect();
+        assert_eq!(scan_directions(&scan), None);
+    }
+
+    #[test]
+    fn a_slide_along_a_corridor_is_found() {
+        // a 20 m corridor, 2 m wide, with door frames (cross walls with 1 m openings)
+        // every 4 m: a fit 0.4 m along the corridor from the truth
+        let mut segs = rectangle(20.0, 2.0);
+        for x in [4.0, 8.0, 12.0, 16.0] {
+            segs.push([x, 0.0, x, 0.5]);
+            segs.push([x, 1.5, x, 2.0]);
+        }
+        let (p, n) = sample_segments(&segs, 0.025);
+        let idx = MapIndex::new(p, Some(n)).unwrap();
+        let truth = Pose2::new(9.3, 1.0, 0.0);
+        let scan = make_scan(&segs, truth, 361, 8.0, 0.01, 0.0, &mut Rng::new(2));
+        let slid = Pose2::new(9.7, 1.0, 0.0);
+        let c = slide_candidates(&idx, &scan, slid, [1.0, 0.0], (-1.0, 1.0), 0.02);
+        assert!(!c.is_empty());
+        assert!(
+            (c[0].x - truth.x).abs() <= 0.5 * SLIDE_STEP + 1e-9,
+            "{:?}",
+            c
+        );
+        assert_eq!((c[0].y, c[0].theta), (slid.y, slid.theta));
+    }
+}
