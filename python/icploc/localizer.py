@@ -12,8 +12,11 @@ Per scan::
     ─► one information update (a corridor's open axis keeps the prediction by itself)
     ─► verify the fused pose (beams ending on walls, residual against the expected noise)
     ─► status: ``tracking`` only when the correction was consistent, the pose verified and
-        its covariance tight; ``degraded`` otherwise; ``lost`` when the scans contradict
-        the pose for several scans in a row or the pose is too uncertain to match from
+        its covariance tight, no rival pose disputes it (the prediction a fit taken against
+        the odometry overruled, followed until the map refutes it) and, right after a
+        stretch not tracking, the fit pins the pose in every direction; ``degraded``
+        otherwise; ``lost`` when the scans contradict the pose for several scans in a row
+        or the pose is too uncertain to match from
     ─► Estimate(stamp, pose, covariance, status, ...)
 
 While lost the reported pose is the dead-reckoned continuation of the last pose with a
@@ -84,7 +87,9 @@ class Estimate:
     #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
     #: the prediction's covariance inflated),
     #: contradicted (the fused pose explains far less of the scan than usual), unverified,
-    #: uncertain (covariance too wide to promise the pose), relocalized, suspect (a kidnap
+    #: uncertain (covariance too wide to promise the pose), disputed (the prediction an
+    #: odometry_off fit overruled still explains the scans as well), unconstrained (a
+    #: corridor fit right after a stretch not tracking), relocalized, suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
@@ -223,6 +228,16 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
 
 
 @dataclass
+class _Rival:
+    """The prediction a fit overruled (``odometry_off``), followed by odometry and its own
+    scan fits while it still explains the scans (:meth:`Localizer._dispute`)."""
+
+    pose: Pose
+    covariance: NDArray[np.float64]
+    misses: int = 0  #: scans in a row it did not verify or explained clearly less
+
+
+@dataclass
 class _Counters:
     scans: int = 0
     bad_in_row: int = 0
@@ -230,8 +245,14 @@ class _Counters:
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
 
 
+#: a sample spacing below this is no resolution (coincident map points: walls sampled twice)
+_MIN_RESOLUTION = 0.005
+
+
 def _map_resolution(map_: Any, index: Any, configured: float) -> float:
-    """The map's resolution: configured, a grid's cell size, else its sample spacing."""
+    """The map's resolution: configured, a grid's cell size, else its sample spacing (at
+    least ``_MIN_RESOLUTION``: the median spacing of a map whose walls were sampled twice
+    is zero, and the verification's raster would not fit in memory)."""
     if configured > 0.0:
         return configured
     res = getattr(map_, "resolution", None)
@@ -241,7 +262,7 @@ def _map_resolution(map_: Any, index: Any, configured: float) -> float:
         sp = float(index.spacing)
     except (AttributeError, ValueError):
         sp = 0.05
-    return sp if sp > 0 and math.isfinite(sp) else 0.05
+    return max(sp, _MIN_RESOLUTION) if sp > 0 and math.isfinite(sp) else 0.05
 
 
 class Localizer:
@@ -322,6 +343,11 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: the raw odometry increment of the current scan (None: none)
+        self._step: Pose | None = None
+        #: the prediction a fit overruled (``odometry_off``), followed alongside
+        #: (:meth:`_dispute`)
+        self._rival: _Rival | None = None
         #: while lost: consistent fits from the dead reckoning in a row (:meth:`_coast`)
         self._coast_streak = 0
         self._coast_inlier_ratio = 0.0
@@ -378,6 +404,7 @@ class Localizer:
         self._coast_streak = 0
         self._anchor = None
         self._rejected = None
+        self._rival = None
         self._forget_checks()
         self.recovery.reset()
 
@@ -395,6 +422,7 @@ class Localizer:
         self._lost_odom = None
         self._coast_streak = 0
         self._anchor = None
+        self._rival = None
         self._forget_checks()
         self.recovery.reset()
 
@@ -461,10 +489,21 @@ class Localizer:
         if odom is None or self._last_odom is None:
             if odom is not None:
                 self._last_odom = odom
+            self._step = None
             return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
         raw = between(self._last_odom, odom)
-        d = self.calibration.apply(raw)
         self._last_odom = odom
+        self._step = raw
+        return self._move(self.pose, self.covariance, raw)
+
+    def _move(
+        self, pose: Pose, cov: NDArray[np.float64], raw: Pose | None
+    ) -> tuple[Pose, NDArray[np.float64]]:
+        """``pose`` moved on by the raw odometry increment ``raw`` (calibrated), its
+        covariance grown by the motion model (None: the robot stood still)."""
+        if raw is None:
+            return self.motion_model.predict(pose, cov, (0.0, 0.0, 0.0))
+        d = self.calibration.apply(raw)
         model = self.motion_model
         gain = self.config.localizer.lost_noise_gain
         if self.status is Status.LOST and gain != 1.0:
@@ -472,7 +511,7 @@ class Localizer:
             # by more than its usual noise (a bias, a slip), and the local search window
             # grows with this covariance
             model = dataclasses.replace(model, gain=model.gain * gain)
-        pred, P = model.predict(self.pose, self.covariance, d)
+        pred, P = model.predict(pose, cov, d)
         if self.config.localizer.calibration_uncertainty:
             v_al, v_th = self.calibration.uncertainty(raw)
             if v_al > 0.0 or v_th > 0.0:
@@ -670,6 +709,7 @@ class Localizer:
         R: NDArray[np.float64] | None = None
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
+        overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
         else:
@@ -798,6 +838,20 @@ class Localizer:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = Reason.UNCERTAIN
+        # a fit weakly constrained along one direction (a corridor) says little about the
+        # pose along it: after a stretch not promised it does not make the pose a promise
+        if (
+            status is Status.TRACKING
+            and self.status is not Status.TRACKING
+            and degeneracy < _SLIDE_DEGENERACY
+        ):
+            status, reason = Status.DEGRADED, Reason.UNCONSTRAINED
+        # the prediction such a fit overruled is followed too: while it still explains the
+        # scans (a neighbouring minimum verifies as well as the other), neither is promised
+        if self._rival is not None:
+            status, reason = self._dispute(pts, pose, cov, check, status, reason)
+        if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
+            self._rival = _Rival(*overruled)
         # the fit contradicted the odometry (taken against a prediction it is beyond what
         # the arbitration accepts: several rejected scans agreed) and explains less of the
         # scan than usual: a place that half fits the old pose
@@ -849,6 +903,58 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _dispute(
+        self,
+        pts: NDArray[np.float64],
+        pose: Pose,
+        cov: NDArray[np.float64],
+        check: FitCheck,
+        status: Status,
+        reason: str,
+    ) -> tuple[Status, str]:
+        """Follow the rival one scan: the prediction an ``odometry_off`` fit overruled,
+        dead-reckoned (fits near it would follow the map's neighbouring minimum as readily
+        as the pose did). Its evidence is the share of beams ending on walls at it, or at a
+        verified fit from it that did not slide to the pose. While the pose does not explain
+        clearly more of the scan (by ``arbitration_margin``) the pose is not promised
+        (``disputed``). The rival is dropped once the pose is back where it is (within the
+        map's hit distance or the chi-square gate), once the pose explained clearly more on
+        ``dispute_scans`` scans in a row (the map has decided), or once it is as uncertain
+        as a lost pose."""
+        rv = self._rival
+        assert rv is not None
+        lc = self.config.localizer
+        g = self.config.gating
+        rp, rP = self._move(rv.pose, rv.covariance, self._step)
+        rv.pose, rv.covariance = rp, rP
+        close = math.hypot(pose[0] - rp[0], pose[1] - rp[1]) <= self.quality.hit_distance() and abs(
+            wrap_angle(pose[2] - rp[2])
+        ) <= math.radians(lc.tracking_max_sigma_theta_deg)
+        vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
+        if close or vague or mahalanobis2(pose, cov, rp, rP) <= self._chi2_accept:
+            self._rival = None
+            return status, reason
+        if pts.shape[0] >= self.config.scan.min_points:
+            hit = self.checker.check(pts, rp).hit
+            res = self._run_icp(pts, rp, rP)
+            m = None
+            if res is not None and float(res.inlier_ratio) >= g.min_inlier_ratio:
+                m = self._measurement(res)
+            if m is not None and mahalanobis2(pose, cov, m[0], m[1]) > self._chi2_accept:
+                at = self._check(pts, m[0], m[0], res)
+                if self._verified(at):
+                    hit = max(hit, at.hit)
+            if check.hit >= hit + lc.arbitration_margin:
+                rv.misses += 1
+                if rv.misses >= lc.dispute_scans:
+                    self._rival = None
+                    return status, reason
+            else:
+                rv.misses = 0  # the map cannot tell the two apart
+        if status is Status.TRACKING:
+            status, reason = Status.DEGRADED, Reason.DISPUTED
+        return status, reason
 
     # -- kidnap detection (icploc.kidnap) --------------------------------------------------
     def _run_check(
