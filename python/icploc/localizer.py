@@ -918,10 +918,11 @@ class Localizer:
         as the pose did). Its evidence is the share of beams ending on walls at it, or at a
         verified fit from it that did not slide to the pose. While the pose does not explain
         clearly more of the scan (by ``arbitration_margin``) the pose is not promised
-        (``disputed``). The rival is dropped once the pose is back where it is (within the
-        map's hit distance or the chi-square gate), once the pose explained clearly more on
-        ``dispute_scans`` scans in a row (the map has decided), or once it is as uncertain
-        as a lost pose."""
+        (``disputed``). The rival is dropped once the pose is back where it is (closer than
+        the map's hit distance: the map cannot tell them apart), once the pose explained
+        clearly more on ``dispute_scans`` scans in a row (the map has decided), or once it
+        is as uncertain as a lost pose. Not by the chi-square gate: a dead-reckoned pose's
+        covariance soon covers the neighbouring minimum the pose jumped to."""
         rv = self._rival
         assert rv is not None
         lc = self.config.localizer
@@ -932,7 +933,7 @@ class Localizer:
             wrap_angle(pose[2] - rp[2])
         ) <= math.radians(lc.tracking_max_sigma_theta_deg)
         vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
-        if close or vague or mahalanobis2(pose, cov, rp, rP) <= self._chi2_accept:
+        if close or vague:
             self._rival = None
             return status, reason
         if pts.shape[0] >= self.config.scan.min_points:
