@@ -929,11 +929,8 @@ class Localizer:
         g = self.config.gating
         rp, rP = self._move(rv.pose, rv.covariance, self._step)
         rv.pose, rv.covariance = rp, rP
-        close = math.hypot(pose[0] - rp[0], pose[1] - rp[1]) <= self.quality.hit_distance() and abs(
-            wrap_angle(pose[2] - rp[2])
-        ) <= math.radians(lc.tracking_max_sigma_theta_deg)
         vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
-        if close or vague:
+        if vague or not self._apart(pose, rp):
             self._rival = None
             return status, reason
         if pts.shape[0] >= self.config.scan.min_points:
@@ -942,7 +939,7 @@ class Localizer:
             m = None
             if res is not None and float(res.inlier_ratio) >= g.min_inlier_ratio:
                 m = self._measurement(res)
-            if m is not None and mahalanobis2(pose, cov, m[0], m[1]) > self._chi2_accept:
+            if m is not None and self._apart(pose, m[0]):
                 at = self._check(pts, m[0], m[0], res)
                 if self._verified(at):
                     hit = max(hit, at.hit)
@@ -956,6 +953,14 @@ class Localizer:
         if status is Status.TRACKING:
             status, reason = Status.DEGRADED, Reason.DISPUTED
         return status, reason
+
+    def _apart(self, a: Pose, b: Pose) -> bool:
+        """Two poses the map can tell apart: farther than its hit distance, or turned by
+        more than the heading a tracking pose promises."""
+        lc = self.config.localizer
+        return math.hypot(a[0] - b[0], a[1] - b[1]) > self.quality.hit_distance() or abs(
+            wrap_angle(a[2] - b[2])
+        ) > math.radians(lc.tracking_max_sigma_theta_deg)
 
     # -- kidnap detection (icploc.kidnap) --------------------------------------------------
     def _run_check(
