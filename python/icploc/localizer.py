@@ -849,7 +849,7 @@ class Localizer:
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
         if self._rival is not None:
-            status, reason = self._dispute(pts, pose, cov, check, status, reason)
+            status, reason = self._dispute(pts, pose, check, status, reason)
         if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
             self._rival = _Rival(*overruled)
         # the fit contradicted the odometry (taken against a prediction it is beyond what
@@ -908,7 +908,6 @@ class Localizer:
         self,
         pts: NDArray[np.float64],
         pose: Pose,
-        cov: NDArray[np.float64],
         check: FitCheck,
         status: Status,
         reason: str,
@@ -922,7 +921,8 @@ class Localizer:
         the map's hit distance: the map cannot tell them apart), once the pose explained
         clearly more on ``dispute_scans`` scans in a row (the map has decided), or once it
         is as uncertain as a lost pose. Not by the chi-square gate: a dead-reckoned pose's
-        covariance soon covers the neighbouring minimum the pose jumped to."""
+        covariance soon covers the neighbouring minimum the pose jumped to (and the pose's
+        own is so tight that a fit a few centimetres off would count as distinct)."""
         rv = self._rival
         assert rv is not None
         lc = self.config.localizer
