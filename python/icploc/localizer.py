@@ -625,14 +625,18 @@ class Localizer:
         )
         return (ix, iy, wrap_angle(ith)), R
 
-    def _verified(self, check: FitCheck) -> bool:
-        """The pose's evidence is as good as this map's verified fits usually are."""
+    def _verified(self, check: FitCheck, lock: bool = False) -> bool:
+        """The pose's evidence is as good as this map's verified fits usually are. For a
+        recovery's lock (``lock``) on a map whose usual hit share is not measured yet (lost
+        before five fits were seen) the share is held to the absolute floor only: the
+        assumed share of 1 would refuse every lock on a map from another pass."""
         lc = self.config.localizer
         q = self.quality
+        relative = not lock or q.hit_measured
         return (
             check.beams >= self.config.scan.min_points // 2
             and check.hit >= lc.verify_min_hit_ratio
-            and check.hit >= lc.verify_hit_fraction * q.hit_reference
+            and (not relative or check.hit >= lc.verify_hit_fraction * q.hit_reference)
             and check.rms <= lc.verify_max_residual * q.sigma
             and (
                 not self.checker.see_through
@@ -683,7 +687,7 @@ class Localizer:
         if m is None:
             return False, res, pose
         z, R = m
-        return self._verified(self._check(points, z, z, res)), res, z
+        return self._verified(self._check(points, z, z, res), lock=True), res, z
 
     def _update_tracking(
         self,
@@ -1189,6 +1193,7 @@ class Localizer:
                 icp_config=self._icp_config_for(pts, None),
                 config=self.config,
                 verify=self.verify_pose,
+                hit_reference=self.quality.hit_reference,
             )
             step = self.recovery.recover(view, pts)
         res = step.result

@@ -57,6 +57,8 @@ class RecoveryView:
     #: ``verify(points, pose) -> (ok, IcpResult | None, pose)``: the localizer's own check
     #: of a pose (ICP from it, then the same verification tracking uses)
     verify: Callable[[NDArray[np.float64], Pose], tuple[bool, Any, Pose]]
+    #: the share of beams this map's verified fits usually end on walls with (1: unknown)
+    hit_reference: float = 1.0
 
 
 @dataclass(frozen=True)
