@@ -438,17 +438,3 @@ def test_identical_offices_beyond_the_hypothesis_cap_never_lock() -> None:
         assert not out.locked
         assert len(out.hypotheses) <= 2
     assert out.status == "ambiguous"
-
-
-def test_a_long_odometry_step_carries_a_hypothesis_from_its_uncertaintys_corners() -> None:
-    from icploc.relocalize import _carry_spread
-
-    long_turn = _carry_spread((2.0, 0.0, 1.0), 0.05)  # 2 m and a right angle's worth
-    short = _carry_spread((0.3, 0.0, 0.1), 0.05)  # inside the refinement's basin
-    off = _carry_spread((2.0, 0.0, 1.0), 0.0)
-    assert (sorted(long_turn), short, off) == (
-        sorted([(0.1, 0.0, 0.0), (-0.1, 0.0, 0.0), (0.0, 0.1, 0.0), (0.0, -0.1, 0.0),
-                (0.0, 0.0, 0.15000000000000002), (0.0, 0.0, -0.15000000000000002)]),
-        [],
-        [],
-    )  # fmt: skip

@@ -123,18 +123,6 @@ def global_localizer(map_: Any, resolution: float = 0.05, **kwargs: Any) -> Any:
     return cached(_index_of(map_), resolution, **kwargs)
 
 
-def _carry_spread(motion: Pose, share: float) -> list[Pose]:
-    """Offsets (robot frame, after the step) spanning ``share`` of an odometry step's
-    distance and turn: along, across and in heading, either way; none for a step shorter
-    than 0.5 m that turned less than 0.2 rad (the refinement's basin covers those)."""
-    d = math.hypot(motion[0], motion[1])
-    if share <= 0.0 or (d < 0.5 and abs(motion[2]) < 0.2):
-        return []
-    s = share * d
-    a = share * (abs(motion[2]) + d)  # a turn's scale error and a heading drift per metre
-    return [(s, 0.0, 0.0), (-s, 0.0, 0.0), (0.0, s, 0.0), (0.0, -s, 0.0), (0.0, 0.0, a), (0.0, 0.0, -a)]
-
-
 def _subsample(points: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     if n <= 0 or points.shape[0] <= n:
         return points
@@ -247,21 +235,11 @@ class Relocalizer:
         # 1. carry the hypotheses through the odometry motion, refine and re-score them
         hyps = self.hypotheses
         if hyps:
-            starts = [h.pose for h in hyps]
-            k = 1
             if motion is not None:
                 m = (float(motion[0]), float(motion[1]), float(motion[2]))
-                starts = [compose(h.pose, m) for h in hyps]
-                spread = _carry_spread(m, self.config.carry_spread)
-                if spread:
-                    # a long step of biased odometry carries a hypothesis out of the
-                    # refinement's basin: refine from its uncertainty's corners too
-                    k = 1 + len(spread)
-                    starts = [q for p in starts for q in [p, *(compose(p, d) for d in spread)]]
-            got = self.glob.refine(sub, np.array(starts))
-            refined = [
-                max(got[i * k : (i + 1) * k], key=self._score) for i in range(len(hyps))
-            ]
+                for h in hyps:
+                    h.pose = compose(h.pose, m)
+            refined = self.glob.refine(sub, np.array([h.pose for h in hyps]))
             for h, r in zip(hyps, refined, strict=True):
                 h.pose = (r.pose[0], r.pose[1], wrap_angle(r.pose[2]))
                 h.score, h.inlier_ratio = self._score(r), r.inlier_ratio
