@@ -613,14 +613,6 @@ class RelocalizeSection(Section):
     min_clearance: float = _f(
         0.1, "hypotheses nearer than this to the map (inside a wall) are dropped", "m", ge=0
     )
-    carry_spread: float = _f(
-        0.05,
-        "a hypothesis carried through an odometry step of 0.5 m or 0.2 rad or more is also "
-        "refined from starts this share of the step off (along, across, in heading): sparse "
-        "scans on biased odometry; 0: off",
-        ge=0,
-        lt=1,
-    )
     lost_margin: float = _f(
         0.3,
         "kidnap check: elsewhere when the tracked pose scores below (1 - this) x the best",
