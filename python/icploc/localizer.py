@@ -343,6 +343,8 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: weakly constrained fits held back in a row (``unconstrained``)
+        self._held = 0
         #: the raw odometry increment of the current scan (None: none)
         self._step: Pose | None = None
         #: the prediction a fit overruled (``odometry_off``), followed alongside
@@ -844,12 +846,15 @@ class Localizer:
                 reason = Reason.UNCERTAIN
         # a fit weakly constrained along one direction (a corridor) says little about the
         # pose along it: after a stretch not promised it does not make the pose a promise
+        # until ``dispute_scans`` such fits in a row agreed with the predictions
         if (
             status is Status.TRACKING
             and self.status is not Status.TRACKING
             and degeneracy < _SLIDE_DEGENERACY
+            and self._held < lc.dispute_scans
         ):
             status, reason = Status.DEGRADED, Reason.UNCONSTRAINED
+        self._held = self._held + 1 if reason == Reason.UNCONSTRAINED else 0
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
         if self._rival is not None:

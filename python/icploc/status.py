@@ -51,7 +51,8 @@ class Reason(_StrEnum):
     UNVERIFIED = "unverified"
     UNCERTAIN = "uncertain"  #: verified, but the covariance is too wide to promise
     #: a weakly constrained fit (degeneracy below 0.1: a corridor) right after a stretch
-    #: that was not ``tracking``: it does not pin the pose along its weak direction
+    #: that was not ``tracking`` (up to ``dispute_scans`` of them in a row): it does not pin
+    #: the pose along its weak direction
     UNCONSTRAINED = "unconstrained"
     RELOCALIZED = "relocalized"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
