@@ -422,6 +422,14 @@ class LocalizerSection(Section):
     consistent_rejections: int = _f(
         3, "... or when this many rejected scan poses in a row agree with each other", "scans", gt=0
     )
+    dispute_scans: int = _f(
+        5,
+        "after a fit taken against the odometry (odometry_off) the prediction it overruled is "
+        "followed too; the pose is not tracking until that rival failed to verify (or "
+        "explained clearly less of the scan than the pose) on this many scans in a row",
+        "scans",
+        gt=0,
+    )
     tracking_max_sigma: float = _f(
         0.15, "tracking promises the pose: verified, and its sigma at most this", "m", gt=0
     )

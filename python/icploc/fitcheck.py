@@ -108,6 +108,11 @@ class MapQuality:
         return self._sigma
 
     @property
+    def hit_measured(self) -> bool:
+        """The usual hit share has been measured (at least 5 fits), not assumed."""
+        return len(self._hit) >= 5
+
+    @property
     def hit_reference(self) -> float:
         """The typical hit share of verified fits here (1 before any)."""
         return self._hit_ref

@@ -12,8 +12,11 @@ Per scan::
     ─► one information update (a corridor's open axis keeps the prediction by itself)
     ─► verify the fused pose (beams ending on walls, residual against the expected noise)
     ─► status: ``tracking`` only when the correction was consistent, the pose verified and
-        its covariance tight; ``degraded`` otherwise; ``lost`` when the scans contradict
-        the pose for several scans in a row or the pose is too uncertain to match from
+        its covariance tight, no rival pose disputes it (the prediction a fit taken against
+        the odometry overruled, followed until the map refutes it) and, right after a
+        stretch not tracking, the fit pins the pose in every direction; ``degraded``
+        otherwise; ``lost`` when the scans contradict the pose for several scans in a row
+        or the pose is too uncertain to match from
     ─► Estimate(stamp, pose, covariance, status, ...)
 
 While lost the reported pose is the dead-reckoned continuation of the last pose with a
@@ -84,7 +87,9 @@ class Estimate:
     #: (chi-square failed but the map, or several scans agreeing, prefer the scan pose:
     #: the prediction's covariance inflated),
     #: contradicted (the fused pose explains far less of the scan than usual), unverified,
-    #: uncertain (covariance too wide to promise the pose), relocalized, suspect (a kidnap
+    #: uncertain (covariance too wide to promise the pose), disputed (the prediction an
+    #: odometry_off fit overruled still explains the scans as well), unconstrained (a
+    #: corridor fit right after a stretch not tracking), relocalized, suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
@@ -223,6 +228,16 @@ def _as_index(map_: Any, config: LocalizerConfig) -> Any:
 
 
 @dataclass
+class _Rival:
+    """The prediction a fit overruled (``odometry_off``), followed by odometry and its own
+    scan fits while it still explains the scans (:meth:`Localizer._dispute`)."""
+
+    pose: Pose
+    covariance: NDArray[np.float64]
+    misses: int = 0  #: scans in a row it did not verify or explained clearly less
+
+
+@dataclass
 class _Counters:
     scans: int = 0
     bad_in_row: int = 0
@@ -230,8 +245,14 @@ class _Counters:
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
 
 
+#: a sample spacing below this is no resolution (coincident map points: walls sampled twice)
+_MIN_RESOLUTION = 0.005
+
+
 def _map_resolution(map_: Any, index: Any, configured: float) -> float:
-    """The map's resolution: configured, a grid's cell size, else its sample spacing."""
+    """The map's resolution: configured, a grid's cell size, else its sample spacing (at
+    least ``_MIN_RESOLUTION``: the median spacing of a map whose walls were sampled twice
+    is zero, and the verification's raster would not fit in memory)."""
     if configured > 0.0:
         return configured
     res = getattr(map_, "resolution", None)
@@ -241,7 +262,7 @@ def _map_resolution(map_: Any, index: Any, configured: float) -> float:
         sp = float(index.spacing)
     except (AttributeError, ValueError):
         sp = 0.05
-    return sp if sp > 0 and math.isfinite(sp) else 0.05
+    return max(sp, _MIN_RESOLUTION) if sp > 0 and math.isfinite(sp) else 0.05
 
 
 class Localizer:
@@ -322,6 +343,13 @@ class Localizer:
         self._chi2_accept = _chi2_3(g.chi2_accept)
         self._chi2_reject = _chi2_3(g.chi2_reject)
         self._lost_scans = 0
+        #: weakly constrained fits held back in a row (``unconstrained``)
+        self._held = 0
+        #: the raw odometry increment of the current scan (None: none)
+        self._step: Pose | None = None
+        #: the prediction a fit overruled (``odometry_off``), followed alongside
+        #: (:meth:`_dispute`)
+        self._rival: _Rival | None = None
         #: while lost: consistent fits from the dead reckoning in a row (:meth:`_coast`)
         self._coast_streak = 0
         self._coast_inlier_ratio = 0.0
@@ -378,6 +406,7 @@ class Localizer:
         self._coast_streak = 0
         self._anchor = None
         self._rejected = None
+        self._rival = None
         self._forget_checks()
         self.recovery.reset()
 
@@ -395,6 +424,7 @@ class Localizer:
         self._lost_odom = None
         self._coast_streak = 0
         self._anchor = None
+        self._rival = None
         self._forget_checks()
         self.recovery.reset()
 
@@ -461,10 +491,21 @@ class Localizer:
         if odom is None or self._last_odom is None:
             if odom is not None:
                 self._last_odom = odom
+            self._step = None
             return self.motion_model.predict(self.pose, self.covariance, (0.0, 0.0, 0.0))
         raw = between(self._last_odom, odom)
-        d = self.calibration.apply(raw)
         self._last_odom = odom
+        self._step = raw
+        return self._move(self.pose, self.covariance, raw)
+
+    def _move(
+        self, pose: Pose, cov: NDArray[np.float64], raw: Pose | None
+    ) -> tuple[Pose, NDArray[np.float64]]:
+        """``pose`` moved on by the raw odometry increment ``raw`` (calibrated), its
+        covariance grown by the motion model (None: the robot stood still)."""
+        if raw is None:
+            return self.motion_model.predict(pose, cov, (0.0, 0.0, 0.0))
+        d = self.calibration.apply(raw)
         model = self.motion_model
         gain = self.config.localizer.lost_noise_gain
         if self.status is Status.LOST and gain != 1.0:
@@ -472,7 +513,7 @@ class Localizer:
             # by more than its usual noise (a bias, a slip), and the local search window
             # grows with this covariance
             model = dataclasses.replace(model, gain=model.gain * gain)
-        pred, P = model.predict(self.pose, self.covariance, d)
+        pred, P = model.predict(pose, cov, d)
         if self.config.localizer.calibration_uncertainty:
             v_al, v_th = self.calibration.uncertainty(raw)
             if v_al > 0.0 or v_th > 0.0:
@@ -586,14 +627,18 @@ class Localizer:
         )
         return (ix, iy, wrap_angle(ith)), R
 
-    def _verified(self, check: FitCheck) -> bool:
-        """The pose's evidence is as good as this map's verified fits usually are."""
+    def _verified(self, check: FitCheck, lock: bool = False) -> bool:
+        """The pose's evidence is as good as this map's verified fits usually are. For a
+        recovery's lock (``lock``) on a map whose usual hit share is not measured yet (lost
+        before five fits were seen) the share is held to the absolute floor only: the
+        assumed share of 1 would refuse every lock on a map from another pass."""
         lc = self.config.localizer
         q = self.quality
+        relative = not lock or q.hit_measured
         return (
             check.beams >= self.config.scan.min_points // 2
             and check.hit >= lc.verify_min_hit_ratio
-            and check.hit >= lc.verify_hit_fraction * q.hit_reference
+            and (not relative or check.hit >= lc.verify_hit_fraction * q.hit_reference)
             and check.rms <= lc.verify_max_residual * q.sigma
             and (
                 not self.checker.see_through
@@ -644,7 +689,7 @@ class Localizer:
         if m is None:
             return False, res, pose
         z, R = m
-        return self._verified(self._check(points, z, z, res)), res, z
+        return self._verified(self._check(points, z, z, res), lock=True), res, z
 
     def _update_tracking(
         self,
@@ -670,6 +715,7 @@ class Localizer:
         R: NDArray[np.float64] | None = None
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
+        overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
         else:
@@ -798,6 +844,23 @@ class Localizer:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = Reason.UNCERTAIN
+        # a fit weakly constrained along one direction (a corridor) says little about the
+        # pose along it: after a stretch not promised it does not make the pose a promise
+        # until ``dispute_scans`` such fits in a row agreed with the predictions
+        if (
+            status is Status.TRACKING
+            and self.status is not Status.TRACKING
+            and degeneracy < _SLIDE_DEGENERACY
+            and self._held < lc.dispute_scans
+        ):
+            status, reason = Status.DEGRADED, Reason.UNCONSTRAINED
+        self._held = self._held + 1 if reason == Reason.UNCONSTRAINED else 0
+        # the prediction such a fit overruled is followed too: while it still explains the
+        # scans (a neighbouring minimum verifies as well as the other), neither is promised
+        if self._rival is not None:
+            status, reason = self._dispute(pts, pose, check, status, reason)
+        if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
+            self._rival = _Rival(*overruled)
         # the fit contradicted the odometry (taken against a prediction it is beyond what
         # the arbitration accepts: several rejected scans agreed) and explains less of the
         # scan than usual: a place that half fits the old pose
@@ -849,6 +912,64 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _dispute(
+        self,
+        pts: NDArray[np.float64],
+        pose: Pose,
+        check: FitCheck,
+        status: Status,
+        reason: str,
+    ) -> tuple[Status, str]:
+        """Follow the rival one scan: the prediction an ``odometry_off`` fit overruled,
+        dead-reckoned (fits near it would follow the map's neighbouring minimum as readily
+        as the pose did). Its evidence is the share of beams ending on walls at it, or at a
+        verified fit from it that did not slide to the pose. While the pose does not explain
+        clearly more of the scan (by ``arbitration_margin``) the pose is not promised
+        (``disputed``). The rival is dropped once the pose is back where it is (closer than
+        the map's hit distance: the map cannot tell them apart), once the pose explained
+        clearly more on ``dispute_scans`` scans in a row (the map has decided), or once it
+        is as uncertain as a lost pose. Not by the chi-square gate: a dead-reckoned pose's
+        covariance soon covers the neighbouring minimum the pose jumped to (and the pose's
+        own is so tight that a fit a few centimetres off would count as distinct)."""
+        rv = self._rival
+        assert rv is not None
+        lc = self.config.localizer
+        g = self.config.gating
+        rp, rP = self._move(rv.pose, rv.covariance, self._step)
+        rv.pose, rv.covariance = rp, rP
+        vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
+        if vague or not self._apart(pose, rp):
+            self._rival = None
+            return status, reason
+        if pts.shape[0] >= self.config.scan.min_points:
+            hit = self.checker.check(pts, rp).hit
+            res = self._run_icp(pts, rp, rP)
+            m = None
+            if res is not None and float(res.inlier_ratio) >= g.min_inlier_ratio:
+                m = self._measurement(res)
+            if m is not None and self._apart(pose, m[0]):
+                at = self._check(pts, m[0], m[0], res)
+                if self._verified(at):
+                    hit = max(hit, at.hit)
+            if check.hit >= hit + lc.arbitration_margin:
+                rv.misses += 1
+                if rv.misses >= lc.dispute_scans:
+                    self._rival = None
+                    return status, reason
+            else:
+                rv.misses = 0  # the map cannot tell the two apart
+        if status is Status.TRACKING:
+            status, reason = Status.DEGRADED, Reason.DISPUTED
+        return status, reason
+
+    def _apart(self, a: Pose, b: Pose) -> bool:
+        """Two poses the map can tell apart: farther than its hit distance, or turned by
+        more than the heading a tracking pose promises."""
+        lc = self.config.localizer
+        return math.hypot(a[0] - b[0], a[1] - b[1]) > self.quality.hit_distance() or abs(
+            wrap_angle(a[2] - b[2])
+        ) > math.radians(lc.tracking_max_sigma_theta_deg)
 
     # -- kidnap detection (icploc.kidnap) --------------------------------------------------
     def _run_check(
@@ -1077,6 +1198,7 @@ class Localizer:
                 icp_config=self._icp_config_for(pts, None),
                 config=self.config,
                 verify=self.verify_pose,
+                hit_reference=self.quality.hit_reference,
             )
             step = self.recovery.recover(view, pts)
         res = step.result

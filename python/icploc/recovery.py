@@ -57,6 +57,8 @@ class RecoveryView:
     #: ``verify(points, pose) -> (ok, IcpResult | None, pose)``: the localizer's own check
     #: of a pose (ICP from it, then the same verification tracking uses)
     verify: Callable[[NDArray[np.float64], Pose], tuple[bool, Any, Pose]]
+    #: the share of beams this map's verified fits usually end on walls with (1: unknown)
+    hit_reference: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,8 @@ _R = RecoverySection()
 class LocalRecovery:
     """Multi-start ICP around the dead-reckoned pose, within its uncertainty (3 sigma,
     ``min_radius`` .. ``max_radius``); a candidate that the localizer verifies and that
-    stays put (by odometry) for ``confirm`` consecutive scans locks. The settings are the
+    stays put (by odometry) on ``confirm`` scans locks (one scan between that does not
+    verify pauses the count, two in a row end it). The settings are the
     ``recovery:`` section's (:class:`icploc.config.RecoverySection`), ``confirm`` is
     ``localizer.recover_after``."""
 
@@ -99,6 +102,7 @@ class LocalRecovery:
     keep: int = _R.keep
     _leader: Pose | None = None
     _streak: int = 0
+    _missed: bool = False  #: the leader's last scan did not verify
     _hyps: list[Candidate] = field(default_factory=list)
 
     @classmethod
@@ -109,7 +113,7 @@ class LocalRecovery:
         return cls(confirm=config.localizer.recover_after, **config.recovery.__dict__)
 
     def reset(self) -> None:
-        self._leader, self._streak, self._hyps = None, 0, []
+        self._leader, self._streak, self._hyps, self._missed = None, 0, [], False
 
     def starts(self, view: RecoveryView) -> list[Pose]:
         p = view.pose
@@ -164,13 +168,19 @@ class LocalRecovery:
         hyps[0] = Candidate(pose, hyps[0].score, hyps[0].inlier_ratio, ok)
         self._hyps = hyps
         if not ok:
-            self._leader, self._streak = None, 0
+            # one scan that does not verify (a crowd, a poor scan on a map from another
+            # pass) pauses the streak; two in a row end it
+            if self._missed or self._leader is None:
+                self._leader, self._streak, self._missed = None, 0, False
+            else:
+                self._missed = True
             return RecoveryStep("searching", tuple(hyps))
         if self._leader is not None and _close(pose, self._leader):
             self._streak += 1
         else:
             self._streak = 1
         self._leader = pose
+        self._missed = False
         if self._streak >= self.confirm:
             self.reset()
             return RecoveryStep("locked", tuple(hyps), lock=pose, result=res)

@@ -196,11 +196,24 @@ class Relocalizer:
         raw = float(cand.score) / (1.0 - st) if st < 1.0 else 0.0
         return raw * (1.0 - self.config.see_through_weight * st)
 
+    def expect(self, share: float) -> None:
+        """What a good fit looks like on this map: the inlier share its verified fits show
+        (``share``, e.g. the localizer's hit reference times its verification fraction).
+        Where that is below ``min_inlier_ratio`` (a coarse or cluttered map, a map from
+        another pass) the confirming thresholds follow it down: the inlier ratio to it, the
+        score in proportion. Never above the configured ones."""
+        c = self.config
+        if not (0.0 < share < c.min_inlier_ratio):
+            self._min_inlier, self._min_score = c.min_inlier_ratio, c.min_score
+            return
+        self._min_inlier = share
+        self._min_score = c.min_score * share / c.min_inlier_ratio
+
     def _good(self, score: float, inlier_ratio: float, see_through: float = 0.0) -> bool:
         c = self.config
         return (
-            score >= c.min_score
-            and inlier_ratio >= c.min_inlier_ratio
+            score >= getattr(self, "_min_score", c.min_score)
+            and inlier_ratio >= getattr(self, "_min_inlier", c.min_inlier_ratio)
             and see_through <= c.max_see_through
         )
 
@@ -511,6 +524,7 @@ class GlobalRelocalization:
             return local
         # 2. the whole map: the multi-hypothesis tracker, its global search throttled
         rel = self.relocalizer
+        rel.expect(view.hit_reference * lc.verify_hit_fraction)
         n, stamp = view.scans_processed, view.stamp
         last = self._last_search
         search = (

@@ -46,8 +46,14 @@ class Reason(_StrEnum):
     #: chi-square failed but the map (or several scans agreeing) prefer the scan pose
     ODOMETRY_OFF = "odometry_off"
     CONTRADICTED = "contradicted"  #: the fused pose explains far less of the scan than usual
+    #: the prediction an ``odometry_off`` fit overruled still verifies (a rival pose)
+    DISPUTED = "disputed"
     UNVERIFIED = "unverified"
     UNCERTAIN = "uncertain"  #: verified, but the covariance is too wide to promise
+    #: a weakly constrained fit (degeneracy below 0.1: a corridor) right after a stretch
+    #: that was not ``tracking`` (up to ``dispute_scans`` of them in a row): it does not pin
+    #: the pose along its weak direction
+    UNCONSTRAINED = "unconstrained"
     RELOCALIZED = "relocalized"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
     UNCONFIRMED = "unconfirmed"  #: a lock whose strict check is out
