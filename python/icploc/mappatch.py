@@ -116,9 +116,7 @@ def refined_poses(
     odometry step stands. The drift left is small where walls constrain the scans; the
     lock's correction then spreads it. Returns the poses and per step how much the scan
     match tightened it (0: odometry alone .. 1)."""
-    poses, trust, _, _ = _chain(
-        start, scans, coasted, keep=keep, min_inliers=min_inliers, gate=gate
-    )
+    poses, trust, _ = _chain(start, scans, coasted, keep=keep, min_inliers=min_inliers, gate=gate)
     return poses, trust
 
 
@@ -130,9 +128,8 @@ def _chain(
     keep: int = 5,
     min_inliers: float = 0.6,
     gate: float = 16.0,
-) -> tuple[list[Pose], list[float], list[NDArray[np.float64]], list[_Step]]:
-    """:func:`refined_poses`, per step its covariance (map frame) and its two
-    measurements (:class:`_Step`: the odometry step, the scan match)."""
+) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
+    """:func:`refined_poses` and per step its covariance (map frame)."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -144,7 +141,6 @@ def _chain(
     out: list[Pose] = []
     trust: list[float] = []
     covs: list[NDArray[np.float64]] = []
-    parts: list[_Step] = []
     prev: Pose = (float(start[0]), float(start[1]), float(start[2]))
     prev_c: Pose = prev
     world: list[NDArray[np.float64]] = []
@@ -158,7 +154,6 @@ def _chain(
         sxy, sth = 0.01 + 0.02 * step, 0.003 + 0.03 * step
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
-        part = _Step(u, P)
         if world and pts.shape[0] >= 20:
             try:
                 res = icp(
@@ -171,13 +166,11 @@ def _chain(
                 R = scan_covariance(res.information, int(res.inliers), float(res.mse), 0.02, 5.0)
                 if mahalanobis2(guess, P, z, R) <= gate:
                     pose, P2 = fuse(guess, P, z, R)
-                    part.match = (between(prev, z), np.asarray(R, dtype=np.float64))
                     cov = np.asarray(P2, dtype=np.float64)
                     t = float(np.clip(1.0 - math.sqrt(np.trace(P2) / np.trace(P)), 0.0, 1.0))
         out.append(pose)
         trust.append(t)
         covs.append(cov)
-        parts.append(part)
         if pts.shape[0] >= 3:
             w = _to_world(pose, pts)
             n, ok = _scan_normals(w)
@@ -185,19 +178,7 @@ def _chain(
             normals.append(n[ok])
             del world[:-keep], normals[:-keep]
         prev, prev_c = pose, c
-    return out, trust, covs, parts
-
-
-@dataclass
-class _Step:
-    """One step of a stretch's chain as measured: the odometry step ``u`` (robot frame)
-    with its covariance ``cov`` (isotropic in position), and, when the scan matched
-    the stretch's previous scans, the match (the pose relative to the previous chain
-    pose, its covariance in the map frame)."""
-
-    u: Pose
-    cov: NDArray[np.float64]
-    match: tuple[Pose, NDArray[np.float64]] | None = None
+    return out, trust, covs
 
 
 def _to_world(pose: Pose, pts: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -368,19 +349,15 @@ def graph_poses(
         coasted = [*coasted, *(compose(coasted[-1], between(l0, p)) for p in lead_poses)]
         scans = [*scans, *lead[0]]
     total = len(coasted)
-    chain, _, _, parts = _chain(start, scans, coasted, keep=keep, min_inliers=min_inliers)
+    chain, _, covs = _chain(start, scans, coasted, keep=keep, min_inliers=min_inliers)
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
-    # each step's two measurements, separately: the odometry step, its translation
-    # scaled by the stretch's odometry scale, and the scan match (unscaled: a scan
-    # match has no scale error). Fused into one scaled step, the room's scan-matched
-    # steps pulled the scale to 1 and left the corridor's odometry short.
-    edges: list[_Edge] = []
-    for k, step in enumerate(parts):
-        edges.append(_Edge(k, k + 1, step.u, _relative_info(nodes[k], step.cov), True))
-        if step.match is not None:
-            z, R = step.match
-            edges.append(_Edge(k, k + 1, z, _relative_info(nodes[k], R)))
+    edges = [
+        _Edge(
+            k, k + 1, between(nodes[k], nodes[k + 1]), _relative_info(nodes[k], covs[k]), True
+        )
+        for k in range(total)
+    ]
     sc = _Scale(scale_sigma) if (scale_sigma > 0 and lock is not None) else None
     sx, sth = anchor_sigma
     w_anchor = np.diag([1 / sx**2, 1 / sx**2, 1 / sth**2])
