@@ -176,3 +176,15 @@ def test_the_patch_drops_a_walls_faint_fringe_but_keeps_a_faint_wall_alone() -> 
     occ = np.argwhere(g.occupied)
     xy = (np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution).round(2).tolist()
     assert sorted(xy) == [[2.05, 0.05], [2.05, 1.05]]
+
+
+def test_the_patch_drops_a_fringe_two_five_centimetre_cells_behind_a_wall() -> None:
+    # 20 scans end on the cell at x 2.00..2.05, 2 on the one 10 cm behind it (x 2.10..2.15:
+    # PATCH_PEAK_RADIUS is 10 cm, two cells at 5 cm)
+    strong = [np.array([[2.025, 0.025]])] * 20
+    weak = [np.array([[2.125, 0.025]])] * 2
+    g = grid_from_scans(strong + weak, [(0.0, 0.0, 0.0)] * 22, resolution=0.05, peak_share=0.25)
+    assert g is not None
+    occ = np.argwhere(g.occupied)
+    xy = (np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution).round(3).tolist()
+    assert xy == [[2.025, 0.025]]
