@@ -608,8 +608,8 @@ def grid_from_scans(
     ``poses`` into one grid whose cell corners lie on ``align`` + multiples of
     ``resolution``; the beams start at ``mounting``. The occupancy rules are
     :func:`icploc.maps.build.build_grid`'s; ``peak_share`` > 0 then drops an occupied
-    cell with fewer hits than that share of the most hit cell within one cell of it (a
-    wall's fringe: :data:`PATCH_PEAK_SHARE`, within :data:`PATCH_PEAK_RADIUS`). None
+    cell with fewer hits than that share of the most hit cell within
+    :data:`PATCH_PEAK_RADIUS` of it (a wall's fringe: :data:`PATCH_PEAK_SHARE`). None
     without a point."""
     from icploc.maps.build import BUILD_DEFAULTS, grid_from_rays
 
