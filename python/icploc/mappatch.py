@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from icploc.outside import Stretch
 
 __all__ = [
+    "PATCH_PEAK_RADIUS",
     "PATCH_PEAK_SHARE",
     "PATCH_RESOLUTION",
     "MappedWalls",
@@ -60,6 +61,12 @@ PATCH_RESOLUTION = 0.05
 #: (simulated wing, seed 1: the fringe was 107 of the 2556 wall cells, all of those more
 #: than 10 cm off, with at most 8 % of their neighbour's hits)
 PATCH_PEAK_SHARE = 0.25
+#: how far from a cell :data:`PATCH_PEAK_SHARE` looks for the most hit cell [m] (at
+#: least one cell): the fringe a few centimetres of pose error put beside a wall (at
+#: 5 cm cells two cells: simulated wing, seeds 2 and 4, a pillar's face drawn twice,
+#: 12.5 cm behind itself, by 2-3 beams near the laser's range from the corridor, the
+#: face itself two cells away; at 10 cm cells one cell, as before)
+PATCH_PEAK_RADIUS = 0.1
 
 
 def corrected_poses(
@@ -601,8 +608,9 @@ def grid_from_scans(
     ``poses`` into one grid whose cell corners lie on ``align`` + multiples of
     ``resolution``; the beams start at ``mounting``. The occupancy rules are
     :func:`icploc.maps.build.build_grid`'s; ``peak_share`` > 0 then drops an occupied
-    cell with fewer hits than that share of the most hit cell within one cell of it (a
-    wall's fringe: :data:`PATCH_PEAK_SHARE`). None without a point."""
+    cell with fewer hits than that share of the most hit cell within
+    :data:`PATCH_PEAK_RADIUS` of it (a wall's fringe: :data:`PATCH_PEAK_SHARE`). None
+    without a point."""
     from icploc.maps.build import BUILD_DEFAULTS, grid_from_rays
 
     res = float(resolution)
@@ -643,18 +651,18 @@ def grid_from_scans(
     return g
 
 
-def _thin(g: BuiltGrid, share: float) -> BuiltGrid:
+def _thin(g: BuiltGrid, share: float, radius: float = PATCH_PEAK_RADIUS) -> BuiltGrid:
     """``g`` without the occupied cells whose hits are below ``share`` of the most hit cell
-    within one cell of them (the fringe of a wall drawn from slightly different poses);
-    such a cell is free when a beam passed it, else unknown."""
+    within ``radius`` m of them (at least one cell; the fringe of a wall drawn from
+    slightly different poses); such a cell is free when a beam passed it, else unknown."""
     import dataclasses
 
+    r = max(1, int(round(radius / float(g.resolution))))
     h = g.hits.astype(np.float64)
-    pad = np.pad(h, 1)
+    pad = np.pad(h, r)
     rows, cols = h.shape
-    peak = np.max(
-        [pad[dy : dy + rows, dx : dx + cols] for dy in range(3) for dx in range(3)], axis=0
-    )
+    span = range(2 * r + 1)
+    peak = np.max([pad[dy : dy + rows, dx : dx + cols] for dy in span for dx in span], axis=0)
     occupied = g.occupied & (h >= share * peak)
     free = (g.passes > 0) & ~occupied
     return dataclasses.replace(g, occupied=occupied, free=free)
