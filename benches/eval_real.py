@@ -451,6 +451,52 @@ def pooled(rows: list[dict]) -> list[str]:
     return out
 
 
+def targets(rows: list[dict], method: str = "icploc") -> list[str]:
+    """Issue 11's targets per radish cell, against the best peer in that cell (per figure,
+    the lowest of the peers measured there): max at most half of it, p95 at least 25 %
+    below it, median no worse. One line per cell with ``method``'s figures, the best peer's
+    and whether each target is met; then how many cells meet each."""
+    cells: dict[tuple[Any, Any, Any], dict[str, dict]] = {}
+    for r in rows:
+        if "median_m" in r and r.get("base") != "real":
+            cells.setdefault((r["log"], r["map_res_m"], r["base"]), {})[r["method"]] = r
+    out: list[str] = []
+    met = [0, 0, 0]
+    n = 0
+    for (log, res, base), by in cells.items():
+        mine = by.get(method)
+        peers = [r for m, r in by.items() if m != method]
+        if mine is None or not peers:
+            continue
+        n += 1
+        best = {k: min(r[k] for r in peers) for k in ("median_m", "p95_m", "max_m")}
+        who = {k: min(peers, key=lambda r: r[k])["method"] for k in best}  # noqa: B023
+        ok = (
+            mine["max_m"] <= 0.5 * best["max_m"],
+            mine["p95_m"] <= 0.75 * best["p95_m"],
+            mine["median_m"] <= best["median_m"],
+        )
+        met = [a + int(b) for a, b in zip(met, ok, strict=True)]
+        mark = ["yes" if b else "no" for b in ok]
+        out.append(
+            f"| {log} | {int(round(res * 100))} cm | {base} | {_cm(mine['median_m'])} / {_cm(mine['p95_m'])} / "
+            f"{_cm(mine['max_m'])} | {_cm(best['median_m'])} ({who['median_m']}) / {_cm(best['p95_m'])} "
+            f"({who['p95_m']}) / {_cm(best['max_m'])} ({who['max_m']}) | {mark[0]} | {mark[1]} | {mark[2]} |"
+        )
+    if not out:
+        return []
+    return [
+        f"Issue 11's targets per cell, {method} against the best peer (per figure, the lowest of the peers in the cell):",
+        "",
+        f"| log | map | odometry | {method} median / p95 / max cm | best peer median / p95 / max cm | "
+        "max <= half | p95 <= 75 % | median no worse |",
+        "|---|---|---|---|---|---|---|---|",
+        *out,
+        f"| **cells meeting it** | | | | | {met[0]} / {n} | {met[1]} / {n} | {met[2]} / {n} |",
+        "",
+    ]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("names", nargs="*", help=f"radish logs whose name contains one of these (default {DEFAULT_LOGS})")
@@ -474,6 +520,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--laserazos-only", action="store_true")
     ap.add_argument("--no-compile", dest="compile", action="store_false",
                     help="do not byte-compile the measured icploc first (see compile_measured_package)")  # fmt: skip
+    ap.add_argument("--stem", default=None,
+                    help="name of the written table files (default real, with --quick real-quick), e.g. real-heldout")  # fmt: skip
     ap.add_argument("--merge-only", action="store_true", help="run nothing: write the --merge rows as one table")
     ap.add_argument("--keep-work", action="store_true", help="keep the per-run work folder (peer inputs, logs)")
     ap.add_argument("--merge", nargs="+", default=[], metavar="JSON",
@@ -529,7 +577,7 @@ def main(argv: list[str] | None = None) -> int:
             old + rows,
             key=lambda r: (str(r.get("log")), base_order.get(r.get("base"), 3), r.get("map_res_m") or 0, order.get(r.get("method"), 9)),
         )
-    stem = "real-quick" if args.quick else "real"
+    stem = args.stem or ("real-quick" if args.quick else "real")
     args.out_dir.mkdir(parents=True, exist_ok=True)
     icploc_version = subprocess.run(
         [args.python, "-c", "import icploc, sys; sys.stdout.write(getattr(icploc, '__version__', '?') + ' ' + icploc.__file__)"],
@@ -563,6 +611,7 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---:|---:|---:|---:|---:|---:|",
         *pooled(rows),
         "",
+        *targets(rows),
         "Odometry bases (fitted to freiburg_course odom vs scan-matched motions): "
         + "; ".join(
             f"{k}: scale {v.scale * 100:+.2f} %, rotation scale {v.turn_scale * 100:+.2f} %, "

@@ -333,3 +333,34 @@ def test_mrpt_fan_matches_carmen_beam_angles(n: int) -> None:
     aperture = step * (n - 1)
     mrpt = yaw - aperture / 2 + np.arange(n) * aperture / (n - 1)
     assert np.allclose(mrpt, rl.beam_angles(n))
+
+
+def _cell(method: str, med: float, p95: float, mx: float, log: str = "intel") -> dict:
+    return {"log": log, "map_res_m": 0.05, "base": "good", "method": method,
+            "median_m": med, "p95_m": p95, "max_m": mx}  # fmt: skip
+
+
+def test_targets_compare_each_figure_with_the_best_peer_in_the_cell() -> None:
+    from eval_real import targets
+
+    rows = [
+        _cell("icploc", 0.03, 0.10, 0.20),
+        _cell("mrpt", 0.04, 0.12, 0.50),
+        _cell("numpy", 0.02, 0.20, 0.30),  # best median and best max are numpy's
+    ]
+    line = next(ln for ln in targets(rows) if ln.startswith("| intel"))
+    # max 20 <= half of numpy's 30? no; p95 10 <= 75 % of mrpt's 12? no; median 3 <= numpy's 2? no
+    assert line.endswith("| no | no | no |")
+
+
+def test_targets_count_the_cells_that_meet_them() -> None:
+    from eval_real import targets
+
+    rows = [
+        _cell("icploc", 0.03, 0.08, 0.10),
+        _cell("mrpt", 0.04, 0.12, 0.25),
+        _cell("icploc", 0.03, 0.10, 0.20, log="aces"),
+        _cell("mrpt", 0.04, 0.12, 0.25, log="aces"),
+    ]
+    total = next(ln for ln in targets(rows) if "cells meeting it" in ln)
+    assert total.endswith("| 1 / 2 | 1 / 2 | 2 / 2 |")
