@@ -348,9 +348,21 @@ def test_targets_compare_each_figure_with_the_best_peer_in_the_cell() -> None:
         _cell("mrpt", 0.04, 0.12, 0.50),
         _cell("numpy", 0.02, 0.20, 0.30),  # best median and best max are numpy's
     ]
-    line = next(ln for ln in targets(rows) if ln.startswith("| intel"))
+    line = next(ln for ln in targets(rows, peer=None) if ln.startswith("| intel"))
     # max 20 <= half of numpy's 30? no; p95 10 <= 75 % of mrpt's 12? no; median 3 <= numpy's 2? no
     assert line.endswith("| no | no | no |")
+
+
+def test_targets_against_a_named_peer_ignore_the_others() -> None:
+    from eval_real import targets
+
+    rows = [
+        _cell("icploc", 0.03, 0.08, 0.10),
+        _cell("mrpt", 0.04, 0.12, 0.25),
+        _cell("numpy", 0.01, 0.05, 0.05),  # better on every figure, but not the named peer
+    ]
+    line = next(ln for ln in targets(rows, peer="mrpt") if ln.startswith("| intel"))
+    assert line.endswith("| yes | yes | yes |")
 
 
 def test_targets_count_the_cells_that_meet_them() -> None:
