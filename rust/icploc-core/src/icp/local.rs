@@ -11,7 +11,8 @@
 //!   map's (a correlation of two histograms of line directions modulo π, 1° bins, over
 //!   ±`window_heading` around the start): a second ICP start when the first fit kept most
 //!   of a large heading error (racks and people pull the first iterations to wrong walls).
-//!   The map's histogram ([`map_directions`]) is built once with the likelihood field.
+//!   The map's histogram ([`map_directions`]) is built once per map
+//!   (`MapIndex::line_directions`).
 
 use std::f64::consts::PI;
 
