@@ -159,9 +159,11 @@ class IcpResult:
         """Why it stopped: mse_below_threshold, mse_change_below_epsilon, step_below_tolerance,
         max_iterations or too_few_inliers."""
     @property
-    def start(self) -> Literal["plain", "local", "window_kept_plain", "window"]:
+    def start(self) -> Literal["plain", "prior", "local", "window_kept_plain", "window"]:
         """Which start the result came from: ``plain`` (the ICP from the initial pose explained
-        the scan), ``local`` (the ICP from another place along the corridor the plain fit lay
+        the scan), ``prior`` (the heading at which the scan's wall directions line up with the
+        map's disagreed with the initial heading by more than a few degrees, and the ICP from the
+        initial position at that heading explained the scan), ``local`` (the ICP from another place along the corridor the plain fit lay
         in explained it better), ``window_kept_plain`` (it did not; the window search ran but nothing it
         found explained the scan better -- or, with ``window_score`` None, it could not run: a
         map too large for its grid) or ``window`` (ICP from a window-search pose)."""

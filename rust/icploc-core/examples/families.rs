@@ -71,7 +71,7 @@ fn main() {
                     let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
                     let good = dt < 0.02 && dth < 0.5f64.to_radians();
                     ok += good as usize;
-                    win += (r.start != StartPath::Plain) as usize;
+                    win += !matches!(r.start, StartPath::Plain | StartPath::Prior) as usize;
                     let verbose = std::env::var("VERBOSE").is_ok();
                     let paths = std::env::var("PATHS").is_ok();
                     if (!good && verbose) || paths {
@@ -137,6 +137,7 @@ fn main() {
             if std::env::var("BYPATH").is_ok() {
                 for p in [
                     StartPath::Plain,
+                    StartPath::Prior,
                     StartPath::Local,
                     StartPath::Window,
                     StartPath::WindowKeptPlain,

@@ -389,6 +389,10 @@ impl Termination {
 pub enum StartPath {
     /// The ICP from the initial pose explained the scan: no search.
     Plain,
+    /// The heading prior (the heading at which the scan's wall directions line up with the
+    /// map's) disagreed with the initial heading by more than a few degrees, and the ICP
+    /// from the initial position at the prior's heading explained the scan.
+    Prior,
     /// It lay in a corridor (or did not explain the scan, and nothing the window search
     /// found explained it better): the result is the ICP from another place along the
     /// corridor.
@@ -403,6 +407,7 @@ impl StartPath {
     pub fn as_str(&self) -> &'static str {
         match self {
             StartPath::Plain => "plain",
+            StartPath::Prior => "prior",
             StartPath::Local => "local",
             StartPath::WindowKeptPlain => "window_kept_plain",
             StartPath::Window => "window",
@@ -570,10 +575,13 @@ pub fn align_batch(
     }
 }
 
-/// ICP from `initial`; then, unless the result explains the scan, the cheap local checks
-/// (a place along the corridor, the heading prior) and, unless one of those explains it,
-/// the window search around `initial` and ICP from its best poses: the pose that explains
-/// the scan best.
+/// ICP from `initial` (from the initial position at the heading prior first, when the
+/// prior disagrees with the initial heading by more than [`PRIOR_JUMP`]); then, unless the
+/// result explains the scan, the cheap local checks (a place along the corridor, the
+/// window at the heading prior) and, unless one of those explains it, the window search
+/// around `initial` and ICP from its best poses: the pose that explains the scan best.
+/// The map's histogram of line directions is built on the first call, its likelihood field
+/// on the first that needs the window.
 fn align_unchecked(
     scan: &[[f64; 2]],
     index: &MapIndex,
@@ -581,13 +589,75 @@ fn align_unchecked(
     cfg: &IcpConfig,
     ws: &mut Workspace,
 ) -> IcpResult {
-    let mut plain = align_plain(scan, index, initial, cfg, ws);
     if !cfg.window_search {
-        return plain;
+        return align_plain(scan, index, initial, cfg, ws);
     }
-    let fit = assess(scan, index, plain.pose, cfg);
-    plain.fit = Some(fit);
     let center = initial.normalized();
+    // the heading at which the scan's walls line up with the map's (`None` without enough
+    // straight wall pieces in the scan)
+    let prior = local::scan_directions(scan).and_then(|h| {
+        local::heading_prior(
+            &h,
+            index.line_directions(),
+            center.theta,
+            cfg.window_heading,
+        )
+    });
+    // a start heading the prior disagrees with: ICP from the initial position at the
+    // prior's heading first (plain ICP from a start ~10° off keeps most of the error among
+    // racks and furniture, and the window search would run). That fit ends the search when
+    // it explains the scan outright; one acceptable only by the looser rules (a tight or
+    // occluded fit with a quarter of the scan unexplained) only when it has no beams
+    // through walls, moved at most [`PRIOR_NEAR`] of the window, and the ICP from the
+    // initial pose does not rank better (a turned start can settle in a neighbouring room
+    // or one door frame along)
+    let mut plain_first = None;
+    if let Some(th) = prior.filter(|th| wrap_angle(th - center.theta).abs() > PRIOR_JUMP) {
+        let turned_cfg = IcpConfig {
+            max_iterations: PRIOR_ITERATIONS.min(cfg.max_iterations),
+            ..cfg.clone()
+        };
+        let start = Pose2::new(center.x, center.y, th);
+        let mut turned = align_plain(scan, index, start, &turned_cfg, ws);
+        let f = assess(scan, index, turned.pose, cfg);
+        turned.fit = Some(f);
+        let near = (turned.pose.x - center.x).hypot(turned.pose.y - center.y)
+            <= PRIOR_NEAR * cfg.window_position;
+        let candidate = turned.termination != Termination::TooFewInliers
+            && acceptable(&turned, &f, center, cfg)
+            && (explains(&f, cfg) || (near && f.see_through <= cfg.accept_see_through));
+        let wins = candidate
+            && (explains(&f, cfg) || {
+                let mut p = align_plain(scan, index, initial, cfg, ws);
+                let pf = assess(scan, index, p.pose, cfg);
+                p.fit = Some(pf);
+                let better = p.termination != Termination::TooFewInliers
+                    && acceptable(&p, &pf, center, cfg)
+                    && rank(&pf, cfg) > rank(&f, cfg);
+                plain_first = Some(p);
+                !better
+            });
+        if wins {
+            let mut pick = Pick {
+                best: turned.clone(),
+                score: rank(&f, cfg),
+                path: StartPath::Prior,
+                tried: Vec::new(),
+            };
+            if let Some(mut r) = settle(scan, index, turned, center, cfg, ws, &mut pick) {
+                if r.start == StartPath::Plain {
+                    r.start = StartPath::Prior;
+                }
+                return r;
+            }
+        }
+    }
+    let plain = plain_first.unwrap_or_else(|| {
+        let mut p = align_plain(scan, index, initial, cfg, ws);
+        p.fit = Some(assess(scan, index, p.pose, cfg));
+        p
+    });
+    let fit = plain.fit.expect("assessed above");
     // the plain fit competes on its fit like the window's refinements (an iteration limit
     // reached is still a pose); only one without enough inliers is out
     let plain_score = if plain.termination == Termination::TooFewInliers {
@@ -611,9 +681,7 @@ fn align_unchecked(
     // the heading at which the scan's walls line up with the map's: the window at a few
     // headings around it first (a fraction of the full window's cost), and the full window
     // only when nothing there explains the scan
-    if let Some(th) = local::scan_directions(scan)
-        .and_then(|h| local::heading_prior(&h, &field.directions, center.theta, cfg.window_heading))
-    {
+    if let Some(th) = prior {
         let narrow_cfg = IcpConfig {
             window_heading: PRIOR_WINDOW_HEADING.min(cfg.window_heading),
             ..cfg.clone()
@@ -679,6 +747,18 @@ fn align_unchecked(
 const SLIDE_REACH: f64 = 0.25;
 /// Scan points (evenly subsampled) the look along a corridor scores.
 const SLIDE_POINTS: usize = 64;
+/// The ICP starts at the heading prior instead of the initial heading when the two differ
+/// by more than this (rad): plain ICP converges from a few degrees, and the prior's error
+/// is about half a degree (median; p95 1.4-8° on the four families' small starts).
+const PRIOR_JUMP: f64 = 0.05;
+/// The ICP from the heading prior stops after this many iterations at most: from the right
+/// heading it converges in a few (on the four families' small starts the plain ICP's median
+/// is 6, p95 13), and one that needs more is left to the ICP from the initial pose and the
+/// window (from a large start it would mostly cost).
+const PRIOR_ITERATIONS: usize = 15;
+/// See [`align_unchecked`]: a fit from the heading prior that moved at most this fraction
+/// of `window_position` from the initial position is accepted by the looser rules.
+const PRIOR_NEAR: f64 = 0.5;
 /// Half-width (rad) of the window searched first, around the heading prior.
 const PRIOR_WINDOW_HEADING: f64 = 0.07;
 /// A place along the corridor replaces the fit when its fit scores this much more (in

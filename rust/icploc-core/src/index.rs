@@ -70,6 +70,9 @@ pub struct MapIndex {
     /// The likelihood pyramid of `icp()`'s window search, built on first use (`None`: the
     /// map is too large for it).
     likelihood: OnceLock<Option<crate::likelihood::LikelihoodField>>,
+    /// hook (core4): the histogram of the map's line directions (`icp()`'s heading prior),
+    /// built on first use.
+    directions: OnceLock<Vec<f32>>,
 }
 
 impl std::fmt::Debug for MapIndex {
@@ -159,6 +162,7 @@ impl MapIndex {
             spacing: OnceLock::new(),
             bounds,
             likelihood: OnceLock::new(),
+            directions: OnceLock::new(),
         })
     }
 
@@ -366,6 +370,13 @@ impl MapIndex {
     /// Unit normals: the given ones, or estimated once (PCA of the nearest neighbours).
     pub fn normals(&self) -> &[[f64; 2]] {
         self.normals.get_or_init(|| self.estimate_normals())
+    }
+
+    /// hook (core4): the histogram of the map's line directions ([`crate::icp`]'s heading
+    /// prior), built on first use and kept.
+    pub fn line_directions(&self) -> &[f32] {
+        self.directions
+            .get_or_init(|| crate::icp::map_directions(self.normals()))
     }
 
     /// The max-pooled likelihood pyramid of the window search of `icp()`

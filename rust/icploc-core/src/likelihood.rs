@@ -42,9 +42,6 @@ pub struct LikelihoodField {
     pub(crate) dist: Vec<f32>,
     /// Pooled likelihood, level 0 = the likelihood itself.
     pub(crate) pooled: Vec<Vec<u8>>,
-    /// The map's histogram of line directions (the heading prior of `icp()`'s verified
-    /// start, [`crate::icp`]'s `local` module).
-    pub(crate) directions: Vec<f32>,
 }
 
 impl std::fmt::Debug for LikelihoodField {
@@ -75,10 +72,7 @@ impl LikelihoodField {
                 index.nearest(q).0.sqrt() as f32
             })
             .collect();
-        let directions = crate::icp::map_directions(index.normals());
-        Ok(Self::finish(
-            resolution, x0, y0, w, h, dist, sigma, levels, directions,
-        ))
+        Ok(Self::finish(resolution, x0, y0, w, h, dist, sigma, levels))
     }
 
     /// hook (speed2, the likelihood-field cache): the field `build` gives for `index` at
@@ -99,10 +93,7 @@ impl LikelihoodField {
                 reason: format!("{} values for a {w} x {h} grid", dist.len()),
             });
         }
-        let directions = crate::icp::map_directions(index.normals());
-        Ok(Self::finish(
-            resolution, x0, y0, w, h, dist, sigma, levels, directions,
-        ))
+        Ok(Self::finish(resolution, x0, y0, w, h, dist, sigma, levels))
     }
 
     /// The distance (m) of every cell centre to the nearest map point, row by row.
@@ -144,7 +135,6 @@ impl LikelihoodField {
         dist: Vec<f32>,
         sigma: f64,
         levels: usize,
-        directions: Vec<f32>,
     ) -> Self {
         let inv2s2 = 1.0 / (2.0 * sigma * sigma);
         let base: Vec<u8> = dist
@@ -167,7 +157,6 @@ impl LikelihoodField {
             h,
             dist,
             pooled,
-            directions,
         }
     }
 

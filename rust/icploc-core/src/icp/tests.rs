@@ -550,3 +550,35 @@ fn places_along_a_corridor_only_replace_the_fit_when_right() {
     eprintln!("{local} local results");
     assert_eq!(wrong, Vec::<(&str, f64)>::new());
 }
+
+#[test]
+fn starts_turned_by_the_heading_prior_are_right_and_skip_the_window() {
+    // warehouse, small starts (up to 10°): the fits from the heading prior that end the
+    // search (`prior`) are all right, ran no window, and are common (plain ICP from 10°
+    // off keeps the error among the racks)
+    let w = crate::testkit::warehouse_world();
+    let (p, n) = sample_segments(&w.map_segments(), 0.025);
+    let idx = MapIndex::new(p, Some(n))
+        .unwrap()
+        .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+        .unwrap();
+    let cs = crate::testkit::world_cases(&w, 60, (0.3, 0.3, 10f64.to_radians()), 9);
+    let mut prior = 0;
+    let mut wrong = Vec::new();
+    for (k, c) in cs.iter().enumerate() {
+        let r = align(&c.scan, &idx, c.initial, &IcpConfig::default()).unwrap();
+        if r.start == StartPath::Prior {
+            prior += 1;
+            let d = (r.pose.x - c.truth.x).hypot(r.pose.y - c.truth.y);
+            let dth = wrap_angle(r.pose.theta - c.truth.theta).abs();
+            if d >= 0.02 || dth >= 0.5f64.to_radians() || r.window_score.is_some() {
+                wrong.push((k, d, dth));
+            }
+        }
+    }
+    assert_eq!(
+        (wrong, prior >= 15),
+        (Vec::new(), true),
+        "{prior} of 60 from the prior"
+    );
+}
