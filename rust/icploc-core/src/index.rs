@@ -218,33 +218,18 @@ impl MapIndex {
     /// length, an index naming no point) are an error, never a silently wrong grid. Cells
     /// of other points that happen to fit cannot be told apart: the caller keys them by
     /// the points.
-    pub fn with_cache_cells(mut self, resolution: f64, cells: Vec<u32>) -> Result<Self> {
-        if !(resolution > 0.0 && resolution.is_finite()) {
-            return Err(IcpError::InvalidConfig {
-                field: "cache_resolution",
-                value: resolution.to_string(),
-                reason: "must be positive and finite",
-            });
-        }
-        self.cache = None;
-        self.cache_fallback = None;
-        let bad = |reason: String| IcpError::InvalidInput {
-            what: "closest-point grid cells".into(),
-            reason,
-        };
-        match ClosestGrid::with_cells(
-            &self.points,
-            self.bounds,
-            resolution,
-            CACHE_REACH,
-            MAX_CACHE_CELLS,
-            cells,
-        ) {
-            Ok(Ok(g)) => self.cache = Some(g),
-            Ok(Err(why)) => return Err(bad(why)),
-            Err(why) => return Err(bad(format!("no grid at this resolution: {why}"))),
-        }
-        Ok(self)
+    pub fn with_cache_cells(self, resolution: f64, cells: Vec<u32>) -> Result<Self> {
+        check_cache_resolution(resolution)?;
+        self.install_given(|points, bounds| {
+            ClosestGrid::with_cells(
+                points,
+                bounds,
+                resolution,
+                CACHE_REACH,
+                MAX_CACHE_CELLS,
+                cells,
+            )
+        })
     }
 
     /// [`MapIndex::with_cache_cells`] with the cells given as [`runs::encode`]'s runs
@@ -254,39 +239,51 @@ impl MapIndex {
     /// do not decode are an error naming the "grid runs"; cells that do not fit the layout
     /// are one as in `with_cache_cells`.
     pub fn with_cache_runs(
-        mut self,
+        self,
         resolution: f64,
         values: Vec<u32>,
         lengths: &[u32],
     ) -> Result<Self> {
-        if !(resolution > 0.0 && resolution.is_finite()) {
-            return Err(IcpError::InvalidConfig {
-                field: "cache_resolution",
-                value: resolution.to_string(),
-                reason: "must be positive and finite",
-            });
-        }
+        check_cache_resolution(resolution)?;
         runs::total(&values, lengths, MAX_CACHE_CELLS).map_err(|reason| {
             IcpError::InvalidInput {
                 what: "grid runs".into(),
                 reason,
             }
         })?;
+        self.install_given(|points, bounds| {
+            ClosestGrid::with_runs(
+                points,
+                bounds,
+                resolution,
+                CACHE_REACH,
+                MAX_CACHE_CELLS,
+                values,
+                lengths,
+            )
+        })
+    }
+
+    /// The grid `build` makes from the points and bounds, given cells rather than computed
+    /// ones ([`MapIndex::with_cache_cells`], [`MapIndex::with_cache_runs`]), as the index's
+    /// closest-point grid; cells that do not fit are an error naming them.
+    fn install_given(
+        mut self,
+        build: impl FnOnce(
+            &[[f64; 2]],
+            [f64; 4],
+        ) -> std::result::Result<
+            std::result::Result<ClosestGrid, String>,
+            closest_grid::Unbuilt,
+        >,
+    ) -> Result<Self> {
         self.cache = None;
         self.cache_fallback = None;
         let bad = |reason: String| IcpError::InvalidInput {
             what: "closest-point grid cells".into(),
             reason,
         };
-        match ClosestGrid::with_runs(
-            &self.points,
-            self.bounds,
-            resolution,
-            CACHE_REACH,
-            MAX_CACHE_CELLS,
-            values,
-            lengths,
-        ) {
+        match build(&self.points, self.bounds) {
             Ok(Ok(g)) => self.cache = Some(g),
             Ok(Err(why)) => return Err(bad(why)),
             Err(why) => return Err(bad(format!("no grid at this resolution: {why}"))),
@@ -588,6 +585,19 @@ fn smallest_eigenvector(a: f64, b: f64, c: f64) -> [f64; 2] {
     let phi = 0.5 * (2.0 * b).atan2(a - c);
     let (s, co) = phi.sin_cos();
     [-s, co]
+}
+
+/// A closest-point grid's cell size must be positive and finite.
+fn check_cache_resolution(resolution: f64) -> Result<()> {
+    if resolution > 0.0 && resolution.is_finite() {
+        Ok(())
+    } else {
+        Err(IcpError::InvalidConfig {
+            field: "cache_resolution",
+            value: resolution.to_string(),
+            reason: "must be positive and finite",
+        })
+    }
 }
 
 #[cfg(test)]
