@@ -89,13 +89,19 @@ pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
     if pts.len() < 5 {
         return None;
     }
-    // bearing order without an arctangent per point (a scan in beam order is sorted
-    // already, which the sort sees in one pass)
-    pts.sort_unstable_by(|a, b| {
-        by_bearing(a, b)
+    // bearing order, keyed by the polynomial arctangent (a key per point is a total
+    // order; comparing by half-plane and cross product is not: bearings 0 and π tie, and
+    // the products of extreme coordinates round); a scan in beam order is sorted already,
+    // which the sort sees in one pass
+    let mut keyed: Vec<(f64, [f64; 2])> =
+        pts.iter().map(|p| (approx_atan2(p[1], p[0]), *p)).collect();
+    keyed.sort_unstable_by(|(ka, a), (kb, b)| {
+        ka.total_cmp(kb)
             .then(a[0].total_cmp(&b[0]))
             .then(a[1].total_cmp(&b[1]))
     });
+    pts.clear();
+    pts.extend(keyed.into_iter().map(|(_, p)| p));
     let mut h = vec![0.0f64; DIRECTION_BINS];
     let mut pieces = 0usize;
     for w in pts.windows(5) {
@@ -140,17 +146,6 @@ fn approx_atan2(y: f64, x: f64) -> f64 {
         -a
     } else {
         a
-    }
-}
-
-/// The order of the bearings `atan2(y, x)` in (-π, π] of two points away from the origin,
-/// without the arctangents: the lower half-plane (negative bearings) first, then by the
-/// sign of the cross product within a half-plane.
-fn by_bearing(a: &[f64; 2], b: &[f64; 2]) -> std::cmp::Ordering {
-    match (a[1] < 0.0, b[1] < 0.0) {
-        (true, false) => std::cmp::Ordering::Less,
-        (false, true) => std::cmp::Ordering::Greater,
-        _ => 0.0f64.total_cmp(&(a[0] * b[1] - a[1] * b[0])),
     }
 }
 
@@ -320,18 +315,26 @@ mod tests {
     }
 
     #[test]
-    fn points_sort_by_bearing_as_the_arctangent_orders_them() {
-        let pts: Vec<[f64; 2]> = (0..360)
-            .map(|k| {
-                let t = ((k * 37) % 360) as f64 * PI / 180.0 - PI + 0.001;
-                [2.0 * t.cos(), 2.0 * t.sin()]
-            })
-            .collect();
-        let mut by_cross = pts.clone();
-        by_cross.sort_by(by_bearing);
-        let mut by_atan = pts;
-        by_atan.sort_by(|a, b| a[1].atan2(a[0]).total_cmp(&b[1].atan2(b[0])));
-        assert_eq!(by_cross, by_atan);
+    fn points_on_the_axis_and_far_away_sort_without_panic_in_any_order() {
+        // bearings 0 and π (y = 0 on both sides), a wall, and coordinates whose cross
+        // products overflow: the sort's order must be total (a comparator by half-plane and
+        // cross product is not, and the standard sort panics on it)
+        let mut pts: Vec<[f64; 2]> = Vec::new();
+        for k in 0..60 {
+            let v = 0.5 + 0.1 * k as f64;
+            pts.extend([[v, 0.0], [-v, 0.0], [0.0, v], [3.0, -2.0 + 0.07 * k as f64]]);
+        }
+        pts.extend([[1e300, 1e300], [-1e300, 1e-300], [1e300, -1e300]]);
+        let mut rng = Rng::new(3);
+        let base = scan_directions(&pts);
+        for _ in 0..20 {
+            let mut shuffled = pts.clone();
+            for i in (1..shuffled.len()).rev() {
+                let j = (rng.range(0.0, (i + 1) as f64) as usize).min(i);
+                shuffled.swap(i, j);
+            }
+            assert_eq!(scan_directions(&shuffled), base);
+        }
     }
 
     #[test]
