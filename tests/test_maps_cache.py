@@ -13,10 +13,7 @@ WALLS = np.array([[0.0, 0.0, 4.0, 0.0], [4.0, 0.0, 4.0, 3.0], [4.0, 3.0, 0.0, 3.
 
 
 @pytest.fixture
-def yaml_map(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    monkeypatch.delenv("ICPLOC_NO_CACHE", raising=False)
-    monkeypatch.setattr(cache, "_warned", False)
+def yaml_map(tmp_path: Path, map_cache_dir: Path) -> Path:
     return Map.from_lines(WALLS).to_ros(tmp_path / "m.yaml", 0.05)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from icploc._core import GlobalLocalizer, InvalidInputError, MapIndex
-from icploc.maps import Map, cache
+from icploc.maps import Map
 from icploc.relocalize import global_localizer
 
 WALLS = np.array(
@@ -20,10 +20,7 @@ SCAN = np.array([[np.cos(a) * r, np.sin(a) * r] for a, r in zip(
 
 
 @pytest.fixture
-def yaml_map(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    monkeypatch.delenv("ICPLOC_NO_CACHE", raising=False)
-    monkeypatch.setattr(cache, "_warned", False)
+def yaml_map(tmp_path: Path, map_cache_dir: Path) -> Path:
     return Map.from_lines(WALLS).to_ros(tmp_path / "m.yaml", 0.05)
 
 
