@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icploc.se2 import Pose
+from icploc.status import Reason
 
 if TYPE_CHECKING:
     from icploc.localizer import Estimate, Localizer
@@ -56,9 +57,9 @@ __all__ = [
 ]
 
 #: the Estimate reason of a scan outside the map
-REASON = "outside_map"
+REASON = Reason.OUTSIDE_MAP
 #: ... and of a scan back on the map, dead-reckoned while the re-entry search runs
-REENTERING = "reentering"
+REENTERING = Reason.REENTERING
 
 
 @dataclass(frozen=True)

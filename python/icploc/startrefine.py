@@ -57,6 +57,7 @@ from numpy.typing import NDArray
 
 from icploc.messages import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
 from icploc.se2 import Pose, between, compose, wrap_angle
+from icploc.status import Reason
 
 if TYPE_CHECKING:
     from icploc.localizer import Estimate, Localizer
@@ -71,7 +72,7 @@ __all__ = [
 ]
 
 #: the reason of the estimates made while the start is being refined
-REFINING = "refining_start"
+REFINING = Reason.REFINING_START
 
 
 @dataclass(frozen=True)

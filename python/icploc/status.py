@@ -64,3 +64,9 @@ class Reason(_StrEnum):
     CONFIRMING = "confirming"
     AMBIGUOUS = "ambiguous"
     LOCKED = "locked"
+    #: the scan lies outside the mapped area: coasted on odometry (``--partial-map``)
+    OUTSIDE_MAP = "outside_map"
+    #: back on the map, dead-reckoned while the re-entry search runs
+    REENTERING = "reentering"
+    #: the start pose is being refined from stationary scans
+    REFINING_START = "refining_start"
