@@ -346,8 +346,8 @@ class LocalizerSection(Section):
     alpha5: float = _f(1.0e-3, "cross-track variance per squared distance", "m^2/m^2", ge=0)
     learn_noise: bool = _f(
         True,
-        "learn the odometry noise online: the alphas scale up (to noise_gain_max) while "
-        "the accepted fits' chi-square statistic averages above 3",
+        "learn the odometry noise online (icploc.motion.NoiseGain): the alphas scale up (to "
+        "noise_gain_max) until the prediction is consistent with the fits the map backs",
     )
     noise_gain_max: float = _f(10.0, "largest factor on the alphas", gt=0)
     process_sigma_xy: float = _f(
@@ -379,8 +379,8 @@ class LocalizerSection(Section):
     )
     scan_independent_beams: float = _f(
         6.0,
-        "the scan match's covariance: the information of this many independent beams on "
-        "a 10 cm map, inversely proportional to the map's resolution (6: NEES ~3 on real logs)",
+        "the scan match's covariance: the information of this many independent beams, "
+        "whatever the map's resolution (the beams on one wall share its error)",
         "beams",
         gt=0,
     )
