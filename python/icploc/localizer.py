@@ -46,7 +46,7 @@ from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
 from icploc.kidnap import CheckVerdict, KidnapTrigger
 from icploc.median import median
 from icploc.messages import Odometry, Scan
-from icploc.motion import MotionModel
+from icploc.motion import MotionModel, NoiseGain
 from icploc.recovery import Candidate, LocalRecovery, Recovery, RecoveryStep, RecoveryView
 from icploc.scanprep import _TrigCache, prepare_scan
 from icploc.se2 import Pose, between, compose, wrap_angle
@@ -305,10 +305,9 @@ class Localizer:
         self.recovery: Recovery = recovery
         self.quality = MapQuality(_map_resolution(map, self.index, self.config.map.resolution))
         self.checker = FitChecker(self.index, self.quality, see_through=lc.verify_see_through)
-        #: independent beams of a scan on this map: beams within a cell's worth of a wall
-        #: share its quantisation, so the count goes as 1 / resolution (the configured
-        #: count is at 10 cm)
-        self._independent_beams = lc.scan_independent_beams * 0.10 / self.quality.resolution
+        #: independent beams of a scan: the beams on one wall share its error (its shape,
+        #: another pass's wall, the grid's quantisation), whatever the map's resolution
+        self._independent_beams = lc.scan_independent_beams
         self.motion_model = MotionModel(
             lc.alpha1,
             lc.alpha2,
@@ -334,7 +333,8 @@ class Localizer:
         self._anchor: tuple[Pose, Pose] | None = None
         #: the last rejected scan pose: (pose, covariance, odometry then, agreeing in a row)
         self._rejected: tuple[Pose, NDArray[np.float64], Pose | None, int] | None = None
-        self._nis_mean = 3.0  #: running mean of the accepted fits' chi-square statistic
+        #: the odometry noise learned online (icploc.motion.NoiseGain)
+        self._noise = NoiseGain(max_gain=lc.noise_gain_max)
         self._map_points: NDArray[np.float64] | None = None
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None
@@ -704,6 +704,7 @@ class Localizer:
         lc = self.config.localizer
         cnt = self._counters
         n = pts.shape[0]
+        P0 = pred_cov  # the prediction's covariance before any arbitration inflates it
         res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
         reason: str = Reason.NONE
         pose, cov = pred, pred_cov
@@ -787,9 +788,11 @@ class Localizer:
                         # least as well (ICP sliding along a weak axis, a neighbouring
                         # minimum of repetitive structure): no evidence against the pose
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
+                        if self._verified(at_z) and at_z.hit >= at_pred.hit:
+                            self._learn_noise(pred, P0, z, m[1])  # the map backs the fit
                 if accepted:
                     self._rejected = None
-                    self._learn_noise(nis)
+                    self._learn_noise(pred, P0, z, m[1])
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self._check(pts, pose, z, res)
@@ -1122,15 +1125,16 @@ class Localizer:
             )
         return self.checker.check(pts, pose)
 
-    def _learn_noise(self, nis: float) -> None:
-        """Online odometry noise: the chi-square statistic of accepted fits averages 3 when
-        the covariances are right; a running mean above that scales the motion model's
-        alphas up (never below the configured ones, at most ``noise_gain_max``)."""
-        lc = self.config.localizer
-        if not lc.learn_noise or not math.isfinite(nis):
+    def _learn_noise(
+        self, pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64]
+    ) -> None:
+        """Online odometry noise (:class:`icploc.motion.NoiseGain`) from a scan pose the
+        map backs: the motion model's alphas scale to make the prediction consistent with
+        such fits (never below the configured ones, at most ``noise_gain_max``)."""
+        if not self.config.localizer.learn_noise:
             return
-        self._nis_mean += 0.05 * (min(nis, 4.0 * self._chi2_accept) - self._nis_mean)
-        gain = min(max(self._nis_mean / 3.0, 1.0), lc.noise_gain_max)
+        self._noise.observe(pred, P, z, R, self.motion_model.gain)
+        gain = self._noise.gain
         if abs(gain - self.motion_model.gain) > 0.05 * self.motion_model.gain:
             self.motion_model = dataclasses.replace(self.motion_model, gain=gain)
 

@@ -22,18 +22,21 @@ spacing of real logs.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icploc.se2 import Pose, compose, inverse
 
-__all__ = ["MotionModel", "fit_alphas"]
+__all__ = ["MotionModel", "NoiseGain", "fit_alphas"]
 
 #: below this translation (m) a motion is a turn on the spot: rot1 is taken as 0
 _MIN_TRANS = 0.01
+#: the median of the chi-square distribution with 3 degrees of freedom
+_CHI2_3_MEDIAN = 2.366
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,81 @@ class MotionModel:
             ]
         )
         return pred, P
+
+
+@dataclass
+class NoiseGain:
+    """The odometry noise learned online: the factor on the motion model's variances that
+    makes the prediction consistent with the scan matches that explain the scan.
+
+    For one scan with prediction ``(x_p, P)`` and a trusted scan pose ``(z, R)`` the factor
+    ``g`` that makes ``v' (g P + R)^-1 v`` equal to the median of its chi-square
+    distribution (3 degrees of freedom) is solved for (so the median of the factors is
+    unbiased when the covariances are right); the learned gain is the median of the last ``window`` such
+    factors, within ``[1, max_gain]`` (never below the configured alphas). Unlike a mean of
+    the chi-square statistic over the *accepted* fits, whose gate truncates it at the accept
+    quantile (odometry that is off by more than its model says then never raises the gain),
+    the caller also feeds the fits the gate turned down but the map supports (they verify
+    and explain the scan at least as well as the prediction): that is where odometry worse
+    than its model shows. The median keeps a minority of wrong fits from raising it. ``P``
+    already holds the gain in use (``current``): the factors are relative to it."""
+
+    max_gain: float = 10.0
+    window: int = 31
+    #: factors kept before the median is used (until then: 1)
+    min_samples: int = 5
+    _g: deque[float] = field(default_factory=deque, repr=False)
+
+    @property
+    def gain(self) -> float:
+        if len(self._g) < self.min_samples:
+            return 1.0
+        v = sorted(self._g)
+        n = len(v)
+        m = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+        return min(max(m, 1.0), self.max_gain)
+
+    def observe(
+        self,
+        pred: Sequence[float],
+        P: NDArray[np.float64],
+        meas: Sequence[float],
+        R: NDArray[np.float64],
+        current: float = 1.0,
+    ) -> None:
+        """One trusted scan pose ``meas`` (covariance ``R``) against the prediction ``pred``
+        (covariance ``P``, made with the gain ``current``)."""
+        v = np.array(
+            [meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau)]
+        )
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(P)) and np.all(np.isfinite(R))):
+            return
+        lo, hi = 1e-3, self.max_gain * 4.0
+        if _nis(v, hi * P, R) > _CHI2_3_MEDIAN:
+            g = hi  # beyond what any gain explains: counted at the top
+        elif _nis(v, lo * P, R) < _CHI2_3_MEDIAN:
+            g = lo  # the scan's own noise explains it
+        else:
+            for _ in range(40):  # bisection on log g (the statistic falls as g grows)
+                mid = math.sqrt(lo * hi)
+                if _nis(v, mid * P, R) > _CHI2_3_MEDIAN:
+                    lo = mid
+                else:
+                    hi = mid
+            g = math.sqrt(lo * hi)
+        self._g.append(g * max(float(current), 1e-6))
+        while len(self._g) > self.window:
+            self._g.popleft()
+
+    def reset(self) -> None:
+        self._g.clear()
+
+
+def _nis(v: NDArray[np.float64], P: NDArray[np.float64], R: NDArray[np.float64]) -> float:
+    try:
+        return float(v @ np.linalg.solve(P + R, v))
+    except np.linalg.LinAlgError:
+        return math.inf
 
 
 def fit_alphas(
