@@ -345,6 +345,9 @@ class Localizer:
         self._lost_scans = 0
         #: weakly constrained fits held back in a row (``unconstrained``)
         self._held = 0
+        #: after a fit taken against the odometry: verified scans still needed that explain
+        #: the scan as well as this map's fits usually do (``unsettled``, :meth:`_settle`)
+        self._unsettled = 0
         #: the raw odometry increment of the current scan (None: none)
         self._step: Pose | None = None
         #: the prediction a fit overruled (``odometry_off``), followed alongside
@@ -407,6 +410,7 @@ class Localizer:
         self._anchor = None
         self._rejected = None
         self._rival = None
+        self._unsettled = 0
         self._forget_checks()
         self.recovery.reset()
 
@@ -425,6 +429,7 @@ class Localizer:
         self._coast_streak = 0
         self._anchor = None
         self._rival = None
+        self._unsettled = 0
         self._forget_checks()
         self.recovery.reset()
 
@@ -819,11 +824,21 @@ class Localizer:
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
             reason = Reason.UNVERIFIED
-        if verified:
+        # a pose taken against the odometry teaches nothing (the map's usual fit quality,
+        # the calibration) until it has settled: on a map from another pass a neighbouring
+        # minimum that half explains the scan verifies too, and learning from it lowers
+        # the bar it is held to and bends the dead reckoning towards it
+        settled = self._settle(accepted, verified, reason, check)
+        if verified and settled:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
-        elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
+        elif (
+            settled
+            and accepted
+            and reason in (Reason.NONE, Reason.UNVERIFIED)
+            and check.hit >= lc.verify_min_hit_ratio
+        ):
             self.quality.observe_consistent(check)
             if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
@@ -864,6 +879,8 @@ class Localizer:
             status, reason = self._dispute(pts, pose, check, status, reason)
         if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
             self._rival = _Rival(*overruled)
+        if status is Status.TRACKING and self._unsettled:
+            status, reason = Status.DEGRADED, Reason.UNSETTLED
         # the fit contradicted the odometry (taken against a prediction it is beyond what
         # the arbitration accepts: several rejected scans agreed) and explains less of the
         # scan than usual: a place that half fits the old pose
@@ -915,6 +932,30 @@ class Localizer:
             residual=check.rms,
             calibration=self.calibration.factors,
         )
+
+    def _settle(self, accepted: bool, verified: bool, reason: str, check: FitCheck) -> bool:
+        """Count a pose taken against the odometry (``odometry_off``) towards settling:
+        ``dispute_scans`` verified scans that explain the scan at least as well as this
+        map's verified fits usually do (its usual hit share), not just as well as
+        verification allows (a fraction of it), with no unverified scan between. Until then
+        the pose is not promised (``unsettled``): the odometry, which contradicted it,
+        weighs against it, and a neighbouring minimum that half explains the scans of a
+        place the map barely covers verifies as readily (the prediction's place explains
+        nothing there, so the map's arbitration and the rival lose to it). Returns whether
+        the scan may teach the map's quality and the calibration (settled, or a strong fit)."""
+        lc = self.config.localizer
+        strong = verified and check.hit >= self.quality.hit_reference
+        if accepted and reason == Reason.ODOMETRY_OFF:
+            self._unsettled = lc.dispute_scans
+            self._anchor = None  # no calibration pair spans the jump
+            return False
+        if not self._unsettled:
+            return True
+        if strong:
+            self._unsettled -= 1
+        elif not verified:
+            self._unsettled = lc.dispute_scans
+        return strong
 
     def _dispute(
         self,

@@ -54,6 +54,10 @@ class Reason(_StrEnum):
     #: that was not ``tracking`` (up to ``dispute_scans`` of them in a row): it does not pin
     #: the pose along its weak direction
     UNCONSTRAINED = "unconstrained"
+    #: a pose taken against the odometry (``odometry_off``) that has not yet explained the
+    #: scan as well as this map's verified fits usually do (at least the map's usual hit
+    #: share) on ``dispute_scans`` verified scans since
+    UNSETTLED = "unsettled"
     RELOCALIZED = "relocalized"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
     UNCONFIRMED = "unconfirmed"  #: a lock whose strict check is out
