@@ -348,6 +348,10 @@ class Localizer:
         #: after a fit taken against the odometry: verified scans still needed that explain
         #: the scan as well as this map's fits usually do (``unsettled``, :meth:`_settle`)
         self._unsettled = 0
+        #: the last scan's fit was accepted beyond the accept quantile (``inflated``)
+        self._inflated = False
+        #: the unsettled pose came from an ``odometry_off`` jump (else: inflated fits)
+        self._jumped = False
         #: the raw odometry increment of the current scan (None: none)
         self._step: Pose | None = None
         #: the prediction a fit overruled (``odometry_off``), followed alongside
@@ -411,6 +415,7 @@ class Localizer:
         self._rejected = None
         self._rival = None
         self._unsettled = 0
+        self._inflated = False
         self._forget_checks()
         self.recovery.reset()
 
@@ -430,6 +435,7 @@ class Localizer:
         self._anchor = None
         self._rival = None
         self._unsettled = 0
+        self._inflated = False
         self._forget_checks()
         self.recovery.reset()
 
@@ -828,7 +834,7 @@ class Localizer:
         # the calibration) until it has settled: on a map from another pass a neighbouring
         # minimum that half explains the scan verifies too, and learning from it lowers
         # the bar it is held to and bends the dead reckoning towards it
-        settled = self._settle(accepted, verified, reason, check)
+        settled = self._settle(accepted, verified, reason, check, pred, pose)
         if verified and settled:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
@@ -933,8 +939,18 @@ class Localizer:
             calibration=self.calibration.factors,
         )
 
-    def _settle(self, accepted: bool, verified: bool, reason: str, check: FitCheck) -> bool:
-        """Count a pose taken against the odometry (``odometry_off``) towards settling:
+    def _settle(
+        self,
+        accepted: bool,
+        verified: bool,
+        reason: str,
+        check: FitCheck,
+        pred: Pose,
+        pose: Pose,
+    ) -> bool:
+        """Count a pose taken against the odometry (``odometry_off``, or a fit beyond the
+        accept quantile, ``inflated``, that moved it farther than the map can tell apart or
+        came right after another such fit) towards settling:
         ``dispute_scans`` verified scans that explain the scan at least as well as this
         map's verified fits usually do (its usual hit share), not just as well as
         verification allows (a fraction of it), with no unverified scan between. Until then
@@ -945,7 +961,17 @@ class Localizer:
         the scan may teach the map's quality and the calibration (settled, or a strong fit)."""
         lc = self.config.localizer
         strong = verified and check.hit >= self.quality.hit_reference
-        if accepted and reason == Reason.ODOMETRY_OFF:
+        inflated = accepted and reason == Reason.INFLATED
+        against = reason == Reason.ODOMETRY_OFF or (
+            # beyond the accept quantile, and moved the pose farther than the map can tell
+            # or the fit before was beyond it too (the fits pull the pose away from the
+            # odometry scan after scan, each within the gate)
+            inflated and (self._apart(pred, pose) or self._inflated)
+        )
+        self._inflated = inflated
+        if accepted and against:
+            if reason == Reason.ODOMETRY_OFF or not self._unsettled:
+                self._jumped = reason == Reason.ODOMETRY_OFF
             self._unsettled = lc.dispute_scans
             self._anchor = None  # no calibration pair spans the jump
             return False
@@ -955,7 +981,9 @@ class Localizer:
             self._unsettled -= 1
         elif not verified:
             self._unsettled = lc.dispute_scans
-        return strong
+        # a jump against the odometry teaches only from strong fits until it has settled;
+        # fits the gate took with their covariance inflated moved the pose within it
+        return strong or not self._jumped
 
     def _dispute(
         self,
