@@ -430,6 +430,14 @@ class LocalizerSection(Section):
         "scans",
         gt=0,
     )
+    settle_scans: int = _f(
+        3,
+        "a pose a fit took against the odometry (odometry_off, or inflated fits moving it "
+        "apart) is not tracking until this many verified scans explained the scan at least "
+        "as well as the map's usual hit share, with no unverified scan between (unsettled)",
+        "scans",
+        gt=0,
+    )
     tracking_max_sigma: float = _f(
         0.15, "tracking promises the pose: verified, and its sigma at most this", "m", gt=0
     )
