@@ -169,10 +169,10 @@ def test_gate_rejects_a_scan_that_would_yank_the_pose(
     assert first <= 2
     # every fit after the first is accepted; the first may be taken against the odometry,
     # and fits beyond the accept quantile in a row pull the pose against it: then the pose
-    # is ``degraded`` until it settles (``dispute_scans`` scans that explain the scan as
+    # is ``degraded`` until it settles (``settle_scans`` scans that explain the scan as
     # well as usual, see test_a_fit_beyond_the_accept_quantile_that_moved_the_pose_apart_
     # must_settle_too); the last ones are promised
-    n = loc.config.localizer.dispute_scans
+    n = loc.config.localizer.settle_scans
     assert all(e.accepted for e in ests[first:])
     assert all(e.status is Status.TRACKING for e in ests[first + 2 + n :])
     xs = [e.x for e in ests[first:]]
@@ -245,7 +245,7 @@ def test_a_pose_taken_against_the_odometry_is_not_promised_until_it_explains_sca
     nothing there) and the later fits, verified at a fraction of the map's usual hit share,
     were ``tracking`` 1.3 m off. Here unmapped clutter hides a tenth of the walls: the pose
     the fit took is ``unsettled`` while the scans explain less than the map's usual share,
-    and settles after ``dispute_scans`` scans that explain as usual."""
+    and settles after ``settle_scans`` scans that explain as usual."""
     lab = worlds.lab(people=0)
     cluttered = worlds.World("cluttered", np.vstack([lab.walls, [[1.2, -0.15, 1.2, 0.15]]]))
     loc = Localizer(sample_lines(lab.lines), initial_pose=(0.0, 0.0, 0.0))
@@ -254,7 +254,7 @@ def test_a_pose_taken_against_the_odometry_is_not_promised_until_it_explains_sca
     pushed = (0.1, 0.0, 0.0)  # the odometry says the robot stood still
     e = loc.update(scan_at(cluttered, pushed, 0.5), (0.0, 0.0, 0.0))
     assert e.reason == "odometry_off"
-    n = loc.config.localizer.dispute_scans
+    n = loc.config.localizer.settle_scans
     held = [loc.update(scan_at(cluttered, pushed, 0.6 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(2 * n)]
     clear = [loc.update(scan_at(lab, pushed, 2.0 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(n)]
     assert [(e.status, e.reason) for e in held + clear] == [(Status.DEGRADED, "unsettled")] * (
@@ -277,7 +277,7 @@ def test_a_fit_beyond_the_accept_quantile_that_moved_the_pose_apart_must_settle_
     truth = (0.61, 0.0, 0.0)  # the odometry says 0.5 m
     e = loc.update(scan_at(cluttered, truth, 0.5), (0.5, 0.0, 0.0))
     assert e.accepted and loc._chi2_accept < e.nis < loc._chi2_reject
-    n = loc.config.localizer.dispute_scans
+    n = loc.config.localizer.settle_scans
     ests = [e] + [loc.update(scan_at(cluttered, truth, 0.6 + 0.1 * k), (0.5, 0.0, 0.0)) for k in range(n)]
     assert [(e.status, e.reason) for e in ests] == [(Status.DEGRADED, "unsettled")] * (n + 1)
 
