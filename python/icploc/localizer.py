@@ -350,8 +350,8 @@ class Localizer:
         self._unsettled = 0
         #: the last scan's fit was accepted beyond the accept quantile (``inflated``)
         self._inflated = False
-        #: the unsettled pose came from an ``odometry_off`` jump (else: inflated fits)
-        self._jumped = False
+        #: the hit share an unsettled pose's fits must reach (the usual one before it)
+        self._settle_hit = 0.0
         #: the raw odometry increment of the current scan (None: none)
         self._step: Pose | None = None
         #: the prediction a fit overruled (``odometry_off``), followed alongside
@@ -830,21 +830,18 @@ class Localizer:
         verified = accepted and self._verified(check)
         if accepted and not verified and not reason:
             reason = Reason.UNVERIFIED
-        # a pose a fit took against the odometry does not teach the map's usual fit quality
-        # until it has settled: on a map from another pass a neighbouring minimum that half
-        # explains the scan verifies too, and learning from it lowers the bar it is held
-        # to. The calibration still learns (the motion between two fits of a pose that is
-        # off is still the motion; only the pair across the jump is dropped): the bias it
-        # learns is what makes the odometry disagree with the fits in the first place
-        teach = self._settle(accepted, verified, reason, check, pred, pose)
+        # a pose a fit took against the odometry is not promised until it has settled
+        # (:meth:`_settle`); the map's quality and the calibration learn as usual (freezing
+        # them locked a bad base into its bias and the verification into its first bar:
+        # the calibration's bias is what makes the odometry disagree with the fits; only
+        # the calibration pair across a jump is dropped)
+        self._settle(accepted, verified, reason, check, pred, pose)
         if verified:
-            if teach:
-                self.quality.observe(check)
+            self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
         elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
-            if teach:
-                self.quality.observe_consistent(check)
+            self.quality.observe_consistent(check)
             if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
                 self._calibrate(odom, z, R)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
@@ -946,24 +943,19 @@ class Localizer:
         check: FitCheck,
         pred: Pose,
         pose: Pose,
-    ) -> bool:
+    ) -> None:
         """Count a pose taken against the odometry (``odometry_off``, or a fit beyond the
         accept quantile, ``inflated``, that moved it farther than the map can tell apart or
-        came right after another such fit) towards settling:
-        ``settle_scans`` verified scans that explain the scan at least as well as this
-        map's verified fits usually do (its usual hit share), not just as well as
-        verification allows (a fraction of it), with no unverified scan between. Until then
-        the pose is not promised (``unsettled``): the odometry, which contradicted it,
-        weighs against it, and a neighbouring minimum that half explains the scans of a
-        place the map barely covers verifies as readily (the prediction's place explains
-        nothing there, so the map's arbitration and the rival lose to it). Returns whether
-        the scan may teach the map's usual fit quality (settled, a strong fit, or a pose
-        only inflated fits moved)."""
+        came right after another such fit) towards settling: ``settle_scans`` verified
+        scans that explain the scan at least as well as this map's verified fits usually
+        did before the pose was taken (the usual hit share then), not just as well as
+        verification allows (a fraction of the share now), with no unverified scan
+        between. Until then the pose is not promised (``unsettled``): the odometry, which
+        contradicted it, weighs against it, and a neighbouring minimum that half explains
+        the scans of a place the map barely covers verifies as readily (the prediction's
+        place explains nothing there, so the map's arbitration and the rival lose to it;
+        and the usual share the map learns from such fits sinks towards theirs)."""
         lc = self.config.localizer
-        # before the map's usual share is measured (a jump on the first scans: the start
-        # pose corrected) it is an assumed 1: held to that, nothing would settle or teach
-        measured = self.quality.hit_measured
-        strong = verified and (not measured or check.hit >= self.quality.hit_reference)
         inflated = accepted and reason == Reason.INFLATED
         against = reason == Reason.ODOMETRY_OFF or (
             # beyond the accept quantile, and moved the pose farther than the map can tell
@@ -973,21 +965,22 @@ class Localizer:
         )
         self._inflated = inflated
         if accepted and against:
-            if reason == Reason.ODOMETRY_OFF or not self._unsettled:
-                self._jumped = reason == Reason.ODOMETRY_OFF
+            if not self._unsettled:
+                # the bar: the usual share before the pose was taken (before the map's
+                # share is measured, on the first scans, it is an assumed 1: then the
+                # verification itself)
+                q = self.quality
+                self._settle_hit = q.hit_reference if q.hit_measured else 0.0
             self._unsettled = lc.settle_scans
             if reason == Reason.ODOMETRY_OFF:
                 self._anchor = None  # no calibration pair spans the jump
-            return not (self._jumped and measured)
+            return
         if not self._unsettled:
-            return True
-        if strong:
+            return
+        if verified and check.hit >= self._settle_hit:
             self._unsettled -= 1
         elif not verified:
             self._unsettled = lc.settle_scans
-        # a jump against the odometry teaches only from strong fits until it has settled;
-        # fits the gate took with their covariance inflated moved the pose within it
-        return strong or not self._jumped
 
     def _dispute(
         self,
