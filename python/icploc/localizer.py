@@ -109,6 +109,8 @@ class Estimate:
     residual: float = float("nan")
     #: the learned odometry factors (distance scale, turn scale, heading drift rad/m)
     calibration: tuple[float, float, float] = (1.0, 1.0, 0.0)
+    #: the learned sideways skew of the odometry (m sideways per m forward)
+    calibration_skew: float = 0.0
     #: while lost: the recovery's ranked hypotheses (the pose itself stays dead-reckoned)
     hypotheses: tuple[Candidate, ...] = ()
     #: False: the scan was outside the mapped area, the pose coasted (:mod:`icploc.outside`)
@@ -933,6 +935,7 @@ class Localizer:
             hit_ratio=check.hit,
             residual=check.rms,
             calibration=self.calibration.factors,
+            calibration_skew=self.calibration.skew,
         )
 
     def _settle(
@@ -1323,6 +1326,7 @@ class Localizer:
                 measurement=step.lock,
                 measurement_covariance=R,
                 calibration=self.calibration.factors,
+                calibration_skew=self.calibration.skew,
                 hypotheses=step.hypotheses,
             )
         # no lock: the dead-reckoned continuation of the last pose, its covariance growing
@@ -1364,6 +1368,7 @@ class Localizer:
                         odometry=odom,
                         num_points=pts.shape[0],
                         calibration=self.calibration.factors,
+                        calibration_skew=self.calibration.skew,
                         hypotheses=step.hypotheses,
                     )
         self.pose = pred
@@ -1383,6 +1388,7 @@ class Localizer:
             odometry=odom,
             num_points=pts.shape[0],
             calibration=self.calibration.factors,
+            calibration_skew=self.calibration.skew,
             hypotheses=step.hypotheses,
         )
 
