@@ -299,6 +299,24 @@ def test_fits_beyond_the_accept_quantile_in_a_row_are_not_promised_at_once() -> 
     ]
 
 
+def test_the_first_fits_after_a_stretch_without_a_verified_fit_must_settle() -> None:
+    """aces 5 cm bad: nine scans unverified (a place the map barely covers, the prediction
+    drifting 0.3 m on the bad base), then plain fits that followed the prediction verified
+    at a fraction of the usual hit share and were ``tracking`` 0.6 m off. After
+    ``lost_after_bad_scans`` scans without a verified fit the pose settles first."""
+    lab = worlds.lab(people=0)
+    cluttered = worlds.World("cluttered", np.vstack([lab.walls, [[1.2, -0.15, 1.2, 0.15]]]))
+    loc = Localizer(sample_lines(lab.lines), initial_pose=(0.0, 0.0, 0.0))
+    for k in range(6):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    hidden = worlds.World("hidden", np.vstack([lab.walls, [[1.0, -1.5, 1.0, 1.5]]]))
+    for k in range(loc.config.localizer.lost_after_bad_scans):  # accepted, unverified
+        e = loc.update(scan_at(hidden, (0.0, 0.0, 0.0), 1.0 + 0.1 * k), (0.0, 0.0, 0.0))
+        assert (e.accepted, e.reason) == (True, "unverified")
+    ests = [loc.update(scan_at(cluttered, (0.0, 0.0, 0.0), 2.0 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(4)]
+    assert [(e.status, e.reason) for e in ests] == [(Status.DEGRADED, "unsettled")] * 4
+
+
 def test_a_weakly_constrained_fit_after_a_stretch_not_tracking_is_not_tracking() -> None:
     """Failure mode (b) of the held-out logs: right after ``degraded`` scans a corridor fit
     (degeneracy below 0.1) verified and was taken as ``tracking``; it does not pin the pose

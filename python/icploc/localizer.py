@@ -354,6 +354,8 @@ class Localizer:
         self._inflated = False
         #: the hit share an unsettled pose's fits must reach (the usual one before it)
         self._settle_hit = 0.0
+        #: scans in a row without a verified fit
+        self._untracked = 0
         #: the raw odometry increment of the current scan (None: none)
         self._step: Pose | None = None
         #: the prediction a fit overruled (``odometry_off``), followed alongside
@@ -418,6 +420,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
 
@@ -438,6 +441,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
 
@@ -949,7 +953,8 @@ class Localizer:
     ) -> None:
         """Count a pose taken against the odometry (``odometry_off``, or a fit beyond the
         accept quantile, ``inflated``, that moved it farther than the map can tell apart or
-        came right after another such fit) towards settling: ``settle_scans`` verified
+        came right after another such fit), or the first verified fit after ``lost_after_bad_scans``
+        scans without one, towards settling: ``settle_scans`` verified
         scans that explain the scan at least as well as this map's verified fits usually
         did before the pose was taken (the usual hit share then), not just as well as
         verification allows (a fraction of the share now), with no unverified scan
@@ -967,12 +972,18 @@ class Localizer:
             inflated and (self._apart(pred, pose) or self._inflated)
         )
         self._inflated = inflated
-        if accepted and against:
+        q = self.quality
+        if self._unsettled and not self._settle_hit and q.hit_measured:
+            self._settle_hit = q.hit_reference  # the bar, once the map's share is known
+        # back from a stretch without a verified fit (a place the map barely covers, where
+        # the prediction drifts and fits follow it): the same holds for the first fit there
+        returning = verified and self._untracked >= lc.lost_after_bad_scans and q.hit_measured
+        self._untracked = 0 if verified else self._untracked + 1
+        if (accepted and against) or returning:
             if not self._unsettled:
                 # the bar: the usual share before the pose was taken (before the map's
                 # share is measured, on the first scans, it is an assumed 1: then the
                 # verification itself)
-                q = self.quality
                 self._settle_hit = q.hit_reference if q.hit_measured else 0.0
             self._unsettled = lc.settle_scans
             if reason == Reason.ODOMETRY_OFF:
