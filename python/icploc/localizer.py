@@ -89,7 +89,9 @@ class Estimate:
     #: contradicted (the fused pose explains far less of the scan than usual), unverified,
     #: uncertain (covariance too wide to promise the pose), disputed (the prediction an
     #: odometry_off fit overruled still explains the scans as well), unconstrained (a
-    #: corridor fit right after a stretch not tracking), relocalized, suspect (a kidnap
+    #: corridor fit right after a stretch not tracking), unsettled (a pose a fit took
+    #: against the odometry, or the first after a stretch without a verified fit, not yet
+    #: confirmed at the map's usual hit share), relocalized, suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
