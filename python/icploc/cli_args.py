@@ -25,7 +25,6 @@ command again and reports the error as before.
 from __future__ import annotations
 
 import inspect
-import re
 import sys
 import types
 from collections.abc import Callable
@@ -244,9 +243,30 @@ def params(func: Callable[..., Any]) -> list[_Param]:
     return got
 
 
-_INT = re.compile(r"-?(?:0|[1-9][0-9]*)")
-_FLOAT = re.compile(r"-?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
 _DECLINE = object()
+
+
+def _digits(s: str) -> bool:
+    return s != "" and s.isascii() and s.isdigit()
+
+
+def _plain_int(text: str) -> bool:
+    """``-?(0|[1-9][0-9]*)``, at most 18 digits (matched by hand: compiling a regular
+    expression costs more than the whole parse)."""
+    s = text[1:] if text[:1] == "-" else text
+    return _digits(s) and len(s) <= 18 and (s == "0" or s[0] != "0")
+
+
+def _plain_float(text: str) -> bool:
+    """``-?([0-9]+(\\.[0-9]*)?|\\.[0-9]+)([eE][-+]?[0-9]+)?``, at most 40 characters."""
+    s = text[1:] if text[:1] == "-" else text
+    mantissa, e, exponent = s.replace("E", "e").partition("e")
+    whole, dot, frac = mantissa.partition(".")
+    if e and not _digits(exponent[1:] if exponent[:1] in ("+", "-") else exponent):
+        return False
+    return len(text) <= 40 and (_digits(whole) or (whole == "" and _digits(frac))) and (
+        frac == "" or _digits(frac)
+    )
 
 
 def _convert(p: _Param, text: str) -> Any:
@@ -256,11 +276,11 @@ def _convert(p: _Param, text: str) -> Any:
     if p.base is Path:
         return Path(text)
     if p.base is int:
-        if not _INT.fullmatch(text) or len(text) > 18:
+        if not _plain_int(text):
             return _DECLINE
         value: float = int(text)
     else:
-        if not _FLOAT.fullmatch(text) or len(text) > 40:
+        if not _plain_float(text):
             return _DECLINE
         value = float(text)
     if (p.min is not None and not value >= p.min) or (p.max is not None and not value <= p.max):

@@ -6,24 +6,91 @@ from __future__ import annotations
 
 from typing import Any
 
-_INT = r"[-+]?(?:0|[1-9][0-9]*)"
-_FLOAT = r"[-+]?[0-9]+\.[0-9]*(?:[eE][-+][0-9]+)?"
-_NUMBER = rf"(?:{_FLOAT}|{_INT})"
-#: a key or a plain word: no YAML 1.1 bool / null word (checked apart), no number, no date
-_WORD = r"[A-Za-z_/][A-Za-z0-9_./-]*"
+_DIGITS = frozenset("0123456789")
+_WORD_START = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz_/")
+_WORD_REST = _WORD_START | _DIGITS | frozenset(".-")
 _SPECIAL = {"yes", "no", "true", "false", "on", "off", "null", "y", "n"}
-_LINE: Any = None
-_ITEM: Any = None
+
+# The tokens are matched by hand, not by regular expressions: compiling those is ~3 ms of
+# a replay's start.
+
+
+def _unsigned(text: str) -> str:
+    return text[1:] if text[:1] in ("+", "-") and text else text
+
+
+def _is_int(text: str) -> bool:
+    """``[-+]?(0|[1-9][0-9]*)``"""
+    s = _unsigned(text)
+    return s != "" and all(c in _DIGITS for c in s) and (s == "0" or s[0] != "0")
+
+
+def _is_float(text: str) -> bool:
+    """``[-+]?[0-9]+\\.[0-9]*([eE][-+][0-9]+)?``"""
+    s = _unsigned(text)
+    n, i = len(s), 0
+    while i < n and s[i] in _DIGITS:
+        i += 1
+    if i == 0 or i == n or s[i] != ".":
+        return False
+    i += 1
+    while i < n and s[i] in _DIGITS:
+        i += 1
+    if i == n:
+        return True
+    if s[i] not in "eE" or n <= i + 2 or s[i + 1] not in "+-":
+        return False
+    return all(c in _DIGITS for c in s[i + 2 :])
+
+
+def _is_number(text: str) -> bool:
+    return _is_int(text) or _is_float(text)
+
+
+def _is_word(text: str) -> bool:
+    """A key or a plain word (``[A-Za-z_/][A-Za-z0-9_./-]*``): no YAML 1.1 bool / null
+    word (checked apart), no number, no date."""
+    return text != "" and text[0] in _WORD_START and all(c in _WORD_REST for c in text[1:])
 
 
 def _scalar(text: str) -> Any:
-    import re
-
-    if re.fullmatch(_INT, text):
+    if _is_int(text):
         return int(text)
-    if re.fullmatch(_FLOAT, text):
+    if _is_float(text):
         return float(text)
-    return text  # a _WORD
+    return text  # a word
+
+
+def _value(rest: str) -> tuple[bool, str | None]:
+    """What follows ``key:`` on a line: (well formed, the value's text or None for none).
+    A value is one space or more, a number, a word or a flow list of numbers, then spaces,
+    then perhaps `` #`` and a comment."""
+    if rest == "":
+        return True, None
+    if rest[0] != " ":
+        return False, None
+    v = rest.lstrip(" ")
+    if v.startswith("["):
+        j = v.find("]")
+        if j < 0 or not all(_is_number(x.strip(" ")) for x in v[1:j].split(",")):
+            return False, None
+        token, tail = v[: j + 1], v[j + 1 :]
+    else:
+        token, _sp, tail = v.partition(" ")
+        tail = _sp + tail
+        if not (_is_number(token) or _is_word(token)):
+            return False, None
+    after = tail.lstrip(" ")
+    return (after == "" or (tail[:1] == " " and after[0] == "#")), token
+
+
+def _item(line: str) -> tuple[str, str] | None:
+    """A block list line ``( *)- +NUMBER``: (its indent, its number), or None."""
+    s = line.lstrip(" ")
+    if s[:2] != "- ":
+        return None
+    number = s[1:].lstrip(" ")
+    return (line[: len(line) - len(s)], number) if _is_number(number) else None
 
 
 def plain_mapping(text: str) -> dict[str, Any] | None:
@@ -33,13 +100,6 @@ def plain_mapping(text: str) -> dict[str, Any] | None:
     start); None for anything else (nesting, quotes, duplicate keys, words YAML reads as
     bools, nulls, octal or sexagesimal numbers, ...), which PyYAML then reads.
     tests/test_maps_ros_plain.py checks the two agree."""
-    import re
-
-    global _LINE, _ITEM
-    if _LINE is None:
-        value = rf"(?:{_NUMBER}|{_WORD}|\[ *{_NUMBER}(?: *, *{_NUMBER})* *\])"
-        _LINE = re.compile(rf"({_WORD}):(?: +({value}) *(?: #.*)?)?")
-        _ITEM = re.compile(rf"( *)- +({_NUMBER})")
     out: dict[str, Any] = {}
     block: list[Any] | None = None  # the block list being read (its key's line had no value)
     indent = ""
@@ -48,18 +108,18 @@ def plain_mapping(text: str) -> dict[str, Any] | None:
         if not line or line.startswith("#"):
             continue
         if block is not None:
-            item = _ITEM.fullmatch(line)
-            if item is not None and (not block or item.group(1) == indent):
-                indent = item.group(1)
-                block.append(_scalar(item.group(2)))
+            item = _item(line)
+            if item is not None and (not block or item[0] == indent):
+                indent = item[0]
+                block.append(_scalar(item[1]))
                 continue
             if not block:
                 return None  # a key without a value (null) or with a nested mapping
             block = None
-        m = _LINE.fullmatch(line)
-        if m is None:
+        key, colon, rest = line.partition(":")
+        ok, value = _value(rest)
+        if not (colon and ok and _is_word(key)):
             return None
-        key, value = m.group(1), m.group(2)
         if key in out or key.lower() in _SPECIAL:
             return None
         if value is None:
@@ -67,7 +127,7 @@ def plain_mapping(text: str) -> dict[str, Any] | None:
         elif value.lower() in _SPECIAL:
             return None
         elif value.startswith("["):
-            out[key] = [_scalar(v.strip()) for v in value[1:-1].split(",")]
+            out[key] = [_scalar(v.strip(" ")) for v in value[1:-1].split(",")]
         else:
             out[key] = _scalar(value)
     if block is not None and not block:
