@@ -60,9 +60,8 @@ class UserError(UsageError):
 COMMANDS = Commands()
 COMMANDS.group("config", "Localizer configuration (YAML).")
 COMMANDS.group("log", "Inspect logs (CARMEN, ROS 1/2 bags, icploc recordings).")
-
-
 COMMANDS.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
+
 _REGISTERED: list[bool] = []
 
 
