@@ -10,7 +10,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, get_origin
 
 import numpy as np
 import pytest
@@ -27,8 +27,11 @@ VALUES = [
 
 
 def _typer_kwargs(func: Callable[..., None], args: list[str]) -> dict[str, Any] | None:
-    """The keyword arguments typer calls ``func`` with for ``args`` (None: typer refuses)."""
+    """The keyword arguments typer calls ``func`` with for ``args`` (None: typer refuses),
+    typer converting the values with its own coercion (pydantic), not icploc.cli_app's."""
     import typer
+    import typer.core
+    from icploc import cli_app
     from icploc.cli_app import callback
     from typer.testing import CliRunner
 
@@ -40,7 +43,9 @@ def _typer_kwargs(func: Callable[..., None], args: list[str]) -> dict[str, Any] 
     capture.__signature__ = inspect.signature(func, eval_str=True)  # type: ignore[attr-defined]
     app = typer.Typer(add_completion=False)
     app.command()(callback(capture))
-    r = CliRunner().invoke(app, args)
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(typer.core, "build_runtime_param", cli_app._TYPER_BUILD)
+        r = CliRunner().invoke(app, args)
     return got if r.exit_code == 0 else None
 
 
@@ -66,6 +71,63 @@ def test_a_command_line_read_plainly_is_read_as_typer_reads_it(func: Any, data: 
     plain = parse_plain(func, args)
     if plain is not None:  # declining is always allowed: typer then reads it
         assert _typed(plain) == _typed(_typer_kwargs(func, args))
+
+
+class _Param:
+    multiple, nargs = False, 1
+
+
+_ANNOTATIONS = [str, Path, int, float, bool, list[str], list[Path]]
+_BOUNDS = [(None, None), (0.0, 1.0), (0, None), (None, 5)]
+_RAW = st.one_of(
+    st.sampled_from(VALUES),
+    st.text(alphabet="0123456789.-+eE x_", max_size=8),
+    st.sampled_from([0, 1, -3, 7, 0.5, 2.0, float("nan"), True, False, Path("p"), b"b"]),
+)
+
+
+def _coerce(build: Any, ann: Any, bounds: tuple[Any, Any], value: Any) -> tuple[str, Any]:
+    from typer._coercion import resolve_type_descriptor
+    from typer.models import OptionInfo
+
+    info = OptionInfo(min=bounds[0], max=bounds[1])
+    param = _Param()
+    if get_origin(ann) is list:
+        param.multiple = True
+        value = value if isinstance(value, list) else [value]
+    try:
+        got = build(resolve_type_descriptor(ann, info)).coerce(value, param=param, ctx=None)
+    except Exception as e:  # noqa: BLE001 - the same refusal is what is compared
+        return "refused", (type(e).__name__, getattr(e, "message", str(e)))
+    return "value", (type(got), got if not isinstance(got, float) or got == got else "nan")
+
+
+@settings(max_examples=600, deadline=None)
+@given(
+    ann=st.sampled_from(_ANNOTATIONS),
+    bounds=st.sampled_from(_BOUNDS),
+    value=st.one_of(_RAW, st.lists(_RAW, max_size=3)),
+)
+def test_the_typer_apps_value_coercion_is_typers_own(ann: Any, bounds: Any, value: Any) -> None:
+    """icploc.cli_app converts plain values without pydantic and hands the rest to typer's
+    own coercion: the same value of the same type, or the same refusal."""
+    from icploc import cli_app
+
+    if ann in (str, Path, bool, list[str], list[Path]):
+        bounds = (None, None)
+    ours = _coerce(cli_app._build_runtime_param, ann, bounds, value)
+    assert ours == _coerce(cli_app._TYPER_BUILD, ann, bounds, value)
+
+
+def test_help_through_typer_imports_no_pydantic() -> None:
+    code = (
+        "import sys, icploc.cli as c\n"
+        "sys.argv = ['icploc', 'replay', '--help']\n"
+        "try:\n    c.main()\nexcept SystemExit:\n    pass\n"
+        "print('pydantic' in sys.modules, file=sys.stderr)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert (out.stderr.strip().splitlines()[-1], "--initial-pose" in out.stdout) == ("False", True)
 
 
 @pytest.mark.parametrize(

@@ -250,14 +250,14 @@ def _digits(s: str) -> bool:
     return s != "" and s.isascii() and s.isdigit()
 
 
-def _plain_int(text: str) -> bool:
+def plain_int(text: str) -> bool:
     """``-?(0|[1-9][0-9]*)``, at most 18 digits (matched by hand: compiling a regular
     expression costs more than the whole parse)."""
     s = text[1:] if text[:1] == "-" else text
     return _digits(s) and len(s) <= 18 and (s == "0" or s[0] != "0")
 
 
-def _plain_float(text: str) -> bool:
+def plain_float(text: str) -> bool:
     """``-?([0-9]+(\\.[0-9]*)?|\\.[0-9]+)([eE][-+]?[0-9]+)?``, at most 40 characters."""
     s = text[1:] if text[:1] == "-" else text
     mantissa, e, exponent = s.replace("E", "e").partition("e")
@@ -276,11 +276,11 @@ def _convert(p: _Param, text: str) -> Any:
     if p.base is Path:
         return Path(text)
     if p.base is int:
-        if not _plain_int(text):
+        if not plain_int(text):
             return _DECLINE
         value: float = int(text)
     else:
-        if not _plain_float(text):
+        if not plain_float(text):
             return _DECLINE
         value = float(text)
     if (p.min is not None and not value >= p.min) or (p.max is not None and not value <= p.max):
