@@ -208,7 +208,13 @@ class _Param:
         self.optional = get_origin(annotation) in (Union, types.UnionType) and type(None) in args
         base = next(a for a in args if a is not type(None)) if self.optional else annotation
         self.base = base
-        self.supported = base in (str, Path, int, float, bool) and not (self.is_arg and base is bool)
+        # a parameter without Option / Argument is typer's to read (an argument or an option
+        # by its default): not read plainly
+        self.supported = (
+            info is not None
+            and base in (str, Path, int, float, bool)
+            and not (self.is_arg and base is bool)
+        )
         self.min = getattr(info, "min", None)
         self.max = getattr(info, "max", None)
         #: option name -> the value it sets (a flag's True / False; None: takes a value)
