@@ -164,6 +164,14 @@ SHOW_PROGRESS_3D_REAL_TIME=false
 _EST = re.compile(r"PDF estimation:\s*[\[(]\s*([-+0-9.eE]+)[ ,]+([-+0-9.eE]+)[ ,]+([-+0-9.eE]+)")
 
 
+def _children_cpu() -> float:
+    """User + system CPU seconds of the finished child processes (hook: clispeed)."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def run_mrpt(
     work: Path,
     ranges: NDArray[np.float64],
@@ -215,12 +223,12 @@ def run_mrpt(
             t0=math.degrees(th) - 3.0, t1=math.degrees(th) + 3.0, **LF,
         )
     )  # fmt: skip
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), _children_cpu()
     proc = subprocess.run(
         ["pf-localization", str(ini)], capture_output=True, text=True, timeout=timeout,
         stdin=subprocess.DEVNULL,
     )  # fmt: skip
-    t_run = time.perf_counter() - t1
+    t_run, c_run = time.perf_counter() - t1, _children_cpu() - c1
     (work / "pf.stdout").write_text(proc.stdout + "\n--- stderr ---\n" + proc.stderr)
     if proc.returncode != 0:
         raise RuntimeError(f"pf-localization exit {proc.returncode}; see {work / 'pf.stdout'}")
@@ -236,6 +244,7 @@ def run_mrpt(
         "poses": [list(p) for p in est],
         "status": None,
         "time_s": t_run,
+        "cpu_s": c_run,  # hook (clispeed): pf-localization's user + system CPU
         "convert_s": t_conv,
         "origin_offset": off,
     }

@@ -237,7 +237,8 @@ def long_cells(names: list[str], bases: list[str], res: list[int]) -> list[dict]
     return out
 
 
-def run_mrpt(cell: dict, tmp: Path) -> float:
+def run_mrpt(cell: dict, tmp: Path) -> tuple[float, float]:
+    """(wall s, CPU s) of pf-localization's own process on the cell."""
     import numpy as np
     import real_logs as rl
     import real_mrpt
@@ -247,7 +248,7 @@ def run_mrpt(cell: dict, tmp: Path) -> float:
         tmp / "mrpt", np.asarray(cell["ranges"]), data.odom, Path(cell["map"]),
         tuple(cell["pose"]), cell["max_range"], 1800.0,
     )  # fmt: skip
-    return float(got["time_s"])
+    return float(got["time_s"]), float(got.get("cpu_s", math.nan))
 
 
 def _same(a: dict, b: dict) -> tuple[float, int]:
@@ -309,12 +310,13 @@ def main(argv: list[str] | None = None) -> int:
     ref = json.loads(a.check.read_text()) if a.check else None
     cpu_rows: list[str] = []
     cli_rows: list[str] = []
-    cli_tot = [0.0, 0.0, 0.0]  # wall, CPU, MRPT
+    cli_tot = [0.0, 0.0, 0.0, 0.0]  # wall, CPU, MRPT wall, MRPT CPU
     befores: list[tuple[str, int, dict, dict, float, int]] = []
     print("| cell | scans | cache | " + " | ".join(f"{s} ms" for s in STAGES)
           + " | icploc wall s | cpu s | scans/s | MRPT s | MRPT scans/s | icploc / MRPT | same as --check |")  # fmt: skip
     print("|---|---:|---|" + "---:|" * len(STAGES) + "---:|---:|---:|---:|---:|---:|---|")
     rows = []
+    mrpt_cpu_of: dict[str, float] = {}
     tot: dict[str, float] = {s: 0.0 for s in STAGES}
     tot_wall = tot_cpu = tot_mrpt = 0.0
     n_all = 0
@@ -329,18 +331,19 @@ def main(argv: list[str] | None = None) -> int:
             if old is not None:
                 d, ns = _same(got, old)
                 befores.append((key, cell["scans"], old, got, d, ns))
-            mrpt_s = run_mrpt(cell, tmp) if a.mrpt else math.nan
+            mrpt_s, mrpt_cpu = run_mrpt(cell, tmp) if a.mrpt else (math.nan, math.nan)
             n = cell["scans"]
             if a.cli:
                 cw, cc = run_cli(a.python, cell, tmp, a.cold)
-                cli_tot = [cli_tot[0] + cw, cli_tot[1] + cc, cli_tot[2] + mrpt_s]
+                cli_tot = [cli_tot[0] + cw, cli_tot[1] + cc, cli_tot[2] + mrpt_s, cli_tot[3] + mrpt_cpu]
                 cli_rows.append(f"| {key} | {n} | {cw:.3f} | {cc:.3f} | {got['wall']:.3f} | "
-                                f"{mrpt_s:.3f} | {mrpt_s / cw:.2f} |")  # fmt: skip
+                                f"{mrpt_s:.3f} | {mrpt_cpu:.3f} | {mrpt_s / cw:.2f} | {mrpt_cpu / cc:.2f} |")  # fmt: skip
             same = "–"
             if ref is not None and key in ref:
                 d, ns = _same(got, ref[key])
                 same = f"max diff {d:.2g}, status diffs {ns}"
             rows.append((key, got, mrpt_s, same))
+            mrpt_cpu_of[key] = mrpt_cpu
             for s in STAGES:
                 tot[s] += got["t"][s]
             tot_wall += got["wall"]
@@ -376,31 +379,36 @@ def main(argv: list[str] | None = None) -> int:
     if cli_rows:
         print("\nThe icploc replay command itself on the same cells (wall / CPU s of its process; "
               "the staged API process's wall beside it):\n")  # fmt: skip
-        print("| cell | scans | command wall | command CPU | API wall | MRPT wall | MRPT / command |")
-        print("|---|---:|---:|---:|---:|---:|---:|")
+        print("| cell | scans | command wall | command CPU | API wall | MRPT wall | MRPT CPU | "
+              "MRPT / command, wall | MRPT / command, CPU |")  # fmt: skip
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
         print("\n".join(cli_rows))
         print(f"| all | {n_all} | {cli_tot[0]:.3f} | {cli_tot[1]:.3f} | {tot_wall:.3f} | "
-              f"{cli_tot[2]:.3f} | {cli_tot[2] / cli_tot[0]:.2f} |")  # fmt: skip
+              f"{cli_tot[2]:.3f} | {cli_tot[3]:.3f} | {cli_tot[2] / cli_tot[0]:.2f} | "
+              f"{cli_tot[3] / cli_tot[1]:.2f} |")  # fmt: skip
     if befores:
         print(f"\nBefore ({a.before}) and after, the same cells in the same run (wall s / CPU s of the "
               "whole process; poses compared):\n")  # fmt: skip
         print("| cell | scans | before wall | after wall | before CPU | after CPU | speed-up wall | "
-              "speed-up CPU | MRPT wall | after / MRPT | before / MRPT | same poses |")  # fmt: skip
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+              "speed-up CPU | MRPT wall | after / MRPT | before / MRPT | MRPT CPU | CPU: MRPT / after | "
+              "CPU: MRPT / before | same poses |")  # fmt: skip
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
         mrpt_of = {key: m for key, _g, m, _s in rows}
-        tb = ta = cb = ca = tm = 0.0
+        tb = ta = cb = ca = tm = tmc = 0.0
         for key, n, old, got, d, ns in befores:
-            m = mrpt_of[key]
-            tb, ta, tm = tb + old["wall"], ta + got["wall"], tm + m
+            m, mc = mrpt_of[key], mrpt_cpu_of[key]
+            tb, ta, tm, tmc = tb + old["wall"], ta + got["wall"], tm + m, tmc + mc
             cb, ca = cb + old["cpu"]["total"], ca + got["cpu"]["total"]
             print(f"| {key} | {n} | {old['wall']:.3f} | {got['wall']:.3f} | {old['cpu']['total']:.3f} | "
                   f"{got['cpu']['total']:.3f} | {old['wall'] / got['wall']:.2f} | "
                   f"{old['cpu']['total'] / got['cpu']['total']:.2f} | {m:.3f} | {m / got['wall']:.2f} | "
-                  f"{m / old['wall']:.2f} | max diff {d:.2g}, status diffs {ns} |")  # fmt: skip
+                  f"{m / old['wall']:.2f} | {mc:.3f} | {mc / got['cpu']['total']:.2f} | "
+                  f"{mc / old['cpu']['total']:.2f} | max diff {d:.2g}, status diffs {ns} |")  # fmt: skip
         print(f"| all | {n_all} | {tb:.3f} | {ta:.3f} | {cb:.3f} | {ca:.3f} | {tb / ta:.2f} | {cb / ca:.2f} | "
-              f"{tm:.3f} | {tm / ta:.2f} | {tm / tb:.2f} | |")  # fmt: skip
+              f"{tm:.3f} | {tm / ta:.2f} | {tm / tb:.2f} | {tmc:.3f} | {tmc / ca:.2f} | {tmc / cb:.2f} | |")  # fmt: skip
         print(
-            "('after / MRPT' is icploc's whole-process speed over MRPT's: MRPT time / icploc time)"
+            "('after / MRPT' is icploc's whole-process speed over MRPT's: MRPT time / icploc time; "
+            "'CPU: MRPT / after' the same in CPU seconds, which the machine's load inflates far less)"
         )
         keys = list(befores[0][2]["cpu"])
         k = len(befores)

@@ -34,6 +34,7 @@ LAYERS: dict[str, int] = {
     "icploc.outputs": BASICS,
     "icploc.laser_mounts": BASICS,
     "icploc.lazy_model": BASICS,
+    "icploc.flat_yaml": BASICS,
     "icploc.config": BASICS,
     # formats and devices: map and log files, trajectories, serial devices, the simulator
     "icploc.trajectory": FORMATS,
@@ -107,6 +108,8 @@ LAYERS: dict[str, int] = {
     "icploc.sim.harness": APPLICATIONS,
     # CLI: the typer commands, and the package root (the public API, loaded lazily)
     "icploc.cli": CLI,
+    "icploc.cli_args": CLI,
+    "icploc.cli_app": CLI,
     "icploc.batch_cli": CLI,
     "icploc.maps.cli": CLI,
     "icploc.sim.cli": CLI,

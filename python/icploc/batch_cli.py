@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
-import typer
+from icploc.cli_args import Annotated, Argument, CommandExit, Option, echo, secho
 
 
 def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
@@ -17,24 +16,24 @@ def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
 
 def batch(
     logs: Annotated[
-        list[Path], typer.Argument(help="Logs to replay (any format icploc replay reads)")
+        list[Path], Argument(help="Logs to replay (any format icploc replay reads)")
     ],
-    map_path: Annotated[Path, typer.Option("--map", help="Map file (one map for all logs)")],
-    out: Annotated[Path, typer.Option("--out", help="Output directory")],
+    map_path: Annotated[Path, Option("--map", help="Map file (one map for all logs)")],
+    out: Annotated[Path, Option("--out", help="Output directory")],
     scheduler: Annotated[
         str | None,
-        typer.Option("--scheduler", help="Dask scheduler address (default: a local cluster)"),
+        Option("--scheduler", help="Dask scheduler address (default: a local cluster)"),
     ] = None,
     workers: Annotated[
         int | None,
-        typer.Option("--workers", help="Local cluster workers; default: one per core (count)"),
+        Option("--workers", help="Local cluster workers; default: one per core (count)"),
     ] = None,
     truth_dir: Annotated[
         Path | None,
-        typer.Option("--truth-dir", help="Directory of <log stem>.tum true trajectories"),
+        Option("--truth-dir", help="Directory of <log stem>.tum true trajectories"),
     ] = None,
-    config: Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")] = None,
-    progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
+    config: Annotated[Path | None, Option("--config", help="Localizer config (YAML)")] = None,
+    progress: Annotated[bool, Option(help="Show a progress bar")] = True,
 ) -> None:
     """Replay many logs against one map in parallel on Dask (needs the fleet extra: Dask distributed)."""
     from icploc.batch import BatchError, batch_replay
@@ -61,12 +60,12 @@ def batch(
             res = batch_replay(logs, map_path, out, config=cfg, scheduler=scheduler, workers=workers,
                                truth_dir=truth_dir, on_progress=on_progress)  # fmt: skip
     except (BatchError, OSError, ValueError) as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(1) from None
+        secho(f"error: {e}", fg="red", err=True)
+        raise CommandExit(1) from None
     ok = len(res.rows) - len(res.failed)
     scans = sum(r.scans for r in res.rows)
-    typer.echo(
+    echo(
         f"{ok}/{len(res.rows)} logs, {scans} scans in {res.wall_time:.1f} s; summary: {res.summary}"
     )
     if res.failed:
-        raise typer.Exit(3)
+        raise CommandExit(3)

@@ -1,4 +1,10 @@
-"""The ``icploc`` command line (typer)."""
+"""The ``icploc`` command line: the commands, declared once (:mod:`icploc.cli_args`).
+
+``icploc replay LOG --map MAP ...`` and the other commands of this module run without
+typer when their command line is plain (:func:`icploc.cli_args.parse_plain`): the command
+then starts in milliseconds. Help, usage errors, the sub-apps (``map``, ``sim``) and the
+tests go through the typer app, ``icploc.cli.app`` (:mod:`icploc.cli_app`), built from the
+same declarations on first use."""
 
 from __future__ import annotations
 
@@ -6,20 +12,33 @@ import gc
 import os
 import sys
 from pathlib import Path
-from typing import Annotated, Any
-
-import typer
-from typer.core import TyperArgument, TyperGroup, TyperOption
+from typing import TYPE_CHECKING, Any
 
 from icploc.batch_cli import batch as _batch_command
+from icploc.cli_args import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_LOST,
+    EXIT_OK,
+    EXIT_USAGE,
+    Annotated,
+    Argument,
+    BadUsage,
+    CommandExit,
+    Commands,
+    Option,
+    describe,
+    echo,
+    parse_plain,
+    run_guarded,
+    secho,
+)
 from icploc.errors import UsageError
 
-#: exit codes (also in ``icploc --help``)
-EXIT_OK = 0  #: done
-EXIT_ERROR = 1  #: an error: a missing or malformed file, a bad value in it, a write error
-EXIT_USAGE = 2  #: bad usage: an unknown option, a bad option value, a bad config file
-EXIT_LOST = 3  #: replay finished but lost more than --max-lost of its scans
-EXIT_INTERRUPTED = 130  #: stopped by Ctrl-C (the files written so far are complete)
+if TYPE_CHECKING:
+    import typer
+
+__all__ = ["COMMANDS", "EXIT_ERROR", "EXIT_INTERRUPTED", "EXIT_LOST", "EXIT_OK", "EXIT_USAGE", "main"]
 
 HELP = """Real-time 2D robot localization by ICP against a known map.
 
@@ -37,130 +56,70 @@ class UserError(UsageError):
     """An error the user can fix: printed as one ``error: ...`` line (exit 1), no traceback."""
 
 
-class _Argument(TyperArgument):
-    """A positional argument shown as ``LOG`` (required) or ``[LOG]`` in the usage line,
-    not typer's ``{log}``."""
-
-    def _usage_display_name(self) -> str:
-        name = self.metavar or (self.name or "").upper()
-        if self.nargs != 1:
-            name += "..."
-        return name if self.required else f"[{name}]"
-
-
-def _tidy_help(cmd: Any, ctx: Any) -> None:
-    """The help of one command as a user reads it: arguments upper case (``LOG``, not
-    ``{log}``), no ``<bool>`` type for a flag (it takes no value; --help included)."""
-    for p in cmd.get_params(ctx):
-        if type(p) is TyperArgument:
-            p.__class__ = _Argument
-            if p.metavar is None and p.name:
-                p.metavar = p.name.upper()
-        elif isinstance(p, TyperOption) and p.is_flag and p.metavar is None:
-            p.metavar = ""
-
-
-class _Guarded(TyperGroup):
-    """Every command: a user error (OSError, ValueError) becomes one ``error: ...`` line and
-    exit 1, Ctrl-C exit 130, instead of a traceback; every command's help tidied
-    (:func:`_tidy_help`)."""
-
-    def get_command(self, ctx: Any, cmd_name: str) -> Any:
-        cmd = super().get_command(ctx, cmd_name)
-        if cmd is not None:
-            _tidy_help(cmd, ctx)
-        return cmd
-
-    def get_help(self, ctx: Any) -> str:
-        _tidy_help(self, ctx)
-        return super().get_help(ctx)
-
-    def invoke(self, ctx: Any) -> Any:
-        try:
-            return super().invoke(ctx)
-        except KeyboardInterrupt:
-            typer.secho("interrupted", fg="yellow", err=True)
-            raise typer.Exit(EXIT_INTERRUPTED) from None
-        except MemoryError:
-            _fail("out of memory (is the input far larger than it should be?)")
-        except (OSError, ValueError) as e:
-            _fail(_describe(e))
-
-
-def _fail(msg: str) -> None:
-    typer.secho(f"error: {msg}", fg="red", err=True)
-    raise typer.Exit(EXIT_ERROR)
-
-
-def _describe(e: BaseException) -> str:
-    """One line for an OSError / ValueError, naming the file where there is one."""
-    if isinstance(e, OSError) and e.filename is not None:
-        return f"{e.filename}: {e.strerror or e}"
-    return str(e) or type(e).__name__
-
-
-app = typer.Typer(
-    name="icploc",
-    help=HELP,
-    cls=_Guarded,
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-
+#: every command of this module (and ``icploc batch``), in the order ``icploc --help`` lists them
+COMMANDS = Commands()
+COMMANDS.group("config", "Localizer configuration (YAML).")
+COMMANDS.group("log", "Inspect logs (CARMEN, ROS 1/2 bags, icploc recordings).")
+COMMANDS.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
 
 _REGISTERED: list[bool] = []
+
+
+def __getattr__(name: str) -> Any:
+    """``app``: the typer app of :data:`COMMANDS` (:mod:`icploc.cli_app`), built on first use."""
+    if name != "app":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from icploc.cli_app import build
+
+    got = globals()["app"] = build(COMMANDS, HELP)
+    return got
+
+
+def _app() -> typer.Typer:
+    return __getattr__("app") if "app" not in globals() else globals()["app"]
 
 
 def _register() -> None:
     """Attach the sub-command groups that live beside the code they drive (once)."""
     if _REGISTERED:
         return
+    from icploc.cli_app import Guarded
     from icploc.maps.cli import map_app
-
-    app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.", cls=_Guarded)
     from icploc.sim.cli import sim_app
 
-    app.add_typer(sim_app, name="sim", help="Device simulators (PLS, PowerBot) on pseudo-terminals.", cls=_Guarded)
+    app = _app()
+    app.add_typer(map_app, name="map", help="Load, fit, inspect and prepare maps.", cls=Guarded)
+    app.add_typer(sim_app, name="sim", help="Device simulators (PLS, PowerBot) on pseudo-terminals.", cls=Guarded)
     _REGISTERED.append(True)
 
 
-config_app = typer.Typer(help="Localizer configuration (YAML).", no_args_is_help=True, cls=_Guarded)
-app.add_typer(config_app, name="config")
-log_app = typer.Typer(
-    help="Inspect logs (CARMEN, ROS 1/2 bags, icploc recordings).", no_args_is_help=True, cls=_Guarded
-)
-app.add_typer(log_app, name="log")
-app.command("batch")(_batch_command)  # icploc batch (fleet): icploc.batch_cli
-
-
-@config_app.command("defaults")
+@COMMANDS.command("defaults", group="config")
 def config_defaults() -> None:
     """Print the default localizer configuration as YAML."""
     from icploc.config import default_yaml
 
-    typer.echo(default_yaml(), nl=False)
+    echo(default_yaml(), nl=False)
 
 
-@config_app.command("check")
-def config_check(path: Annotated[Path, typer.Argument(help="YAML file to validate")]) -> None:
+@COMMANDS.command("check", group="config")
+def config_check(path: Annotated[Path, Argument(help="YAML file to validate")]) -> None:
     """Validate a configuration file exactly as replay and run do (unknown or duplicated
     keys and bad values are errors, exit 2); print the full configuration it gives."""
     cfg = _load_config(path)
-    typer.echo(cfg.to_yaml(), nl=False)
+    echo(cfg.to_yaml(), nl=False)
 
 
-@log_app.command("info")
+@COMMANDS.command("info", group="log")
 def log_info(
     logs: Annotated[
-        list[Path], typer.Argument(help="CARMEN log (.log/.gz), ROS 1/2 bag, or icploc raw recording")
+        list[Path], Argument(help="CARMEN log (.log/.gz), ROS 1/2 bag, or icploc raw recording")
     ],
     format: Annotated[
         str | None,
-        typer.Option("--format", help="Read as this format (carmen, rosbag, recorded); default: detect"),
+        Option("--format", help="Read as this format (carmen, rosbag, recorded); default: detect"),
     ] = None,
     strict: Annotated[
-        bool, typer.Option("--strict", help="Refuse a malformed line or an impossible reading")
+        bool, Option("--strict", help="Refuse a malformed line or an impossible reading")
     ] = False,
 ) -> None:
     """Print what each log holds: scans, beams, odometry, time span, stamps, and what the
@@ -172,12 +131,12 @@ def log_info(
     for path in logs:
         try:
             opts = {"strict": True} if strict else {}
-            typer.echo(load_log(path, format=format, **opts).info.summary())
+            echo(load_log(path, format=format, **opts).info.summary())
         except (ValueError, OSError) as e:
-            typer.secho(f"error: {_describe(e)}", fg="red", err=True)
+            secho(f"error: {describe(e)}", fg="red", err=True)
             failed = True
     if failed:
-        raise typer.Exit(EXIT_ERROR)
+        raise CommandExit(EXIT_ERROR)
 
 
 def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
@@ -188,8 +147,8 @@ def _load_config(path: Path | None):  # type: ignore[no-untyped-def]
     try:
         return LocalizerConfig.from_yaml(path)
     except ConfigError as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(EXIT_USAGE) from None
+        secho(f"error: {e}", fg="red", err=True)
+        raise CommandExit(EXIT_USAGE) from None
 
 
 def _pose_option(text: str | None):  # type: ignore[no-untyped-def]
@@ -200,15 +159,15 @@ def _pose_option(text: str | None):  # type: ignore[no-untyped-def]
     try:
         return parse_pose(text)
     except ValueError as e:
-        raise typer.BadParameter(str(e)) from None
+        raise BadUsage(str(e)) from None
 
 
-@app.command()
+@COMMANDS.command()
 def demo(
-    out: Annotated[Path, typer.Option("--out", help="Output directory")] = Path("icploc-demo"),
-    quick: Annotated[bool, typer.Option(help="Short paths (a few seconds)")] = False,
-    people: Annotated[int, typer.Option(help="People walking in the lab (count)")] = 3,
-    seed: Annotated[int, typer.Option(help="Random seed (an integer)")] = 0,
+    out: Annotated[Path, Option("--out", help="Output directory")] = Path("icploc-demo"),
+    quick: Annotated[bool, Option(help="Short paths (a few seconds)")] = False,
+    people: Annotated[int, Option(help="People walking in the lab (count)")] = 3,
+    seed: Annotated[int, Option(help="Random seed (an integer)")] = 0,
 ) -> None:
     """The paper's lab experiments (random walk, circles) with a simulated PowerBot and
     PLS on pseudo-terminals: writes plots and Tables 3-5 style results."""
@@ -225,25 +184,25 @@ def demo(
     if not base.is_dir() or not os.access(base, os.W_OK | os.X_OK):
         raise UserError(f"--out {out}: cannot create a directory in {base}")
     t0 = time.perf_counter()
-    results = run_demo(out, quick=quick, people=people, seed=seed, log=typer.echo)
+    results = run_demo(out, quick=quick, people=people, seed=seed, log=echo)
     for r in results:
         s = r.summary()
-        typer.echo(
+        echo(
             f"{r.name:12s} {s['distance_m']:5.1f} m, {int(s['scans'])} scans: localization error "
             f"median {s['median_error_m'] * 1000:.1f} mm, p95 {s['p95_error_m'] * 1000:.1f} mm, "
             f"max {s['max_error_m'] * 1000:.1f} mm; end error odometry "
             f"{s['odometry_end_error_m'] * 1000:.0f} mm, localization {s['localized_end_error_m'] * 1000:.1f} mm"
         )
-    typer.echo(f"wrote {out}/results.md and plots in {time.perf_counter() - t0:.1f} s")
+    echo(f"wrote {out}/results.md and plots in {time.perf_counter() - t0:.1f} s")
 
 
 # the options replay and run share (declared once)
-InitialPoseOption = Annotated[str | None, typer.Option("--initial-pose", help="X,Y,THETA (m, m, rad)")]
-ConfigOption = Annotated[Path | None, typer.Option("--config", help="Localizer config (YAML)")]
-McapOption = Annotated[Path | None, typer.Option("--mcap", help="Write a Foxglove MCAP of the run")]
+InitialPoseOption = Annotated[str | None, Option("--initial-pose", help="X,Y,THETA (m, m, rad)")]
+ConfigOption = Annotated[Path | None, Option("--config", help="Localizer config (YAML)")]
+McapOption = Annotated[Path | None, Option("--mcap", help="Write a Foxglove MCAP of the run")]
 RefineStartOption = Annotated[
     bool,
-    typer.Option(
+    Option(
         "--refine-start",
         help="Refine the initial pose from the first scans while the robot stands still; "
         "prints the verdict (refined / ambiguous / rejected / moved)",
@@ -251,40 +210,40 @@ RefineStartOption = Annotated[
 ]
 
 
-@app.command()
+@COMMANDS.command()
 def replay(
     log: Annotated[
-        Path, typer.Argument(help="CARMEN log (.log/.gz), ROS 1/2 bag, or icploc raw recording")
+        Path, Argument(help="CARMEN log (.log/.gz), ROS 1/2 bag, or icploc raw recording")
     ],
     map_path: Annotated[
-        Path, typer.Option("--map", help="Map file (ROS YAML, GeoJSON, DXF, .npz ...)")
+        Path, Option("--map", help="Map file (ROS YAML, GeoJSON, DXF, .npz ...)")
     ],
     initial_pose: InitialPoseOption = None,
     out: Annotated[
-        Path | None, typer.Option("--out", help="Write the trajectory (TUM), row by row")
+        Path | None, Option("--out", help="Write the trajectory (TUM), row by row")
     ] = None,
     estimates: Annotated[
         Path | None,
-        typer.Option(
+        Option(
             "--estimates",
             help="Write one CSV row per scan as it goes: stamp,x,y,theta,status,reason,"
             "inlier_ratio,cov_xx,cov_xy,cov_yy,cov_tt,...",
         ),
     ] = None,
     truth: Annotated[
-        Path | None, typer.Option("--truth", help="True trajectory (TUM): ATE/RPE")
+        Path | None, Option("--truth", help="True trajectory (TUM): ATE/RPE")
     ] = None,
     plot: Annotated[
-        Path | None, typer.Option("--plot", help="Draw the map and trajectories (PNG)")
+        Path | None, Option("--plot", help="Draw the map and trajectories (PNG)")
     ] = None,
     config: ConfigOption = None,
-    progress: Annotated[bool, typer.Option(help="Show a progress bar")] = True,
+    progress: Annotated[bool, Option(help="Show a progress bar")] = True,
     odometry: Annotated[
-        str, typer.Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
+        str, Option(help="auto | stream | scan: odometry recorded with each scan (CARMEN) or the stream")
     ] = "auto",
     strict: Annotated[
         bool,
-        typer.Option(
+        Option(
             "--strict",
             help="Refuse a log with a malformed line or an impossible reading (default: skip "
             "and count them, and say so in the summary)",
@@ -292,7 +251,7 @@ def replay(
     ] = False,
     max_lost: Annotated[
         float,
-        typer.Option(
+        Option(
             "--max-lost",
             min=0.0,
             max=1.0,
@@ -301,14 +260,14 @@ def replay(
     ] = 0.5,
     mcap: McapOption = None,
     no_cache: Annotated[
-        bool, typer.Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
+        bool, Option("--no-cache", help="Fit the map afresh: neither read nor write the cache of prepared maps")
     ] = False,
     refine_start: RefineStartOption = False,
     partial_map: Annotated[
-        bool, typer.Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
+        bool, Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
     ] = False,
     map_patch: Annotated[
-        Path | None, typer.Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
+        Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
     ] = None,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
@@ -321,7 +280,7 @@ def replay(
     from icploc.replay import replay as do_replay
 
     if odometry not in ("auto", "stream", "scan"):
-        raise typer.BadParameter(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
+        raise BadUsage(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     kw: dict[str, Any] = dict(
@@ -330,7 +289,7 @@ def replay(
         map_cache=False if no_cache else None, partial_map=partial_map, map_patch=map_patch,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
-                       tell=typer.echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip
+                       tell=echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip
     kw["on_localizer"] = hooks.on_localizer
     try:
         if progress and sys.stdout.isatty():
@@ -352,51 +311,51 @@ def replay(
         hooks.close()
     if mcap is not None:
         res.files["mcap"] = mcap
-    typer.echo(res.summary())
+    echo(res.summary())
     for k, p in res.files.items():
-        typer.echo(f"{k}: {p}")
+        echo(f"{k}: {p}")
     if res.interrupted:
-        raise typer.Exit(EXIT_INTERRUPTED)
+        raise CommandExit(EXIT_INTERRUPTED)
     if res.lost_share > max_lost:
-        typer.secho(
+        secho(
             f"error: {res.status_counts.get('lost', 0)} of {res.scans} scans "
             f"({res.lost_share:.0%}) ended lost, more than --max-lost {max_lost:g}",
             fg="red",
             err=True,
         )
-        raise typer.Exit(EXIT_LOST)
+        raise CommandExit(EXIT_LOST)
 
 
-@app.command("run")
+@COMMANDS.command("run")
 def run_cmd(
-    map_path: Annotated[Path | None, typer.Option("--map", help="Map file")] = None,
+    map_path: Annotated[Path | None, Option("--map", help="Map file")] = None,
     laser: Annotated[
         list[str] | None,
-        typer.Option("--laser", help="Laser serial port (PLS); repeat it for several lasers (scan.lasers)"),
+        Option("--laser", help="Laser serial port (PLS); repeat it for several lasers (scan.lasers)"),
     ] = None,
-    base: Annotated[str | None, typer.Option("--base", help="Base serial port (PowerBot)")] = None,
+    base: Annotated[str | None, Option("--base", help="Base serial port (PowerBot)")] = None,
     simulate: Annotated[
-        bool, typer.Option("--simulate", help="Use the device simulators on ptys")
+        bool, Option("--simulate", help="Use the device simulators on ptys")
     ] = False,
     initial_pose: InitialPoseOption = None,
     global_start: Annotated[
         bool,
-        typer.Option("--global", help="With --simulate: do not tell the localizer the start pose"),
+        Option("--global", help="With --simulate: do not tell the localizer the start pose"),
     ] = False,
-    out: Annotated[Path | None, typer.Option("--out", help="Write the trajectory (TUM)")] = None,
-    record: Annotated[Path | None, typer.Option("--record", help="Record the raw bytes")] = None,
+    out: Annotated[Path | None, Option("--out", help="Write the trajectory (TUM)")] = None,
+    record: Annotated[Path | None, Option("--record", help="Record the raw bytes")] = None,
     config: ConfigOption = None,
-    duration: Annotated[float | None, typer.Option(help="Stop after this long (s)")] = None,
+    duration: Annotated[float | None, Option(help="Stop after this long (s)")] = None,
     baud: Annotated[
-        int, typer.Option(help="Laser baud rate: 9600, 19200, 38400 or 500000 (Bd)")
+        int, Option(help="Laser baud rate: 9600, 19200, 38400 or 500000 (Bd)")
     ] = 38400,
     mcap: McapOption = None,
     state: Annotated[
-        Path | None, typer.Option("--state", help="Restore the last pose from / save it to this file")
+        Path | None, Option("--state", help="Restore the last pose from / save it to this file")
     ] = None,
     reconnect_timeout: Annotated[
         float,
-        typer.Option(help="Give up on a vanished device after this long, exit 1 (s)"),
+        Option(help="Give up on a vanished device after this long, exit 1 (s)"),
     ] = 60.0,
     refine_start: RefineStartOption = False,
 ) -> None:
@@ -418,26 +377,26 @@ def run_cmd(
 
     seconds = "must be a positive number of seconds"
     if duration is not None and not duration > 0:
-        raise typer.BadParameter(seconds, param_hint="--duration")
+        raise BadUsage(seconds, param_hint="--duration")
     if not reconnect_timeout > 0:
-        raise typer.BadParameter(seconds, param_hint="--reconnect-timeout")
+        raise BadUsage(seconds, param_hint="--reconnect-timeout")
     if baud not in (9600, 19200, 38400, 500000):
-        raise typer.BadParameter("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
+        raise BadUsage("one of 9600, 19200, 38400, 500000 Bd", param_hint="--baud")
     if not simulate and (map_path is None or not laser):
-        raise typer.BadParameter("--map and --laser are required (or use --simulate)")
+        raise BadUsage("--map and --laser are required (or use --simulate)")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     if global_start and pose is not None:
-        raise typer.BadParameter("--global and --initial-pose contradict each other: give one", param_hint="--global")
+        raise BadUsage("--global and --initial-pose contradict each other: give one", param_hint="--global")
     # --mcap / --state (icploc.hooks): an explicit --initial-pose wins over a saved state
     hooks = _run_hooks(mcap=mcap, state=state, restore=pose is None, inputs=(map_path,) if map_path else (),
-                       refine_start=refine_start, tell=typer.echo)  # fmt: skip
+                       refine_start=refine_start, tell=echo)  # fmt: skip
 
     def show(e):  # type: ignore[no-untyped-def]
         hooks.observe(e)
         why = f" ({e.reason})" if e.reason and (e.status.value == "lost" and e.reason != "lost"
                                                 or e.reason in live.MISSING_REASONS) else ""  # fmt: skip
-        typer.echo(
+        echo(
             f"{e.stamp:.3f} x={e.x:+.3f} y={e.y:+.3f} th={e.theta:+.3f} {e.status}{why} inliers={e.inlier_ratio:.2f}"
         )
 
@@ -457,24 +416,24 @@ def run_cmd(
                                     reconnect_timeout=reconnect_timeout, on_estimate=show,
                                     on_localizer=hooks.on_localizer, extra_lasers=laser[1:])  # fmt: skip
     except live.RunError as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(e.exit_code) from None
+        secho(f"error: {e}", fg="red", err=True)
+        raise CommandExit(e.exit_code) from None
     except KeyboardInterrupt:
-        typer.secho("interrupted before the devices answered; nothing written", fg="red", err=True)
-        raise typer.Exit(130) from None
+        secho("interrupted before the devices answered; nothing written", fg="red", err=True)
+        raise CommandExit(130) from None
     finally:
         hooks.close()
-    typer.echo(res.summary())
+    echo(res.summary())
     if simulate:
         _simulated_error(res.estimates, truth, map_path)
     for k, p in res.files.items():
-        typer.echo(f"{k}: {p}")
+        echo(f"{k}: {p}")
     for w in res.write_errors:
-        typer.secho(f"error: {w}", fg="red", err=True)
+        secho(f"error: {w}", fg="red", err=True)
     if res.error is not None:
-        typer.secho(f"error: {res.error}", fg="red", err=True)
+        secho(f"error: {res.error}", fg="red", err=True)
     if res.error is not None or res.write_errors:
-        raise typer.Exit(1)
+        raise CommandExit(1)
 
 
 def _simulated_error(estimates: list[Any], truth: list[Any], map_path: Path | None) -> None:
@@ -487,7 +446,7 @@ def _simulated_error(estimates: list[Any], truth: list[Any], map_path: Path | No
     tracked = [e for e in estimates if e.status.value == "tracking"]
     others = len(estimates) - len(tracked)
     if not tracked:
-        typer.secho(
+        secho(
             f"no estimate was tracking ({others} lost or degraded): no error vs simulator truth"
             + (f" (is {map_path} a map of the simulated lab?)" if map_path is not None else ""),
             fg="yellow",
@@ -496,7 +455,7 @@ def _simulated_error(estimates: list[Any], truth: list[Any], map_path: Path | No
     T = truth_at(truth, [e.stamp for e in tracked])
     P = np.array([e.pose for e in tracked])
     err = np.hypot(*(P[:, :2] - T[:, :2]).T)
-    typer.echo(
+    echo(
         f"{len(P)} tracking estimates; error vs simulator truth: median {np.median(err) * 1000:.1f} mm, "
         f"max {err.max() * 1000:.1f} mm" + (f" ({others} lost or degraded, not counted)" if others else "")
     )
@@ -505,22 +464,19 @@ def _simulated_error(estimates: list[Any], truth: list[Any], map_path: Path | No
 def _run_hooks(**kw):  # type: ignore[no-untyped-def]
     """The --mcap / --state extras (icploc.hooks); a clear error if they cannot start."""
     from icploc.hooks import RunHooks
+
+    def warn(m: str) -> None:
+        secho(f"warning: {m}", fg="yellow", err=True)
+
+    if kw.get("mcap") is None:  # nothing of the MCAP writer is needed (its import: ~10 ms)
+        return RunHooks(warn=warn, **kw)
     from icploc.mcap_export import McapError
 
     try:
-        return RunHooks(warn=lambda m: typer.secho(f"warning: {m}", fg="yellow", err=True), **kw)
+        return RunHooks(warn=warn, **kw)
     except McapError as e:
-        typer.secho(f"error: {e}", fg="red", err=True)
-        raise typer.Exit(1) from None
-
-
-def _own_commands() -> set[str]:
-    """The top-level commands and groups defined in this module (not the registered ones)."""
-    names = {str(g.name) for g in app.registered_groups}
-    for c in app.registered_commands:
-        if c.callback is not None:
-            names.add(c.name or c.callback.__name__.replace("_", "-"))
-    return names
+        secho(f"error: {e}", fg="red", err=True)
+        raise CommandExit(1) from None
 
 
 def start_command_process() -> None:
@@ -543,15 +499,34 @@ def end_command_process() -> None:
 
 def main() -> None:
     start_command_process()
-    # hook (speed2): invoking one of this module's commands needs no sub-app (their imports
-    # cost ~10 ms); help, a sub-app or a mistyped name gets every command
-    first = sys.argv[1:2]
-    if not (first and first[0] in _own_commands()):
-        _register()
+    argv = sys.argv[1:]
     try:
-        app()
+        code = _run_plain(argv)
+        if code is None:
+            # invoking one of this module's commands needs no sub-app (their imports cost
+            # ~10 ms); help, a sub-app or a mistyped name gets every command
+            if not (argv[:1] and argv[0] in COMMANDS.top_level()):
+                _register()
+            _app()()
     finally:
         end_command_process()
+    sys.exit(code)
+
+
+def _run_plain(argv: list[str]) -> int | None:
+    """Run the command ``argv`` names without typer when its command line is plain; its
+    exit code, or None: typer's to parse (and report), from the start."""
+    found = COMMANDS.find(argv)
+    if found is None:
+        return None
+    func, args = found
+    kwargs = parse_plain(func, args)
+    if kwargs is None:
+        return None
+    try:
+        return run_guarded(lambda: func(**kwargs))
+    except BadUsage:
+        return None  # raised before the command did anything: typer reports it
 
 
 if __name__ == "__main__":

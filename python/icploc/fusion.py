@@ -60,6 +60,15 @@ def _inv3(m: list[list[float]]) -> Mat3 | None:
     )
 
 
+def _may_be_below(Ha: NDArray[np.float64], bound: float) -> bool:
+    """hook (clispeed): False when the smallest eigenvalue of H's symmetric translational
+    block is surely >= ``bound`` (closed form, with a margin far above both its and
+    LAPACK's rounding), so that ``np.linalg.eigh`` (~25 us) runs only where it may decide."""
+    a, b, c = float(Ha[0, 0]), 0.5 * (float(Ha[0, 1]) + float(Ha[1, 0])), float(Ha[1, 1])
+    low = 0.5 * (a + c) - math.hypot(0.5 * (a - c), b)
+    return not low - bound > 1e-9 * (abs(a) + abs(b) + abs(c) + abs(bound) + 1.0)
+
+
 def scan_covariance(
     information: NDArray[np.float64],
     inliers: int,
@@ -80,7 +89,7 @@ def scan_covariance(
     along it shrinks for nothing. That direction is then left unconstrained."""
     n = max(int(inliers), 1)
     Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
-    if min_axis_beams > 0.0 and np.all(np.isfinite(Ha)):
+    if min_axis_beams > 0.0 and np.all(np.isfinite(Ha)) and _may_be_below(Ha, min_axis_beams):
         w, v = np.linalg.eigh(0.5 * (Ha[:2, :2] + Ha[:2, :2].T))
         if w[0] < min_axis_beams:
             u = np.array([v[0, 0], v[1, 0], 0.0])

@@ -11,8 +11,10 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 from icploc.errors import UsageError
+from icploc.flat_yaml import plain_mapping
 
 __all__ = ["OutputClashError", "OutputError", "check_outputs", "map_inputs"]
 
@@ -40,12 +42,21 @@ def map_inputs(path: str | os.PathLike[str]) -> list[Path]:
     out = [p]
     if p.suffix.lower() in (".yaml", ".yml") and p.is_file():
         try:
+            with open(p, "rb") as fh:
+                raw = fh.read(1 << 20)
+        except OSError:
+            return out  # the map loader reports what is wrong with it
+        try:
+            data: Any = plain_mapping(raw.decode("utf-8"))
+        except UnicodeDecodeError:
+            data = None
+        if data is None:  # not a flat file of plain keys and values: PyYAML reads it
             import yaml
 
-            with open(p, "rb") as fh:
-                data = yaml.safe_load(fh.read(1 << 20))
-        except (OSError, ValueError, yaml.YAMLError):
-            return out  # the map loader reports what is wrong with it
+            try:
+                data = yaml.safe_load(raw)
+            except (ValueError, yaml.YAMLError):
+                return out
         img = data.get("image") if isinstance(data, dict) else None
         if isinstance(img, str) and img:
             ip = Path(img)

@@ -3,9 +3,9 @@ container, and the deterministic timestamp repair every reader applies."""
 
 from __future__ import annotations
 
-import logging
 import math
 import os
+import sys
 from bisect import bisect_right
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -18,7 +18,28 @@ from icploc.errors import FileFormatError
 from icploc.messages import Odometry, Scan
 from icploc.trajectory import Trajectory
 
-log = logging.getLogger("icploc.logs")
+
+class _Log:
+    """``logging.getLogger("icploc.logs")``, imported on first use: the readers log a line
+    at INFO per log, which nobody can see in a process that has not imported ``logging``
+    (no handler set, the default level WARNING), so such a process does not import it
+    (~2 ms of a replay's start) for them."""
+
+    def info(self, msg: str, *args: object) -> None:
+        if "logging" in sys.modules:
+            self._logger().info(msg, *args)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._logger(), name)
+
+    @staticmethod
+    def _logger() -> Any:
+        import logging
+
+        return logging.getLogger("icploc.logs")
+
+
+log = _Log()
 
 __all__ = [
     "FORMATS",
