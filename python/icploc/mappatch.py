@@ -67,6 +67,14 @@ PATCH_PEAK_SHARE = 0.25
 #: 12.5 cm behind itself, by 2-3 beams near the laser's range from the corridor, the
 #: face itself two cells away; at 10 cm cells one cell, as before)
 PATCH_PEAK_RADIUS = 0.1
+#: a scan match's direction held by fewer beams than this (the smallest eigenvalue of the
+#: fit's translational information, :func:`icploc.fusion.scan_covariance`) is no
+#: measurement: a loop match's always, a chain step's when the step is shorter than the
+#: keyframe spacing (scans centimetres apart: the match along a wall sticks to its guess;
+#: simulated wing, the corridor's chain 1.4 % short, the wing's east wall 1 %). On the
+#: real logs' 0.5 m steps the few beams along a corridor are what holds it (belgioioso's
+#: patch 68 -> 40 % within 10 cm without them), so a long step keeps them.
+WEAK_AXIS_BEAMS = 20.0
 
 
 def corrected_poses(
@@ -135,8 +143,12 @@ def _chain(
     keep: int = 5,
     min_inliers: float = 0.6,
     gate: float = 16.0,
+    weak_axis_beams: float = WEAK_AXIS_BEAMS,
+    short_step: float = 0.25,
 ) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
-    """:func:`refined_poses` and per step its covariance (map frame)."""
+    """:func:`refined_poses` and per step its covariance (map frame). A step shorter than
+    ``short_step`` m leaves a direction its match holds by fewer than ``weak_axis_beams``
+    beams to the odometry (:data:`WEAK_AXIS_BEAMS`)."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -157,7 +169,8 @@ def _chain(
         u = between(prev_c, c)
         guess = compose(prev, u)
         pose, t = guess, 0.0
-        step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
+        u_len = math.hypot(u[0], u[1])
+        step = u_len + 0.3 * abs(u[2])
         sxy, sth = 0.01 + 0.02 * step, 0.003 + 0.03 * step
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
@@ -170,7 +183,10 @@ def _chain(
                 res = None
             if res is not None and res.converged and res.inlier_ratio >= min_inliers:
                 z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
-                R = scan_covariance(res.information, int(res.inliers), float(res.mse), 0.02, 5.0)
+                weak = weak_axis_beams if u_len < short_step else 0.0
+                R = scan_covariance(
+                    res.information, int(res.inliers), float(res.mse), 0.02, 5.0, weak
+                )
                 if mahalanobis2(guess, P, z, R) <= gate:
                     pose, P2 = fuse(guess, P, z, R)
                     cov = np.asarray(P2, dtype=np.float64)
@@ -356,7 +372,9 @@ def graph_poses(
         coasted = [*coasted, *(compose(coasted[-1], between(l0, p)) for p in lead_poses)]
         scans = [*scans, *lead[0]]
     total = len(coasted)
-    chain, _, covs = _chain(start, scans, coasted, keep=keep, min_inliers=min_inliers)
+    chain, _, covs = _chain(
+        start, scans, coasted, keep=keep, min_inliers=min_inliers, short_step=keyframe_step
+    )
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
     edges = [
@@ -550,7 +568,7 @@ def _match_edge(
         or abs(wrap_angle(z[2] - guess[2])) > 0.15
     ):
         return None
-    R = scan_covariance(r.information, int(r.inliers), float(r.mse), 0.02, 5.0)
+    R = scan_covariance(r.information, int(r.inliers), float(r.mse), 0.02, 5.0, WEAK_AXIS_BEAMS)
     a = group[0]
     pa = (float(x[a, 0]), float(x[a, 1]), float(x[a, 2]))
     return _Edge(a, k, between(pa, z), _relative_info(pa, R))
