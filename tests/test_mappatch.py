@@ -173,13 +173,25 @@ def test_replay_writes_the_patch_and_says_which_stretch_was_outside(tmp_path: Pa
     from icploc.replay import replay
 
     run, m = partial_run()
-    # until the robot is deep in the wing (a stretch not closed yet: the patch is written
-    # at the coasted poses)
-    items = run.items[: 2 * 2400]
-    res = replay(items, m, initial_pose=tuple(run.truth[0]), map_patch=tmp_path / "patch.yaml")
+    res = replay(run.items, m, initial_pose=tuple(run.truth[0]), map_patch=tmp_path / "patch.yaml")
     patch = Map.load(tmp_path / "patch.yaml", cache=False)
     lines = [ln for ln in res.summary().splitlines() if ln.startswith("outside the map: 1 stretch")]
     assert [patch.grid is not None and bool(patch.grid.any()), len(lines)] == [True, 1]
+
+
+@pytest.mark.slow
+def test_replay_leaves_a_stretch_not_back_in_the_map_out_of_the_patch_and_says_so(
+    tmp_path: Path,
+) -> None:
+    from icploc.replay import replay
+
+    run, m = partial_run()
+    # until the robot is deep in the wing: the stretch is not closed, its poses are
+    # dead reckoning nothing checked
+    items = run.items[: 2 * 2400]
+    res = replay(items, m, initial_pose=tuple(run.truth[0]), map_patch=tmp_path / "patch.yaml")
+    said = [n for n in res.notes if n.startswith("map patch: stretch 1 left out")]
+    assert [(tmp_path / "patch.yaml").exists(), len(said)] == [False, 1]
 
 
 def test_replay_refuses_a_patch_over_the_map_before_any_work(tmp_path: Path) -> None:
@@ -220,3 +232,39 @@ def test_the_patch_drops_a_fringe_two_five_centimetre_cells_behind_a_wall() -> N
     occ = np.argwhere(g.occupied)
     xy = (np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution).round(3).tolist()
     assert xy == [[2.025, 0.025]]
+
+
+def _open_stretch():  # type: ignore[no-untyped-def]
+    """A stretch that never came back into the map: two scans of a wall 2 m ahead."""
+    from icploc.outside import Stretch
+
+    y = np.arange(-1.0, 1.0001, 0.02)
+    pts = np.column_stack([np.full_like(y, 2.0), y])
+    st = Stretch(5, 0.0, (0.0, 0.0, 0.0))
+    st.scans = [(5, pts, (0.0, 0.0, 0.0)), (6, pts - (0.1, 0.0), (0.1, 0.0, 0.0))]
+    return st
+
+
+def test_a_stretch_not_back_in_the_map_is_left_out_of_the_patch() -> None:
+    # its poses are dead reckoning nothing checked: drawn only when asked for
+    st = _open_stretch()
+    got = [patch_grid([st]) is None, patch_grid([st], include_open=True) is not None]
+    assert got == [True, True]
+
+
+def test_the_patch_yaml_says_what_it_made_of_each_stretch_and_still_merges(tmp_path: Path) -> None:
+    import yaml
+    from icploc.mappatch import write_patch
+    from icploc.maps.merge import merge_files
+    from icploc.maps.ros import save_ros
+
+    save_ros(tmp_path / "map.yaml", np.zeros((20, 20), bool), 0.05, (-1.0, -1.0, 0.0))
+    g = write_patch(tmp_path / "patch.yaml", [_open_stretch()], include_open=True)
+    assert g is not None
+    rec = yaml.safe_load((tmp_path / "patch.yaml").read_text())["icploc_patch_stretches"]
+    r = merge_files(tmp_path / "map.yaml", tmp_path / "patch.yaml", tmp_path / "out.yaml")
+    assert [rec, r.added_occupied > 0] == [
+        [{"first_scan": 5, "scans": 2, "coasted_m": 0.0, "back_in_map": False,
+          "correction_m": None, "in_patch": True}],
+        True,
+    ]  # fmt: skip
