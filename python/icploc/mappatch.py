@@ -149,8 +149,9 @@ def _chain(
     short_step: float = 0.25,
 ) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
     """:func:`refined_poses` and per step its covariance (map frame). A step shorter than
-    ``short_step`` m leaves a direction its match holds by fewer than ``weak_axis_beams``
-    beams to the odometry (:data:`WEAK_AXIS_BEAMS`)."""
+    ``short_step`` (its motion: metres plus 0.3 per radian turned) leaves a direction its
+    match holds by fewer than ``weak_axis_beams`` beams to the odometry
+    (:data:`WEAK_AXIS_BEAMS`)."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -171,8 +172,7 @@ def _chain(
         u = between(prev_c, c)
         guess = compose(prev, u)
         pose, t = guess, 0.0
-        u_len = math.hypot(u[0], u[1])
-        step = u_len + 0.3 * abs(u[2])
+        step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
         sxy, sth = 0.01 + 0.02 * step, 0.003 + 0.03 * step
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
@@ -185,7 +185,7 @@ def _chain(
                 res = None
             if res is not None and res.converged and res.inlier_ratio >= min_inliers:
                 z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
-                weak = weak_axis_beams if u_len < short_step else 0.0
+                weak = weak_axis_beams if step < short_step else 0.0
                 R = scan_covariance(
                     res.information, int(res.inliers), float(res.mse), 0.02, 5.0, weak
                 )
