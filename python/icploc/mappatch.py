@@ -795,7 +795,7 @@ def write_patch(
     if g is None:
         return None
     g.save(p)
-    doc = yaml.safe_load(p.read_text())
-    doc["icploc_patch_stretches"] = patch_record(stretches, include_open)
-    p.write_text(yaml.safe_dump(doc, sort_keys=False))
+    record = {"icploc_patch_stretches": patch_record(stretches, include_open)}
+    with open(p, "a", encoding="utf-8") as fh:
+        fh.write(yaml.safe_dump(record, sort_keys=False))
     return g
