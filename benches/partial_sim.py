@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         d = wall_distance(r.world, xy[box])
         print(
             f"  patch: {len(d)} wall cells in the wing, distance to the true walls: median "
-            f"{np.median(d) * 100:.1f} cm, within 10 cm {np.mean(d <= 0.1) * 100:.0f} %, "
+            f"{np.median(d) * 100:.1f} cm, within 10 cm {np.mean(d <= 0.1) * 100:.1f} %, "
             f"p95 {np.percentile(d, 95) * 100:.1f} cm, max {d.max() * 100:.1f} cm"
         )
     return 0

@@ -670,11 +670,18 @@ class OutsideMonitor:
         res.notes.extend(self.summary_lines(res.scans))
         if patch is None:
             return
-        from icploc.mappatch import write_patch
+        from icploc.mappatch import in_patch, write_patch
 
+        left = [i for i, s in enumerate(self.stretches, 1) if s.scans and not in_patch(s)]
         g = write_patch(patch, self.stretches, map_, mounting=self.mounting, walls=self.walls)
+        for i in left:
+            res.notes.append(
+                f"map patch: stretch {i} left out: not back in the map, its poses are dead "
+                "reckoning nothing checked"
+            )
         if g is None:
-            res.notes.append(f"map patch: nothing to write to {patch} (never outside the map)")
+            why = "never outside the map" if not self.stretches else "no stretch came back into the map"
+            res.notes.append(f"map patch: nothing to write to {patch} ({why})")
             return
         h, w = g.occupied.shape
         res.notes.append(
