@@ -154,7 +154,9 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
     let normals = index.normals();
     let spacing = index.spacing();
     let thr = 0.5 * spacing + 0.04;
-    let on_wall2 = (0.5 * spacing + 0.005).powi(2);
+    let on_wall = 0.5 * spacing + 0.005;
+    let on_wall2 = on_wall * on_wall;
+    let tol = index.cache_tolerance();
     let margin = 0.3;
     let min_cos = GRAZING_DEG.to_radians().sin();
     let stride = scan.len().div_ceil(SEE_THROUGH_BEAMS).max(1);
@@ -188,8 +190,18 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
                 if tc > margin && tc < end {
                     let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
                     // exact (k-d tree) here: a beam through a doorway passes centimetres
-                    // from the jamb, and the cached answer may be a cell off
-                    if index.nearest(cp).0 <= on_wall2 {
+                    // from the jamb, and the cached answer may be a cell off — unless the
+                    // cached answer already decides it (its distance is at least the
+                    // exact one's, and at most `tol` more, when it is this near)
+                    let (c2, _) = index.correspondence(cp);
+                    let hit = if c2 <= on_wall2 {
+                        true
+                    } else if c2.sqrt() - tol > on_wall {
+                        false
+                    } else {
+                        index.nearest(cp).0 <= on_wall2
+                    };
+                    if hit {
                         bad += 1;
                         break;
                     }
