@@ -64,6 +64,31 @@ fn paper_rule_mse_below_tau_stops() {
     assert!(r.converged);
 }
 
+/// The coarse stages see a subsample of the scan; a call that stops in one (an iteration
+/// limit) still reports the pairs of the whole scan at its final pose.
+#[test]
+fn an_iteration_limit_in_a_coarse_stage_reports_the_whole_scans_pairs() {
+    let segs = office_segments();
+    let idx = office_index(0.05);
+    let c = &cases(&segs, 1, (0.2, 0.2, 0.05), 0.01, 0.2, 3)[0];
+    let conf = IcpConfig {
+        max_iterations: 2,
+        window_search: false,
+        ..IcpConfig::default()
+    };
+    let r = align(&c.scan, &idx, c.initial, &conf).unwrap();
+    assert_eq!(r.termination, Termination::MaxIterations);
+    // the threshold of the stage after the two coarse ones, over every scan point
+    let thr = conf.threshold_at(2);
+    let whole = c
+        .scan
+        .iter()
+        .filter(|p| idx.correspondence(r.pose.transform(**p)).0 <= thr * thr)
+        .count();
+    assert_eq!(r.num_points, c.scan.len());
+    assert_eq!(r.inliers, whole);
+}
+
 #[test]
 fn iteration_limit_is_not_convergence() {
     let idx = office_index(0.05);

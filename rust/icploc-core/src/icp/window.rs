@@ -154,10 +154,21 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
     let normals = index.normals();
     let spacing = index.spacing();
     let thr = 0.5 * spacing + 0.04;
-    let on_wall2 = (0.5 * spacing + 0.005).powi(2);
+    let on_wall = 0.5 * spacing + 0.005;
+    let on_wall2 = on_wall * on_wall;
+    let tol = index.cache_tolerance();
     let margin = 0.3;
     let min_cos = GRAZING_DEG.to_radians().sin();
     let stride = scan.len().div_ceil(SEE_THROUGH_BEAMS).max(1);
+    // far from the map, the step comes from the likelihood field's distances (10 cm
+    // cells, a few hundred kB: cached, where the closest-point grid's cells along a beam
+    // through free space are mostly not): the distance at the cell centre less half the
+    // cell's diagonal is a lower bound of the distance at the sample (the field is built
+    // on the first call that needs it, as for the window search)
+    let field = index.likelihood_field();
+    let half_diag = field.map_or(0.0, |f| {
+        f.resolution() * std::f64::consts::FRAC_1_SQRT_2 + 1e-4
+    });
     let (mut checked, mut bad) = (0usize, 0usize);
     for p in scan.iter().filter(|p| picked(p, stride)) {
         let r = p[0].hypot(p[1]);
@@ -173,6 +184,12 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
         while t < end && steps < 1024 {
             steps += 1;
             let s = [pose.x + u[0] * t, pose.y + u[1] * t];
+            if let Some(lb) = field.and_then(|f| f.distance_at(s)).map(|d| d - half_diag) {
+                if lb > thr {
+                    t += (lb - thr).max(0.5 * thr);
+                    continue;
+                }
+            }
             let (d2, j) = index.correspondence(s);
             let d = d2.sqrt();
             if d > thr {
@@ -188,8 +205,18 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
                 if tc > margin && tc < end {
                     let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
                     // exact (k-d tree) here: a beam through a doorway passes centimetres
-                    // from the jamb, and the cached answer may be a cell off
-                    if index.nearest(cp).0 <= on_wall2 {
+                    // from the jamb, and the cached answer may be a cell off — unless the
+                    // cached answer already decides it (its distance is at least the
+                    // exact one's, and at most `tol` more, when it is this near)
+                    let (c2, _) = index.correspondence(cp);
+                    let hit = if c2 <= on_wall2 {
+                        true
+                    } else if c2.sqrt() - tol > on_wall {
+                        false
+                    } else {
+                        index.nearest(cp).0 <= on_wall2
+                    };
+                    if hit {
                         bad += 1;
                         break;
                     }
