@@ -683,8 +683,20 @@ class GlobalRelocalization:
         if not res.locked or res.pose is None:
             return RecoveryStep(res.status, hyps or local.hypotheses)
         ok, fit, pose = view.verify(points, now(res.pose))
-        if not ok or fit is None:
+        if fit is None:
             return RecoveryStep("confirming", hyps)
+        if not ok:
+            # the localizer's bar is this map's usual fit; a place the map covers worse
+            # (another pass, clutter) never reaches it and the robot stayed lost, dead
+            # reckoning metres off while the tracker held the right pose (intel 5 cm, bad
+            # odometry: 10 scans locked, 1-5 cm off, the dead reckoning 0.5 -> 2.6 m).
+            # A lock held one scan longer than a lock needs, on a fit as good as recovery
+            # asks for, resumes there degraded: no promise, no dead reckoning
+            held = rel._streak >= rel.config.confirm_scans + 1
+            if not (held and float(fit.inlier_ratio) >= lc.recover_inlier_ratio):
+                return RecoveryStep("confirming", hyps)
+            self.reset()
+            return RecoveryStep("locked", hyps, lock=pose, result=fit, verified=False)
         self.reset()
         return RecoveryStep("locked", hyps, lock=pose, result=fit)
 
