@@ -87,13 +87,14 @@ def _searches(bld: worlds.World, glob: GlobalLocalizer, cov: np.ndarray, n: int)
 
 
 def test_a_meaningful_dead_reckoned_pose_bounds_the_search(bld, bld_glob) -> None:
-    """sigma 0.5 m, 0.1 rad: from the first lost scan on, the search covers +- (3 x 0.5 +
-    1) m around the pose and +- (3 x 0.1 + 0.35) rad, clipped to the map, not the 40 x 20 m
-    floor (the held-out orebro log: a search of the whole map took ~1 s, most of its run
-    time)."""
-    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 1)
+    """sigma 0.5 m, 0.1 rad: after the local phase (local_recovery_scans, 3) the search
+    covers +- (3 x 0.5 + 1) m around the pose and +- (3 x 0.1 + 0.35) rad, clipped to the
+    map, not the 40 x 20 m floor (the held-out orebro log: a search of the whole map took
+    ~1 s, most of its run time)."""
+    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 4)
     assert len(calls) == 1
-    _, region, heading = calls[0]
+    k, region, heading = calls[0]
+    assert k == 3
     assert region == pytest.approx((7.5, 0.0, 12.5, 3.5))
     assert heading == pytest.approx((0.3 - 0.65, 0.3 + 0.65))
 
@@ -102,12 +103,12 @@ def test_the_whole_map_after_a_fruitless_window_and_then_once_per_four_periods(
     bld, bld_glob
 ) -> None:
     """A robot carried off that the lost detector caught before any kidnap check did: its
-    covariance does not say its dead reckoning means nothing. After
-    local_recovery_scans (3) lost scans the whole map, then once per
-    full_search_every (4) x global_search_every (10) scans."""
+    covariance does not say its dead reckoning means nothing. After a window search that
+    brought no leader the whole map, then once per full_search_every (4) x
+    global_search_every (10) scans."""
     calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 50)
     whole = [k for k, region, _ in calls if region is None]
-    assert whole == [3, 43]
+    assert whole == [4, 44]
 
 
 def test_the_window_is_throttled_as_the_whole_map_is(bld, bld_glob) -> None:
@@ -115,7 +116,7 @@ def test_the_window_is_throttled_as_the_whole_map_is(bld, bld_glob) -> None:
     search per global_search_every (10) scans, except to verify a leader."""
     calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 50)
     windowed = [k for k, region, _ in calls if region is not None]
-    assert windowed[:2] == [0, 13]
+    assert windowed[:2] == [3, 14]
 
 
 def test_a_pose_that_says_nothing_searches_the_whole_map(bld, bld_glob) -> None:

@@ -590,14 +590,14 @@ class GlobalRelocalization:
         if local.lock is not None:
             self.reset()
             return local
-        # a dead-reckoned pose that means something bounds the global search (from the
-        # first lost scan on: a window costs little) and backs a leader there; a tracker
-        # restricted by its caller (region, heading) keeps its restriction
+        # a dead-reckoned pose that means something bounds the global search and backs a
+        # leader there; a tracker restricted by its caller (region, heading) keeps its
+        # restriction
         rel0 = self._relocalizer
         own = rel0 is not None and (rel0.region is not None or rel0.heading is not None)
         near_window = None if own else self.window(view)
         early = view.lost_scans <= lc.local_recovery_scans
-        if (near and early and near_window is None) or not self._ready(view):
+        if (near and early) or not self._ready(view):
             self.state = local.state
             return local
         # 2. the multi-hypothesis tracker over the window or the whole map, throttled
@@ -617,20 +617,18 @@ class GlobalRelocalization:
                 self._last_search, every, interval
             )
         else:
-            # the window from the first lost scan on, throttled as the whole map is (its
-            # coarse search is cheap, but refining its seeds costs about as much as a
-            # whole-map search's: a window searched on every scan made a lost stretch
-            # slower on freiburg-campus 10 cm and relocked no sooner). The whole map once
-            # the first local_recovery_scans lost scans brought no leader in the window (a
-            # robot carried off that the lost detector caught before any kidnap check did:
-            # its covariance does not say its dead reckoning means nothing), then once in
-            # full_search_every throttle periods
+            # the window, throttled as the whole map is (its coarse search is cheap, but
+            # refining its seeds costs about as much as a whole-map search's: a window
+            # searched on every scan made a lost stretch slower on freiburg-campus 10 cm
+            # and relocked no sooner). The whole map once a window search brought no
+            # leader (a robot carried off that the lost detector caught before any kidnap
+            # check did: its covariance does not say its dead reckoning means nothing), or
+            # a throttle period after the local phase, then once in full_search_every
+            # throttle periods
             k = self.settings.full_search_every
             if self._last_full is None:
-                confirming = rel.last is not None and rel.last.status == "confirming"
-                full = not early and (
-                    not confirming or view.lost_scans > lc.local_recovery_scans + every
-                )
+                fruitless = rel.last is not None and rel.last.status != "confirming"
+                full = fruitless or view.lost_scans > lc.local_recovery_scans + every
             else:
                 full = due(self._last_full, every * k, interval * k)
             search = (
