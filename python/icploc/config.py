@@ -598,6 +598,29 @@ class RelocalizeSection(Section):
         0.95, "... or, for a best fit this clean (inlier ratio) ...", ge=0, le=1
     )
     clean_margin: float = _f(0.1, "... below the best's score minus this", ge=0, le=1)
+    window_sigmas: float = _f(
+        3.0,
+        "while lost, a global search covers the dead-reckoned pose +- this many sigmas of its "
+        "covariance (plus window_margin) ...",
+        "sigmas",
+        gt=0,
+    )
+    window_margin: float = _f(1.0, "... plus this much on every side", "m", ge=0)
+    window_heading_margin: float = _f(0.35, "... and this much heading either way", "rad", ge=0)
+    prior_confirm_scans: int = _f(
+        2,
+        "while lost, a leader within the dead-reckoned pose's window (window_sigmas) locks "
+        "after this many consecutive dominating, good scans (at most confirm_scans)",
+        "scans",
+        ge=1,
+    )
+    full_search_every: int = _f(
+        4,
+        "while lost with a meaningful dead-reckoned pose, every n-th global search covers the "
+        "whole map (the others its window; 1: always the whole map)",
+        "searches",
+        ge=1,
+    )
 
 
 def _global_default(name: str) -> Any:

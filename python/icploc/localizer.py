@@ -1319,7 +1319,7 @@ class Localizer:
                 self._check_inflight = inflight
                 self._lock_unconfirmed = True
             status = Status.TRACKING if self._confident(R) else Status.DEGRADED
-            if self._lock_unconfirmed:
+            if self._lock_unconfirmed or not step.verified:  # hook (lost2): no promise
                 status = Status.DEGRADED
             self.status = status
             return Estimate(

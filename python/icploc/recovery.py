@@ -69,6 +69,10 @@ class RecoveryStep:
     hypotheses: tuple[Candidate, ...] = ()
     lock: Pose | None = None  #: a verified pose: tracking resumes there
     result: Any = None  #: the IcpResult of the lock (its covariance, inliers)
+    #: False: a lock on the strategy's own evidence (it dominated every rival for longer
+    #: than a lock needs) that the localizer's verification did not accept: the localizer
+    #: resumes there ``degraded``, never ``tracking``, until its own fits verify
+    verified: bool = True
 
 
 class Recovery(Protocol):

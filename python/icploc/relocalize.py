@@ -166,6 +166,10 @@ class Relocalizer:
         self.scans = 0
         self._leader: int | None = None
         self._streak = 0
+        #: consecutive scans the current leader needs (confirm_scans, or
+        #: prior_confirm_scans inside the prior's window)
+        self._need = self.config.confirm_scans
+        self._prior: tuple[Pose, NDArray[np.float64]] | None = None
         self._verified = False  # the leader dominated a scan that had a fresh search
         self._saturated = False  # the last search (or the cap) may have cut a rival
         self.last: RelocalizeResult | None = None
@@ -178,7 +182,7 @@ class Relocalizer:
         return (
             self._leader is not None
             and not self._verified
-            and self._streak >= max(1, self.config.confirm_scans - 1)
+            and self._streak >= max(1, self._need - 1)
         )
 
     def _margin(self, best_score: float) -> float:
@@ -222,10 +226,20 @@ class Relocalizer:
         points: NDArray[np.float64],
         motion: Sequence[float] | None = None,
         search: bool | None = None,
+        window: tuple[Sequence[float] | None, tuple[float, float] | None] | None = None,
+        prior: tuple[Pose, NDArray[np.float64]] | None = None,
     ) -> RelocalizeResult:
         """``search``: run the global search on this scan (True) or only track the
-        hypotheses (False); None: with no hypotheses, else every ``search_every``-th scan."""
+        hypotheses (False); None: with no hypotheses, else every ``search_every``-th scan.
+        ``window``: (region, heading) of this scan's search instead of the tracker's own
+        (see :meth:`GlobalLocalizer.search`; a caller with a prior, e.g. the dead-reckoned
+        pose while lost, searches where the robot can be). ``prior``: (pose, covariance)
+        of where the robot should be (the dead-reckoned pose while lost; None: no idea); a
+        leader within ``window_sigmas`` of it (the covariance grown by ``window_margin`` /
+        ``window_heading_margin``) locks after ``prior_confirm_scans`` scans instead of
+        ``confirm_scans`` (still dominating every rival, still beating a fresh search)."""
         c = self.config
+        self._prior = prior
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
         pts = pts[np.isfinite(pts).all(axis=1)]
         self.scans += 1
@@ -254,7 +268,8 @@ class Relocalizer:
         )
         if searched:
             self._saturated = False
-            res = self.glob.search(pts, self.region, self.heading)
+            region, heading = window if window is not None else (self.region, self.heading)
+            res = self.glob.search(pts, region, heading)
             search_time = res.coarse_time + res.refine_time
             search_amb = res.ambiguous
             cands = list(res.candidates)
@@ -330,6 +345,10 @@ class Relocalizer:
         if rival is not None or self._saturated:
             self._leader, self._streak = None, 0
             return self._result("ambiguous", search_time, search_amb)
+        need = c.confirm_scans
+        if self._prior is not None and self.in_prior(best.pose):
+            need = min(need, c.prior_confirm_scans)
+        self._need = need
         if self._leader == best.id:
             self._streak += 1
             self._verified = self._verified or searched
@@ -337,9 +356,25 @@ class Relocalizer:
             self._leader, self._streak, self._verified = best.id, 1, searched
         # a lock needs the leader to have beaten a fresh search too (with the search
         # throttled, the scans in between only re-score the hypotheses already held)
-        if self._streak >= c.confirm_scans and best.good >= c.confirm_scans and self._verified:
+        if self._streak >= need and best.good >= need and self._verified:
             return self._result("locked", search_time, search_amb)
         return self._result("confirming", search_time, search_amb)
+
+    def in_prior(self, pose: Pose) -> bool:
+        """``pose`` lies within ``window_sigmas`` of the prior given to this update."""
+        if self._prior is None:
+            return False
+        c = self.config
+        q, P = self._prior
+        d = np.array([pose[0] - q[0], pose[1] - q[1]])
+        S = np.asarray(P, dtype=np.float64)[:2, :2] + np.eye(2) * c.window_margin**2
+        try:
+            d2 = float(d @ np.linalg.solve(S, d))
+        except np.linalg.LinAlgError:
+            return False
+        dth = abs(wrap_angle(pose[2] - q[2]))
+        wth = c.window_sigmas * math.sqrt(max(float(P[2, 2]), 0.0)) + c.window_heading_margin
+        return d2 <= c.window_sigmas**2 and dth <= wth
 
     def _result(self, status: str, search_time: float, search_amb: bool) -> RelocalizeResult:
         best = self.hypotheses[0] if self.hypotheses else None
@@ -432,6 +467,11 @@ class GlobalRelocalization:
         self._unavailable = False  #: the map could not be gridded: local recovery only
         #: (localizer scan count, stamp) of the last global search
         self._last_search: tuple[int, float] | None = None
+        #: (scan count, stamp) of the last whole-map search
+        self._last_full: tuple[int, float] | None = None
+        #: global searches this episode; whether the last one covered a window only
+        self._searches = 0
+        self.windowed = False
         #: the latest relocalizer results (at most 100)
         self.results: list[RelocalizeResult] = []
         self.state = ""
@@ -462,6 +502,8 @@ class GlobalRelocalization:
         if self._relocalizer is not None:
             self._relocalizer.reset()
         self._last_search = None
+        self._last_full = None
+        self._searches = 0
         self._inflight = None
         self.state = ""
         self._motion = (0.0, 0.0, 0.0)
@@ -509,6 +551,35 @@ class GlobalRelocalization:
             return False
         return True
 
+    def window(
+        self, view: RecoveryView
+    ) -> tuple[tuple[float, float, float, float], tuple[float, float] | None] | None:
+        """Where a global search while lost looks: the dead-reckoned position +-
+        ``relocalize.window_sigmas`` sigmas of its covariance (the larger axis) plus
+        ``window_margin``, clipped to the map, and its heading +- as many sigmas plus
+        ``window_heading_margin`` (None: every heading); None (the whole map) for a pose
+        that says nothing or a window that would cover most of the map anyway."""
+        st = self.settings
+        P = np.asarray(view.covariance, dtype=np.float64)
+        x, y, th = view.pose
+        if not (np.isfinite(P).all() and math.isfinite(x) and math.isfinite(y)):
+            return None
+        a, b, c = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+        lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+        half = st.window_sigmas * math.sqrt(max(lmax, 0.0)) + st.window_margin
+        try:
+            x0, y0, x1, y1 = (float(v) for v in view.index.bounds)
+        except (AttributeError, TypeError, ValueError):
+            return None
+        r = (max(x - half, x0), max(y - half, y0), min(x + half, x1), min(y + half, y1))
+        if r[0] >= r[2] or r[1] >= r[3]:
+            return None  # the dead reckoning left the map: search all of it
+        if (r[2] - r[0]) * (r[3] - r[1]) > 0.5 * max(x1 - x0, 1e-9) * max(y1 - y0, 1e-9):
+            return None
+        w = st.window_sigmas * math.sqrt(max(float(P[2, 2]), 0.0)) + st.window_heading_margin
+        heading = None if w >= math.pi else (th - w, th + w)
+        return r, heading
+
     def recover(self, view: RecoveryView, points: NDArray[np.float64]) -> RecoveryStep:
         lc = view.config.localizer
         # 1. around the dead-reckoned pose first, while it means something (and alongside
@@ -519,36 +590,76 @@ class GlobalRelocalization:
         if local.lock is not None:
             self.reset()
             return local
-        if (near and view.lost_scans <= lc.local_recovery_scans) or not self._ready(view):
+        # a dead-reckoned pose that means something bounds the global search and backs a
+        # leader there; a tracker restricted by its caller (region, heading) keeps its
+        # restriction
+        rel0 = self._relocalizer
+        own = rel0 is not None and (rel0.region is not None or rel0.heading is not None)
+        near_window = None if own else self.window(view)
+        early = view.lost_scans <= lc.local_recovery_scans
+        if (near and early) or not self._ready(view):
             self.state = local.state
             return local
-        # 2. the whole map: the multi-hypothesis tracker, its global search throttled
+        # 2. the multi-hypothesis tracker over the window or the whole map, throttled
         rel = self.relocalizer
         rel.expect(view.hit_reference * lc.verify_hit_fraction)
         n, stamp = view.scans_processed, view.stamp
-        last = self._last_search
-        search = (
-            rel.scans == 0
-            or last is None
-            or rel.awaiting_verification
-            or (
-                n - last[0] >= lc.global_search_every
-                and not 0.0 <= stamp - last[1] < lc.global_search_interval
+        prior = (view.pose, np.asarray(view.covariance)) if near_window is not None else None
+        every, interval = lc.global_search_every, lc.global_search_interval
+
+        def due(last: tuple[int, float] | None, scans: float, secs: float) -> bool:
+            return last is None or (n - last[0] >= scans and not 0.0 <= stamp - last[1] < secs)
+
+        window = None
+        if near_window is None:
+            # the whole map, throttled (global_search_every scans, global_search_interval s)
+            search = rel.scans == 0 or rel.awaiting_verification or due(
+                self._last_search, every, interval
             )
-        )
-        if search:
+        else:
+            # the window, throttled as the whole map is (its coarse search is cheap, but
+            # refining its seeds costs about as much as a whole-map search's: a window
+            # searched on every scan made a lost stretch slower on freiburg-campus 10 cm
+            # and relocked no sooner). The whole map once a window search brought no
+            # leader (a robot carried off that the lost detector caught before any kidnap
+            # check did: its covariance does not say its dead reckoning means nothing), or
+            # a throttle period after the local phase, then once in full_search_every
+            # throttle periods
+            k = self.settings.full_search_every
+            if self._last_full is None:
+                fruitless = rel.last is not None and rel.last.status != "confirming"
+                full = fruitless or view.lost_scans > lc.local_recovery_scans + every
+            else:
+                full = due(self._last_full, every * k, interval * k)
+            search = (
+                full
+                or rel.scans == 0
+                or rel.awaiting_verification
+                or due(self._last_search, every, interval)
+            )
+            window = None if full else near_window
+        # (in the background a search is made only when no update is running: one decided
+        # while one runs is not made, not counted)
+        if search and not (self.background and self._inflight is not None):
             self._last_search = (n, stamp)
+            if window is None:
+                self._last_full = (n, stamp)
+            self._searches += 1
+            self.windowed = window is not None
         if view.motion is not None:
             self._motion = compose(self._motion, view.motion)
         if self.background:
-            got = self._background_update(rel, points, search)
+            got = self._background_update(rel, points, search, window, prior)
             if got is None:
                 return RecoveryStep(self.state or "searching", self._hyps or local.hypotheses)
             res, carry = got
         else:
             motion = self._motion if rel.hypotheses else None
             self._motion = (0.0, 0.0, 0.0)
-            res, carry = rel.update(points, motion, search=None if search else False), None
+            res = rel.update(
+                points, motion, search=None if search else False, window=window, prior=prior
+            )
+            carry = None
         self.results.append(res)
         if len(self.results) > 100:
             del self.results[:-100]
@@ -563,8 +674,20 @@ class GlobalRelocalization:
         if not res.locked or res.pose is None:
             return RecoveryStep(res.status, hyps or local.hypotheses)
         ok, fit, pose = view.verify(points, now(res.pose))
-        if not ok or fit is None:
+        if fit is None:
             return RecoveryStep("confirming", hyps)
+        if not ok:
+            # the localizer's bar is this map's usual fit; a place the map covers worse
+            # (another pass, clutter) never reaches it and the robot stayed lost, dead
+            # reckoning metres off while the tracker held the right pose (intel 5 cm, bad
+            # odometry: 10 scans locked, 1-5 cm off, the dead reckoning 0.5 -> 2.6 m).
+            # A lock held one scan longer than a lock needs, on a fit as good as recovery
+            # asks for, resumes there degraded: no promise, no dead reckoning
+            held = rel._streak >= rel.config.confirm_scans + 1
+            if not (held and float(fit.inlier_ratio) >= lc.recover_inlier_ratio):
+                return RecoveryStep("confirming", hyps)
+            self.reset()
+            return RecoveryStep("locked", hyps, lock=pose, result=fit, verified=False)
         self.reset()
         return RecoveryStep("locked", hyps, lock=pose, result=fit)
 
@@ -626,7 +749,12 @@ class GlobalRelocalization:
         return CheckVerdict("", here=s_here, best=s_best)
 
     def _background_update(
-        self, rel: Relocalizer, points: NDArray[np.float64], search: bool
+        self,
+        rel: Relocalizer,
+        points: NDArray[np.float64],
+        search: bool,
+        window: tuple[Sequence[float] | None, tuple[float, float] | None] | None = None,
+        prior: tuple[Pose, NDArray[np.float64]] | None = None,
     ) -> tuple[RelocalizeResult, Pose] | None:
         """Run the tracker's update on the worker thread: submit one when none is running,
         collect it once done. Returns (result, motion since its scan) or None."""
@@ -639,7 +767,7 @@ class GlobalRelocalization:
             motion = self._motion if rel.hypotheses else None
             self._motion = (0.0, 0.0, 0.0)
             self._inflight = self._executor.submit(
-                rel.update, np.array(points), motion, None if search else False
+                rel.update, np.array(points), motion, None if search else False, window, prior
             )
             return None
         if not fut.done():
