@@ -157,7 +157,9 @@ class IcpSection(Section):
         _core_default("mse_change"), "converged when the MSE changes by less than this", "m^2"
     )
     step_tolerance: float = _f(
-        _core_default("step_tolerance"), "converged when a step moves less than this", "m, rad"
+        _core_default("step_tolerance"),
+        "converged when a step moves less than this (point-to-line: less than its square root, at most 1 mm / 1 mrad)",
+        "m, rad",
     )
     min_inliers: int = _f(
         _core_default("min_inliers"), "a fit needs at least this many pairs", ge=0
