@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 import serial
 from icploc.drivers import arcos_protocol as ap
-from icploc.drivers.powerbot import PowerBot, PowerBotTimeout
+from icploc.drivers.powerbot import PowerBot, PowerBotError, PowerBotTimeout
 from icploc.messages import Odometry
 from icploc.se2 import wrap_angle
 from icploc.sim.device import DeviceRunner, Faults
@@ -364,3 +364,84 @@ def test_robot_that_never_comes_back_raises_a_clear_timeout() -> None:
                     pass
     finally:
         run.stop()
+
+
+class _AdapterLine:
+    """A serial line (the part of pyserial the driver uses) to a robot streaming SIPs at
+    9600 Bd that obeys only its ``obeys``-th HOSTBAUD (None: none), through a USB adapter
+    whose FIFO still holds one SIP sent at the old rate when the host changes its speed:
+    that SIP reaches the host intact after the switch and its input flush. At a speed the
+    robot is not at, the host reads line noise."""
+
+    def __init__(self, obeys: int | None) -> None:
+        self.obeys = obeys
+        self.robot_baud = 9600
+        self._host_baud = 9600
+        self.hostbauds = 0
+        self._cmds = ap.PacketParser()
+        self._fifo = b""
+        self._noise = iter(range(10**9))
+        self._sip = ap.build_sip(ap.RawSip(type=0x32, xpos=0, ypos=0, thpos=0, lvel=0, rvel=0,
+                                           battery=245, stall_bumpers=0, control=0, flags=1,
+                                           compass=0, sonar=()))  # fmt: skip
+
+    @property
+    def baudrate(self) -> int:
+        return self._host_baud
+
+    @baudrate.setter
+    def baudrate(self, baud: int) -> None:
+        self._host_baud = baud
+        self._fifo = self._sip  # sent at the robot's rate before the switch, still buffered
+
+    @property
+    def in_waiting(self) -> int:
+        return 1
+
+    def reset_input_buffer(self) -> None:
+        pass  # the host's flush does not reach into the adapter's FIFO
+
+    def write(self, data: bytes) -> int:
+        for pkt in self._cmds.feed(data):
+            cmd = ap.decode_command(pkt.payload)
+            if cmd.cmd == ap.HOSTBAUD and self._host_baud == self.robot_baud:
+                self.hostbauds += 1
+                if self.hostbauds == self.obeys:
+                    bauds = {code: baud for baud, code in ap.HOSTBAUD_CODES.items()}
+                    self.robot_baud = bauds[int(cmd.arg or 0)]
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def read(self, n: int = 1) -> bytes:
+        time.sleep(0.002)
+        if self._fifo:
+            out, self._fifo = self._fifo, b""
+            return out
+        if self._host_baud == self.robot_baud:
+            return self._sip
+        return bytes((next(self._noise) * 37) & 0xFF for _ in range(16))
+
+
+def _switch_over(line: _AdapterLine) -> PowerBot:
+    bot = PowerBot("unused")
+    bot.ser = line  # type: ignore[assignment]
+    bot._switch_baud(38400, tries=2, verify=0.3)
+    return bot
+
+
+def test_hostbaud_the_robot_ignored_is_not_taken_for_a_switch() -> None:
+    """One SIP from before the switch (the adapter's FIFO) is no proof the robot talks at
+    the new rate: a robot that never switched leaves the driver at 9600 Bd with an error,
+    not at 38400 Bd talking to nobody."""
+    line = _AdapterLine(obeys=None)
+    with pytest.raises(PowerBotError, match="did not answer at 38400 Bd"):
+        _switch_over(line)
+    assert (line.baudrate, line.hostbauds) == (9600, 2)
+
+
+def test_hostbaud_the_robot_missed_is_sent_again_despite_a_stale_sip() -> None:
+    line = _AdapterLine(obeys=2)
+    _switch_over(line)
+    assert (line.hostbauds, line.robot_baud, line.baudrate) == (2, 38400, 38400)

@@ -358,11 +358,18 @@ class PowerBot:
             f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
         )
 
+    #: packets that must arrive at the new rate before a HOSTBAUD switch counts: one
+    #: intact packet may be a SIP the robot sent at the old rate before it saw HOSTBAUD,
+    #: held in the serial adapter's FIFO across the host's switch and flush (a USB adapter
+    #: buffers some milliseconds of bytes); at the wrong rate no second one comes through
+    SWITCH_EVIDENCE = 2
+
     def _switch_baud(self, baud: int, tries: int = 4, verify: float = 0.9) -> None:
-        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then a packet must arrive at
-        the new rate within ``verify`` s, else back to the old rate and again, waiting
-        five times longer before the switch each time (ARIA's fallback, PROTOCOLS.md §B.6;
-        a controller busy when HOSTBAUD came in gets the time it needs)."""
+        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then
+        :attr:`SWITCH_EVIDENCE` packets must arrive at the new rate within ``verify`` s,
+        else back to the old rate and again, waiting five times longer before the switch
+        each time (ARIA's fallback, PROTOCOLS.md §B.6; a controller busy when HOSTBAUD
+        came in gets the time it needs)."""
         code = ap.HOSTBAUD_CODES[baud]
         assert self.ser is not None
         old = self.ser.baudrate
@@ -371,12 +378,22 @@ class PowerBot:
             time.sleep(0.01 * 5**attempt)
             self._set_line(baud)
             self._send(ap.PULSE)
-            if self._read_packets(clock.now() + verify):
+            if self._packets_arrive(self.SWITCH_EVIDENCE, clock.now() + verify):
                 return
             self._set_line(old)  # nothing at the new rate: the robot did not switch
             self._send(ap.PULSE)
             self._read_packets(clock.now() + verify)  # back in step at the old rate
         raise PowerBotError(f"the robot on {self.port} did not answer at {baud} Bd after HOSTBAUD")
+
+    def _packets_arrive(self, n: int, deadline: float) -> bool:
+        """``n`` valid packets arrive before ``deadline``."""
+        got = 0
+        while got < n:
+            pkts = self._read_packets(deadline)
+            if not pkts:
+                return False
+            got += len(pkts)
+        return True
 
     def _set_line(self, baud: int) -> None:
         assert self.ser is not None
