@@ -445,3 +445,21 @@ def test_hostbaud_the_robot_missed_is_sent_again_despite_a_stale_sip() -> None:
     line = _AdapterLine(obeys=2)
     _switch_over(line)
     assert (line.hostbauds, line.robot_baud, line.baudrate) == (2, 38400, 38400)
+
+
+def test_a_late_simulator_hears_bytes_sent_before_the_host_switched(sim: DeviceRunner) -> None:
+    """The host sends a packet at 9600 Bd and switches its UART to 38400 Bd before the
+    device thread reads (a loaded machine): the packet went out at the device's speed,
+    so the device gets it (judged at read time it was lost, and with it the OPEN and
+    HOSTBAUD of a baud switch)."""
+    dev = dev_of(sim)
+    with serial.Serial(sim.port, 9600, timeout=0.2) as host:
+        host.write(ap.encode_command(ap.SYNC0))
+        assert wait_for(lambda: len(dev.commands) == 1)
+        seen = sim.steps
+        assert wait_for(lambda: sim.steps >= seen + 2)  # it sampled the host at 9600 Bd since
+        with sim.paused():
+            host.write(ap.encode_command(ap.SYNC1))
+            host.flush()
+            host.baudrate = 38400
+        assert wait_for(lambda: [c.cmd for c in dev.commands] == [ap.SYNC0, ap.SYNC1])
