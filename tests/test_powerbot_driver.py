@@ -175,7 +175,9 @@ def test_no_robot_times_out() -> None:
 def test_lost_sync_packets_are_retried() -> None:
     run = runner(faults=Faults(nak_storm=2))  # the first two packets vanish
     try:
-        with PowerBot(run.port, sync_timeout=0.1) as bot:
+        # a lost packet is answered never, a heard one within milliseconds: 0.5 s (the
+        # default) tells them apart on a loaded machine too
+        with PowerBot(run.port, sync_timeout=0.5) as bot:
             assert bot.stats["sync_retries"] >= 1
             assert next(bot.sips()) is not None
     finally:
@@ -331,8 +333,10 @@ def test_unplugged_robot_is_reconnected_and_the_odometry_continues() -> None:
     robot.reset_odometry((3.0, -2.0, 1.0))
     run = DeviceRunner(PowerBotDevice(robot=robot), unpluggable=True).start()
     try:
+        # the unplug fails the reads at once; a stall timeout a starved reader could reach
+        # while SIPs still flow would add a reconnect of its own
         with PowerBot(
-            run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_backoff=0.05
+            run.port, auto_reconnect=True, stall_timeout=2.0, reconnect_backoff=0.05
         ) as bot:
             before = list(bot.sips(limit=5))[-1]
             run.unplug()
