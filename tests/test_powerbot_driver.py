@@ -184,6 +184,30 @@ def test_lost_sync_packets_are_retried() -> None:
         run.stop()
 
 
+def test_a_lost_sync2_reply_is_recovered_from() -> None:
+    """The controller takes SYNC2 and connects, but its reply is lost on the line (or read
+    after the driver gave up): it sends no SIPs (no OPEN yet) and takes the next SYNC0 for
+    a PULSE. The driver closes it back into its wait state and connects on the next try."""
+    run = runner()
+    dev = dev_of(run)
+    send = dev._send
+    reply = ap.build_sync2_reply(dev.name, dev.robot_type, dev.params.name)
+    lost: list[bytes] = []
+
+    def lose_first_reply(now: float, delay: float, data: bytes, action: object = None) -> None:
+        if data == reply and not lost:
+            lost.append(data)
+            return
+        send(now, delay, data, action)  # type: ignore[arg-type]
+
+    dev._send = lose_first_reply  # type: ignore[method-assign]
+    try:
+        with PowerBot(run.port, sync_timeout=0.5, sync_tries=4) as bot:
+            assert (lost, next(bot.sips()).seq) == ([reply], 1)
+    finally:
+        run.stop()
+
+
 def test_late_sync_replies() -> None:
     run = runner(faults=Faults(late_reply=0.2))
     try:
@@ -467,3 +491,13 @@ def test_a_late_simulator_hears_bytes_sent_before_the_host_switched(sim: DeviceR
             host.flush()
             host.baudrate = 38400
         assert wait_for(lambda: [c.cmd for c in dev.commands] == [ap.SYNC0, ap.SYNC1])
+
+
+def test_a_packet_that_came_while_the_driver_slept_past_its_deadline_is_read() -> None:
+    """A starved thread wakes after its deadline: what arrived meanwhile still counts
+    (not read, a SYNC echo sitting in the buffer failed the handshake try)."""
+    from icploc import clock
+
+    bot = PowerBot("unused")
+    bot.ser = _AdapterLine(obeys=None)  # type: ignore[assignment]
+    assert [p.type for p in bot._read_packets(clock.now() - 1.0)] == [0x32]

@@ -293,19 +293,21 @@ class PowerBot:
     # ------------------------------------------------------------------ handshake
 
     def _read_packets(self, deadline: float) -> list[ap.Packet]:
+        """The packets that arrive until ``deadline``; what arrived meanwhile is read at
+        least once, also by a thread that wakes up after the deadline (a loaded host)."""
         ser = self.ser
         assert ser is not None
-        while clock.now() < deadline:
+        while True:
             data = ser.read(max(1, ser.in_waiting))
-            if not data:
-                continue
-            t = clock.now()
-            if self.recorder is not None:
-                self.recorder.rx(self._rec_dev, t, data)
-            pkts = self.parser.feed(data, t)
-            if pkts:
-                return pkts
-        return []
+            if data:
+                t = clock.now()
+                if self.recorder is not None:
+                    self.recorder.rx(self._rec_dev, t, data)
+                pkts = self.parser.feed(data, t)
+                if pkts:
+                    return pkts
+            if clock.now() >= deadline:
+                return []
 
     def _await(self, want: int, timeout: float) -> ap.Packet | None:
         """Wait for a packet of type ``want``; a SIP means "still connected"."""
@@ -321,6 +323,12 @@ class PowerBot:
                     raise _StillConnected()
 
     def _handshake(self) -> None:
+        """SYNC0, SYNC1, SYNC2 with retries. A try that got no SYNC0 echo or no SYNC2 reply
+        is followed by a CLOSE: the controller may sit connected (it took our SYNC2 and its
+        reply was lost, or an earlier client connected without OPEN), sends no SIPs then,
+        and takes every SYNC0 for a PULSE; CLOSE puts it back in its wait state (ARIA sends
+        CLOSE to a silent robot, PROTOCOLS.md §B.1). Not after a missing SYNC1 echo: a
+        controller waiting for SYNC2 would take that CLOSE for it."""
         assert self.ser is not None
         for attempt in range(self.sync_tries):
             if self._stop.is_set():
@@ -334,17 +342,21 @@ class PowerBot:
                 for n in (ap.SYNC0, ap.SYNC1):
                     self._send(n)
                     if self._await(n, self.sync_timeout) is None:
-                        raise _Retry()
+                        raise _Retry(close=n == ap.SYNC0)
                 self._send(ap.SYNC2)
                 reply = self._await(ap.SYNC2, self.sync_timeout)
                 if reply is None:
-                    raise _Retry()
+                    raise _Retry(close=True)
                 self.name, self.robot_type, self.subtype = ap.parse_sync2(reply.payload)
             except _StillConnected:
                 self._send(ap.CLOSE)
                 time.sleep(0.05)
                 continue
-            except (_Retry, ap.ArcosProtocolError):
+            except _Retry as r:
+                if r.close:
+                    self._send(ap.CLOSE)
+                continue
+            except ap.ArcosProtocolError:
                 continue
             if self._forced_params is None:
                 self.params = ap.params_for(self.subtype)
@@ -555,7 +567,9 @@ class PowerBot:
 
 
 class _Retry(Exception):
-    pass
+    def __init__(self, close: bool = False) -> None:
+        super().__init__()
+        self.close = close  #: send CLOSE before the next try
 
 
 class _StillConnected(Exception):
