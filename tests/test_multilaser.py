@@ -365,8 +365,10 @@ def driving_two_pls() -> dict[str, Any]:
         return now >= end[0]
 
     with sess, simulated_laser(sess, REAR) as rear:
+        # the simulators share the host with the loop: a stall timeout a starved host cannot
+        # reach while they stream (1 s was, now and then: both lasers reconnected mid-run)
         with open_lasers([sess.laser_port, rear.port], [38400, 38400], reconnect_timeout=5.0,
-                         connect_baudrates=(9600, 38400)) as drivers:  # fmt: skip
+                         connect_baudrates=(9600, 38400), stall_timeout=4.0) as drivers:  # fmt: skip
             bot = PowerBot(sess.base_port)
             bot.connect()
             try:

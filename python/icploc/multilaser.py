@@ -390,9 +390,11 @@ def open_lasers(
     *,
     reconnect_timeout: float,
     connect_baudrates: tuple[int, ...] | None = None,
+    stall_timeout: float = 1.0,
 ) -> Iterator[list[Any]]:
     """Open and start one PLS per port (automatic reconnection, as the first laser's
-    driver); errors name the laser's port. Closed on exit."""
+    driver: no scan for ``stall_timeout`` s is a stall); errors name the laser's port.
+    Closed on exit."""
     import serial
 
     from icploc.drivers.powerbot import PowerBotError
@@ -402,7 +404,7 @@ def open_lasers(
     opened: list[Any] = []
     try:
         for port, baud in zip(ports, bauds, strict=True):
-            dev = PLS(port, baudrate=baud, auto_reconnect=True, stall_timeout=1.0,
+            dev = PLS(port, baudrate=baud, auto_reconnect=True, stall_timeout=stall_timeout,
                       reconnect_timeout=reconnect_timeout, connect_baudrates=connect_baudrates)  # fmt: skip
             try:
                 dev.open()
