@@ -218,7 +218,11 @@ class _GoneLaser:
 def test_with_laser_and_base_gone_the_last_pose_is_held_and_says_so() -> None:
     loc = _StubLocalizer()
     loc.update(Scan(stamp=clock.now(), ranges=np.ones(3), angles=np.zeros(3), seq=12))
-    res = live.run_live(loc, _GoneLaser(), None, duration=0.5)  # type: ignore[arg-type]
+    made: list[Estimate] = []
+    # until three held estimates were made (a duration could pass before the first on a
+    # starved host); the duration is only a backstop
+    res = live.run_live(loc, _GoneLaser(), None, duration=60.0, on_estimate=made.append,  # type: ignore[arg-type]
+                        stop=lambda: len(made) >= 3)  # fmt: skip
     held = {(e.status, e.reason, e.pose) for e in res.coasted}
     assert held == {(Status.DEGRADED, "laser_and_base_missing", loc.pose)}
 
@@ -470,3 +474,30 @@ def test_run_simulate_all_lost_reports_no_error_vs_truth(
     assert r.exit_code == 0, r.output
     assert "no estimate was tracking (8 lost or degraded): no error vs simulator truth" in r.output
     assert " mm" not in r.output
+
+
+def test_a_scan_read_late_is_scored_against_its_own_truth() -> None:
+    """A loaded host reads a scan long after the laser took it: run_simulated's truth
+    gives that scan the stamp its driver gave it, so the estimate is compared with the
+    pose the scan was taken at, not with a later scan's (at 1.5 m/s, 40 ms are 6 cm)."""
+    from types import SimpleNamespace
+
+    from icploc.drivers import sick_protocol as sp
+    from icploc.sim.harness import _truth_as_stamped
+    from icploc.sim.powerbot_device import constant_plan
+    from icploc.sim.session import SimSession
+
+    sess = SimSession(box(10.0, 8.0), start_pose=(2.0, 2.0, 0.0), plan=constant_plan(1.5, 0.0),
+                      realtime=False, laser_max_range=8.0)  # fmt: skip
+    try:
+        sess.base._advance(0.0, 0.0)  # the plan sets the robot moving
+        for _ in range(10):
+            sess.laser._b0_frame(clock.now())  # the laser takes scans 0.04 s apart
+    finally:
+        sess.stop()
+    driver = SimpleNamespace(variant="pls", flipped=False, max_range=8.0)
+    tel = sp.TelegramParser().feed(sess.laser.b0_log[0].frame)[0]
+    first = sp.decode_scan(tel, variant="pls", max_range=8.0)
+    late = sess.truth[9][0] + 0.001  # scan 0 read when scan 9 had been taken
+    truth = _truth_as_stamped(sess, driver, [(late, hash(first.ranges.tobytes()))])
+    assert truth_at(truth, [late])[0] == pytest.approx(sess.truth[0][1])

@@ -129,6 +129,56 @@ def test_merged_live_drivers_make_one_scan_per_round() -> None:
     assert [len(s) for s in got if s is not None] == [2, 2]
 
 
+class _SlowLine:
+    """A live laser driver whose scans come in 0.21 s after their stamp (a PLS telegram on
+    a 38400 Bd line), one every 0.25 s; ``offset``: its first stamp. ``now`` is the fake
+    clock the test moves."""
+
+    def __init__(self, now: list[float], offset: float, frame: str, last: float = math.inf) -> None:
+        self.now, self.frame = now, frame
+        self.stamps = [offset + 0.25 * k for k in range(40) if offset + 0.25 * k <= last]
+
+    def get(self, timeout: float = 0.0) -> Scan | None:
+        if self.stamps and self.stamps[0] + 0.21 <= self.now[0]:
+            return _one_beam(self.stamps.pop(0), 2.0, 0.0, self.frame)
+        return None
+
+
+def _merged_rounds(monkeypatch: pytest.MonkeyPatch, rear_last: float = math.inf) -> list[int]:
+    """Beams per merged round of a front laser and a rear one 0.15 s behind it, the
+    loop polling every 10 ms of the fake clock for 5 s."""
+    from icploc import clock
+
+    now = [0.0]
+    monkeypatch.setattr(clock, "now", lambda: now[0])
+    lasers = MergedLasers([_SlowLine(now, 0.0, "laser"), _SlowLine(now, 0.15, "laser", rear_last)],
+                          [FRONT, REAR], LocalizerConfig(), OdometryBuffer())  # fmt: skip
+    sizes = []
+    for k in range(500):
+        now[0] = 0.01 * k
+        s = lasers.get(timeout=0.0)
+        if s is not None:
+            sizes.append(len(s))
+    return sizes
+
+
+def test_live_rounds_wait_for_a_laser_whose_scans_are_slow_to_arrive(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Both lasers alive: every round but the first (the rear laser has not spoken yet)
+    holds both, though each scan comes in 0.21 s after its stamp and the rear one 0.15 s
+    after the front one (a wait of 0.3 s counted from the stamp closed them all alone)."""
+    sizes = _merged_rounds(monkeypatch)
+    assert sizes[1:] == [2] * (len(sizes) - 1)
+
+
+def test_live_rounds_go_on_without_a_laser_that_fell_silent(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    sizes = _merged_rounds(monkeypatch, rear_last=1.5)  # the rear laser's last scan
+    assert sizes[-8:] == [1] * 8  # the front laser's rounds alone, one per scan
+
+
 # -- accuracy: a corridor ---------------------------------------------------------------------
 
 
@@ -315,8 +365,10 @@ def driving_two_pls() -> dict[str, Any]:
         return now >= end[0]
 
     with sess, simulated_laser(sess, REAR) as rear:
+        # the simulators share the host with the loop: a stall timeout a starved host cannot
+        # reach while they stream (1 s was, now and then: both lasers reconnected mid-run)
         with open_lasers([sess.laser_port, rear.port], [38400, 38400], reconnect_timeout=5.0,
-                         connect_baudrates=(9600, 38400)) as drivers:  # fmt: skip
+                         connect_baudrates=(9600, 38400), stall_timeout=4.0) as drivers:  # fmt: skip
             bot = PowerBot(sess.base_port)
             bot.connect()
             try:

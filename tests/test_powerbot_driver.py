@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 import serial
 from icploc.drivers import arcos_protocol as ap
-from icploc.drivers.powerbot import PowerBot, PowerBotTimeout
+from icploc.drivers.powerbot import PowerBot, PowerBotError, PowerBotTimeout
 from icploc.messages import Odometry
 from icploc.se2 import wrap_angle
 from icploc.sim.device import DeviceRunner, Faults
@@ -175,9 +175,35 @@ def test_no_robot_times_out() -> None:
 def test_lost_sync_packets_are_retried() -> None:
     run = runner(faults=Faults(nak_storm=2))  # the first two packets vanish
     try:
-        with PowerBot(run.port, sync_timeout=0.1) as bot:
+        # a lost packet is answered never, a heard one within milliseconds: 0.5 s (the
+        # default) tells them apart on a loaded machine too
+        with PowerBot(run.port, sync_timeout=0.5) as bot:
             assert bot.stats["sync_retries"] >= 1
             assert next(bot.sips()) is not None
+    finally:
+        run.stop()
+
+
+def test_a_lost_sync2_reply_is_recovered_from() -> None:
+    """The controller takes SYNC2 and connects, but its reply is lost on the line (or read
+    after the driver gave up): it sends no SIPs (no OPEN yet) and takes the next SYNC0 for
+    a PULSE. The driver closes it back into its wait state and connects on the next try."""
+    run = runner()
+    dev = dev_of(run)
+    send = dev._send
+    reply = ap.build_sync2_reply(dev.name, dev.robot_type, dev.params.name)
+    lost: list[bytes] = []
+
+    def lose_first_reply(now: float, delay: float, data: bytes, action: object = None) -> None:
+        if data == reply and not lost:
+            lost.append(data)
+            return
+        send(now, delay, data, action)  # type: ignore[arg-type]
+
+    dev._send = lose_first_reply  # type: ignore[method-assign]
+    try:
+        with PowerBot(run.port, sync_timeout=0.5, sync_tries=4) as bot:
+            assert (lost, next(bot.sips()).seq) == ([reply], 1)
     finally:
         run.stop()
 
@@ -331,8 +357,10 @@ def test_unplugged_robot_is_reconnected_and_the_odometry_continues() -> None:
     robot.reset_odometry((3.0, -2.0, 1.0))
     run = DeviceRunner(PowerBotDevice(robot=robot), unpluggable=True).start()
     try:
+        # the unplug fails the reads at once; a stall timeout a starved reader could reach
+        # while SIPs still flow would add a reconnect of its own
         with PowerBot(
-            run.port, auto_reconnect=True, stall_timeout=0.5, reconnect_backoff=0.05
+            run.port, auto_reconnect=True, stall_timeout=2.0, reconnect_backoff=0.05
         ) as bot:
             before = list(bot.sips(limit=5))[-1]
             run.unplug()
@@ -364,3 +392,112 @@ def test_robot_that_never_comes_back_raises_a_clear_timeout() -> None:
                     pass
     finally:
         run.stop()
+
+
+class _AdapterLine:
+    """A serial line (the part of pyserial the driver uses) to a robot streaming SIPs at
+    9600 Bd that obeys only its ``obeys``-th HOSTBAUD (None: none), through a USB adapter
+    whose FIFO still holds one SIP sent at the old rate when the host changes its speed:
+    that SIP reaches the host intact after the switch and its input flush. At a speed the
+    robot is not at, the host reads line noise."""
+
+    def __init__(self, obeys: int | None) -> None:
+        self.obeys = obeys
+        self.robot_baud = 9600
+        self._host_baud = 9600
+        self.hostbauds = 0
+        self._cmds = ap.PacketParser()
+        self._fifo = b""
+        self._noise = iter(range(10**9))
+        self._sip = ap.build_sip(ap.RawSip(type=0x32, xpos=0, ypos=0, thpos=0, lvel=0, rvel=0,
+                                           battery=245, stall_bumpers=0, control=0, flags=1,
+                                           compass=0, sonar=()))  # fmt: skip
+
+    @property
+    def baudrate(self) -> int:
+        return self._host_baud
+
+    @baudrate.setter
+    def baudrate(self, baud: int) -> None:
+        self._host_baud = baud
+        self._fifo = self._sip  # sent at the robot's rate before the switch, still buffered
+
+    @property
+    def in_waiting(self) -> int:
+        return 1
+
+    def reset_input_buffer(self) -> None:
+        pass  # the host's flush does not reach into the adapter's FIFO
+
+    def write(self, data: bytes) -> int:
+        for pkt in self._cmds.feed(data):
+            cmd = ap.decode_command(pkt.payload)
+            if cmd.cmd == ap.HOSTBAUD and self._host_baud == self.robot_baud:
+                self.hostbauds += 1
+                if self.hostbauds == self.obeys:
+                    bauds = {code: baud for baud, code in ap.HOSTBAUD_CODES.items()}
+                    self.robot_baud = bauds[int(cmd.arg or 0)]
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def read(self, n: int = 1) -> bytes:
+        time.sleep(0.002)
+        if self._fifo:
+            out, self._fifo = self._fifo, b""
+            return out
+        if self._host_baud == self.robot_baud:
+            return self._sip
+        return bytes((next(self._noise) * 37) & 0xFF for _ in range(16))
+
+
+def _switch_over(line: _AdapterLine) -> PowerBot:
+    bot = PowerBot("unused")
+    bot.ser = line  # type: ignore[assignment]
+    bot._switch_baud(38400, tries=2, verify=0.3)
+    return bot
+
+
+def test_hostbaud_the_robot_ignored_is_not_taken_for_a_switch() -> None:
+    """One SIP from before the switch (the adapter's FIFO) is no proof the robot talks at
+    the new rate: a robot that never switched leaves the driver at 9600 Bd with an error,
+    not at 38400 Bd talking to nobody."""
+    line = _AdapterLine(obeys=None)
+    with pytest.raises(PowerBotError, match="did not answer at 38400 Bd"):
+        _switch_over(line)
+    assert (line.baudrate, line.hostbauds) == (9600, 2)
+
+
+def test_hostbaud_the_robot_missed_is_sent_again_despite_a_stale_sip() -> None:
+    line = _AdapterLine(obeys=2)
+    _switch_over(line)
+    assert (line.hostbauds, line.robot_baud, line.baudrate) == (2, 38400, 38400)
+
+
+def test_a_late_simulator_hears_bytes_sent_before_the_host_switched(sim: DeviceRunner) -> None:
+    """The host sends a packet at 9600 Bd and switches its UART to 38400 Bd before the
+    device thread reads (a loaded machine): the packet went out at the device's speed,
+    so the device gets it (judged at read time it was lost, and with it the OPEN and
+    HOSTBAUD of a baud switch)."""
+    dev = dev_of(sim)
+    with serial.Serial(sim.port, 9600, timeout=0.2) as host:
+        host.write(ap.encode_command(ap.SYNC0))
+        assert wait_for(lambda: len(dev.commands) == 1)
+        seen = sim.steps
+        assert wait_for(lambda: sim.steps >= seen + 2)  # it sampled the host at 9600 Bd since
+        with sim.paused():
+            host.write(ap.encode_command(ap.SYNC1))
+            host.flush()
+            host.baudrate = 38400
+        assert wait_for(lambda: [c.cmd for c in dev.commands] == [ap.SYNC0, ap.SYNC1])
+
+
+def test_a_packet_that_came_while_the_driver_slept_past_its_deadline_is_read() -> None:
+    """A starved thread wakes after its deadline: what arrived meanwhile still counts
+    (not read, a SYNC echo sitting in the buffer failed the handshake try)."""
+    from icploc import clock
+
+    bot = PowerBot("unused")
+    bot.ser = _AdapterLine(obeys=None)  # type: ignore[assignment]
+    assert [p.type for p in bot._read_packets(clock.now() - 1.0)] == [0x32]

@@ -346,3 +346,29 @@ def test_lms_variant_direct_baud_change_and_100deg_field() -> None:
 
 def make_lms() -> PLSDevice:
     return PLSDevice(source=lambda t: np.full(201, 3.0), variant="lms", max_range=8.0)
+
+
+class _BufferedLine:
+    """A serial line (the part of pyserial the driver reads) holding bytes that arrived."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.data)
+
+    def read(self, n: int = 1) -> bytes:
+        out, self.data = self.data[:n], self.data[n:]
+        return out
+
+
+def test_an_ack_that_came_while_the_driver_slept_past_its_deadline_counts() -> None:
+    """A starved thread wakes after its ACK deadline: the ACK that arrived meanwhile is
+    read, not taken for a timeout (which cost a retry per late wake-up)."""
+    from icploc import clock
+
+    laser = PLS("unused")
+    laser.ser = _BufferedLine(bytes([sp.ACK]))  # type: ignore[assignment]
+    ev = laser._next_control(clock.now() - 1.0)
+    assert isinstance(ev, sp.ByteEvent) and ev.value == sp.ACK

@@ -260,7 +260,14 @@ def merge_stream(
 class MergedLasers:
     """Several live laser drivers as one (``get(timeout)`` -> a merged Scan or None), for
     :func:`icploc.live.run_live`: driver ``i`` is laser ``i`` of ``lasers``; the motion
-    between their stamps comes from ``odometry`` (the localizer's buffer)."""
+    between their stamps comes from ``odometry`` (the localizer's buffer).
+
+    An open round waits for a missing laser until it is ``max_wait`` s overdue: its usual
+    interval between scans (the median of its last few) plus ``max_wait`` since its last
+    scan came in; a laser that never delivered is not waited for. (A wait counted from
+    the round's stamp would close every round alone when scans are slow to arrive: at
+    38400 Bd a PLS telegram takes 0.21 s on the line, two PLS are up to one scan interval
+    apart, and a loaded host reads late.)"""
 
     def __init__(
         self,
@@ -278,6 +285,8 @@ class MergedLasers:
         self.drivers = list(drivers)
         self.merger = LaserMerger(lasers, config, odometry=odometry, max_wait=max_wait)
         self._ready: list[Scan] = []
+        #: per laser: clock.now() when its scans came in (the last few)
+        self._arrivals: list[list[float]] = [[] for _ in self.drivers]
 
     @property
     def link_up(self) -> bool:
@@ -296,6 +305,8 @@ class MergedLasers:
     def get(self, timeout: float | None = None) -> Scan | None:
         import time
 
+        from icploc import clock
+
         deadline = time.monotonic() + (timeout or 0.0)
         while True:
             if self._ready:
@@ -305,6 +316,9 @@ class MergedLasers:
                 s = d.get(timeout=0.0)
                 if s is not None:
                     got = True
+                    seen = self._arrivals[i]
+                    seen.append(clock.now())
+                    del seen[:-9]
                     self._ready.extend(self.merger.add(s, i))
             if self._ready:
                 return self._ready.pop(0)
@@ -318,10 +332,18 @@ class MergedLasers:
                 time.sleep(min(0.005, left))
 
     def _stale(self) -> bool:
+        """Every laser missing from the open round is ``max_wait`` s overdue."""
         from icploc import clock
 
-        oldest = min(q.stamp for q in self.merger._pending.values())
-        return clock.now() - oldest > self.merger.max_wait
+        now = clock.now()
+        for i, seen in enumerate(self._arrivals):
+            if i in self.merger._pending or not seen:
+                continue
+            gaps = sorted(b - a for a, b in zip(seen, seen[1:], strict=False))
+            usual = gaps[len(gaps) // 2] if gaps else 0.0
+            if now - seen[-1] <= usual + self.merger.max_wait:
+                return False
+        return True
 
     def close(self) -> None:
         for d in self.drivers:
@@ -368,9 +390,11 @@ def open_lasers(
     *,
     reconnect_timeout: float,
     connect_baudrates: tuple[int, ...] | None = None,
+    stall_timeout: float = 1.0,
 ) -> Iterator[list[Any]]:
     """Open and start one PLS per port (automatic reconnection, as the first laser's
-    driver); errors name the laser's port. Closed on exit."""
+    driver: no scan for ``stall_timeout`` s is a stall); errors name the laser's port.
+    Closed on exit."""
     import serial
 
     from icploc.drivers.powerbot import PowerBotError
@@ -380,7 +404,7 @@ def open_lasers(
     opened: list[Any] = []
     try:
         for port, baud in zip(ports, bauds, strict=True):
-            dev = PLS(port, baudrate=baud, auto_reconnect=True, stall_timeout=1.0,
+            dev = PLS(port, baudrate=baud, auto_reconnect=True, stall_timeout=stall_timeout,
                       reconnect_timeout=reconnect_timeout, connect_baudrates=connect_baudrates)  # fmt: skip
             try:
                 dev.open()

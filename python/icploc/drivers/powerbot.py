@@ -293,19 +293,21 @@ class PowerBot:
     # ------------------------------------------------------------------ handshake
 
     def _read_packets(self, deadline: float) -> list[ap.Packet]:
+        """The packets that arrive until ``deadline``; what arrived meanwhile is read at
+        least once, also by a thread that wakes up after the deadline (a loaded host)."""
         ser = self.ser
         assert ser is not None
-        while clock.now() < deadline:
+        while True:
             data = ser.read(max(1, ser.in_waiting))
-            if not data:
-                continue
-            t = clock.now()
-            if self.recorder is not None:
-                self.recorder.rx(self._rec_dev, t, data)
-            pkts = self.parser.feed(data, t)
-            if pkts:
-                return pkts
-        return []
+            if data:
+                t = clock.now()
+                if self.recorder is not None:
+                    self.recorder.rx(self._rec_dev, t, data)
+                pkts = self.parser.feed(data, t)
+                if pkts:
+                    return pkts
+            if clock.now() >= deadline:
+                return []
 
     def _await(self, want: int, timeout: float) -> ap.Packet | None:
         """Wait for a packet of type ``want``; a SIP means "still connected"."""
@@ -321,6 +323,12 @@ class PowerBot:
                     raise _StillConnected()
 
     def _handshake(self) -> None:
+        """SYNC0, SYNC1, SYNC2 with retries. A try that got no SYNC0 echo or no SYNC2 reply
+        is followed by a CLOSE: the controller may sit connected (it took our SYNC2 and its
+        reply was lost, or an earlier client connected without OPEN), sends no SIPs then,
+        and takes every SYNC0 for a PULSE; CLOSE puts it back in its wait state (ARIA sends
+        CLOSE to a silent robot, PROTOCOLS.md §B.1). Not after a missing SYNC1 echo: a
+        controller waiting for SYNC2 would take that CLOSE for it."""
         assert self.ser is not None
         for attempt in range(self.sync_tries):
             if self._stop.is_set():
@@ -334,17 +342,21 @@ class PowerBot:
                 for n in (ap.SYNC0, ap.SYNC1):
                     self._send(n)
                     if self._await(n, self.sync_timeout) is None:
-                        raise _Retry()
+                        raise _Retry(close=n == ap.SYNC0)
                 self._send(ap.SYNC2)
                 reply = self._await(ap.SYNC2, self.sync_timeout)
                 if reply is None:
-                    raise _Retry()
+                    raise _Retry(close=True)
                 self.name, self.robot_type, self.subtype = ap.parse_sync2(reply.payload)
             except _StillConnected:
                 self._send(ap.CLOSE)
                 time.sleep(0.05)
                 continue
-            except (_Retry, ap.ArcosProtocolError):
+            except _Retry as r:
+                if r.close:
+                    self._send(ap.CLOSE)
+                continue
+            except ap.ArcosProtocolError:
                 continue
             if self._forced_params is None:
                 self.params = ap.params_for(self.subtype)
@@ -358,11 +370,18 @@ class PowerBot:
             f"no SYNC handshake with the robot on {self.port} after {self.sync_tries} tries"
         )
 
+    #: packets that must arrive at the new rate before a HOSTBAUD switch counts: one
+    #: intact packet may be a SIP the robot sent at the old rate before it saw HOSTBAUD,
+    #: held in the serial adapter's FIFO across the host's switch and flush (a USB adapter
+    #: buffers some milliseconds of bytes); at the wrong rate no second one comes through
+    SWITCH_EVIDENCE = 2
+
     def _switch_baud(self, baud: int, tries: int = 4, verify: float = 0.9) -> None:
-        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then a packet must arrive at
-        the new rate within ``verify`` s, else back to the old rate and again, waiting
-        five times longer before the switch each time (ARIA's fallback, PROTOCOLS.md §B.6;
-        a controller busy when HOSTBAUD came in gets the time it needs)."""
+        """HOSTBAUD, wait 10 ms, switch the host UART, PULSE; then
+        :attr:`SWITCH_EVIDENCE` packets must arrive at the new rate within ``verify`` s,
+        else back to the old rate and again, waiting five times longer before the switch
+        each time (ARIA's fallback, PROTOCOLS.md §B.6; a controller busy when HOSTBAUD
+        came in gets the time it needs)."""
         code = ap.HOSTBAUD_CODES[baud]
         assert self.ser is not None
         old = self.ser.baudrate
@@ -371,12 +390,22 @@ class PowerBot:
             time.sleep(0.01 * 5**attempt)
             self._set_line(baud)
             self._send(ap.PULSE)
-            if self._read_packets(clock.now() + verify):
+            if self._packets_arrive(self.SWITCH_EVIDENCE, clock.now() + verify):
                 return
             self._set_line(old)  # nothing at the new rate: the robot did not switch
             self._send(ap.PULSE)
             self._read_packets(clock.now() + verify)  # back in step at the old rate
         raise PowerBotError(f"the robot on {self.port} did not answer at {baud} Bd after HOSTBAUD")
+
+    def _packets_arrive(self, n: int, deadline: float) -> bool:
+        """``n`` valid packets arrive before ``deadline``."""
+        got = 0
+        while got < n:
+            pkts = self._read_packets(deadline)
+            if not pkts:
+                return False
+            got += len(pkts)
+        return True
 
     def _set_line(self, baud: int) -> None:
         assert self.ser is not None
@@ -538,7 +567,9 @@ class PowerBot:
 
 
 class _Retry(Exception):
-    pass
+    def __init__(self, close: bool = False) -> None:
+        super().__init__()
+        self.close = close  #: send CLOSE before the next try
 
 
 class _StillConnected(Exception):

@@ -24,7 +24,8 @@ import tempfile
 import threading
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -33,6 +34,10 @@ from icploc.sim.pty import LineSettings, PtyPair
 
 if TYPE_CHECKING:
     from icploc.sim.robot import DiffDriveRobot
+
+
+#: :meth:`DeviceRunner._host_baud` when the host's line speed cannot be read (not a pty)
+UNCHECKED = -1
 
 
 @dataclass
@@ -319,6 +324,9 @@ class DeviceRunner:
         self.bytes_in = 0
         self.bytes_out = 0
         self.line_mismatch_bytes = 0
+        self.steps = 0  #: turns of the device thread's loop begun (tests wait on it)
+        #: the host's line speed sampled just before the last read of its bytes
+        self._host_baud_since: int | None = None
         self._pending = bytearray()
         self._pending_baud = 0  #: the device's line speed when the pending bytes were due
         self._line_free_at = 0.0
@@ -339,6 +347,13 @@ class DeviceRunner:
     @property
     def unplugged(self) -> bool:
         return self._unplugged
+
+    @contextmanager
+    def paused(self) -> Iterator[None]:
+        """Hold the device thread between two turns of its loop (a device late to read
+        the host's bytes, e.g. on a loaded machine)."""
+        with self._swap:
+            yield
 
     def unplug(self) -> None:
         """The USB adapter is pulled: the pty closes (the host's reads fail) and the
@@ -366,6 +381,7 @@ class DeviceRunner:
                 revive(power_cycle=True)
             self.transport = tr
             self._line_free_at = 0.0
+            self._host_baud_since = None
             tmp = self._link + ".new"
             os.symlink(tr.port, tmp)
             os.replace(tmp, self._link)
@@ -393,17 +409,23 @@ class DeviceRunner:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    def _line_ok(self, baud: int | None = None) -> bool:
-        """The host's line speed is the device's (or ``baud``)."""
+    def _host_baud(self) -> int | None:
+        """The host's configured line speed: :data:`UNCHECKED` when it cannot be read,
+        None when it is not a standard speed (it matches no device)."""
         if not self.check_line:
-            return True
+            return UNCHECKED
         assert isinstance(self.transport, PtyPair)
         try:
             s: LineSettings = self.transport.host_settings()
         except OSError:
-            return True
+            return UNCHECKED
         # Linux ptys keep the speed but refuse PARENB, so only the baud rate can be checked.
-        return s.baudrate == (self.engine.baudrate if baud is None else baud)
+        return s.baudrate
+
+    def _line_ok(self, baud: int | None = None) -> bool:
+        """The host's line speed is the device's (or ``baud``)."""
+        host = self._host_baud()
+        return host == UNCHECKED or host == (self.engine.baudrate if baud is None else baud)
 
     def _run(self) -> None:
         try:
@@ -418,29 +440,43 @@ class DeviceRunner:
             if idle:
                 time.sleep(0.005)
 
-    def _receive(self, data: bytes) -> None:
-        if not data:
+    def _receive(self, deliver: bool = True) -> None:
+        """Read what the host wrote and hand it to the engine if it went out at the
+        device's line speed. A pty keeps no speed per byte, and this thread may read long
+        after the host wrote (a loaded machine): the bytes of this read were written after
+        the previous read, at a speed the host had between the sample taken just before
+        that read and the one after this read. If the host switched in between (it sent
+        HOSTBAUD, or the OPEN and PULSE before it, at 9600 Bd and changed its UART 10 ms
+        later, before this thread woke), they count at either speed: judged at read time
+        alone, a late device would lose bytes that went out at the right speed."""
+        before = self._host_baud()
+        data = self.transport.read()
+        after = self._host_baud()
+        speeds = {after} if self._host_baud_since is None else {after, self._host_baud_since}
+        self._host_baud_since = before
+        if not data or not deliver:
             return
         self.bytes_in += len(data)
-        if self._line_ok():
+        if UNCHECKED in speeds or self.engine.baudrate in speeds:
             self.engine.receive(data, clock.now())
         else:
             self.line_mismatch_bytes += len(data)
 
     def _step(self) -> bool:
         """One turn of the loop; True when the device is idle (vanished)."""
+        self.steps += 1
         eng = self.engine
         tr = self.transport
         now = clock.now()
         if eng.faults.vanished:
             # bytes already in the pty buffer still reach the host, like bytes in a
             # UART FIFO (flushing them here would race with the host's select/read)
-            tr.read()
+            self._receive(deliver=False)
             self._pending.clear()
             return True
         # what the host has written already arrived: the engine sees it before it decides
         # its output (a late wake-up of this thread must not trip the device's watchdog)
-        self._receive(tr.read())
+        self._receive()
         byte_time = eng.bits_per_byte / float(eng.baudrate)
         line_idle = not self._pending and (not self.realtime or now >= self._line_free_at)
         line_ok = self._line_ok()  # before output(): a baud switch takes effect after its reply
@@ -463,7 +499,7 @@ class DeviceRunner:
             bool(self._pending) and (not self.realtime or now >= self._line_free_at - 0.002),
         )
         if readable:
-            self._receive(tr.read())
+            self._receive()
         if writable and self._pending:
             now = clock.now()
             chunk = self._pending

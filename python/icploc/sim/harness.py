@@ -60,7 +60,10 @@ def run_simulated(
 ) -> tuple[LiveResult, list[tuple[float, Pose]]]:
     """The live path against the PLS and PowerBot simulators on pseudo-terminals, in real
     time: the base drives ``path`` (default: the lab random walk) by pure pursuit. Returns
-    the live result and the simulator's truth ``(stamp, robot pose)`` per generated scan.
+    the live result and the simulator's truth ``(stamp, robot pose)`` per generated scan,
+    in time order; a scan the loop localized carries the stamp its driver gave it, so an
+    estimate's stamp finds its own scan's truth (:func:`truth_at`) however late a loaded
+    host read the scan (the time of generation would find a later scan's truth).
 
     The localizer is told where the robot starts (the path's start), or ``initial_pose``
     (as on a robot: the pose it is told, right or wrong); ``global_start``: it is told
@@ -142,13 +145,64 @@ def run_simulated(
                 if on_session is not None:
                     on_session(sess)
                 # the odometry frame starts where the robot is: align it with the map
-                result = run_live(loc, laser, bot, duration=timeout, stop=finished,
+                tap = _ScanTap(laser)
+                result = run_live(loc, tap, bot, duration=timeout, stop=finished,
                                   on_estimate=on_estimate, tum=outputs.tum)  # fmt: skip
-            truth = [(t, p) for t, p, _ in sess.truth]
+                truth = _truth_as_stamped(sess, laser, tap.seen)
     finally:
         outputs.close(result)
     assert result is not None
     return result, truth
+
+
+class _ScanTap:
+    """The laser driver as :func:`run_live` sees it, noting each scan it hands out:
+    (the driver's stamp, a hash of its ranges)."""
+
+    def __init__(self, laser: Any) -> None:
+        self._laser = laser
+        self.seen: list[tuple[float, int]] = []
+
+    def get(self, timeout: float | None = None) -> Any:
+        scan = self._laser.get(timeout=timeout)
+        if scan is not None:
+            self.seen.append((float(scan.stamp), hash(scan.ranges.tobytes())))
+        return scan
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._laser, name)
+
+
+def _truth_as_stamped(
+    sess: Any, laser: Any, seen: list[tuple[float, int]]
+) -> list[tuple[float, Pose]]:
+    """The session's truth per generated scan, each scan the host received stamped as its
+    driver stamped it: the simulator's telegrams (its log, one per truth entry) are
+    decoded as the driver decodes them and found again by their ranges."""
+    from icploc.drivers import sick_protocol as sp
+
+    entries = list(sess.truth)
+    frames = list(sess.laser.b0_log)
+    stamps = [t for t, _, _ in entries]
+    if len(frames) == len(entries):
+        index: dict[int, int] = {}
+        for i, rec in enumerate(frames):
+            tels = [e for e in sp.TelegramParser().feed(rec.frame) if isinstance(e, sp.Telegram)]
+            if not tels:
+                continue
+            try:
+                scan = sp.decode_scan(tels[0], variant=laser.variant, flipped=laser.flipped,
+                                      max_range=laser.max_range)  # fmt: skip
+            except sp.SickProtocolError:
+                continue
+            index[hash(scan.ranges.tobytes())] = i
+        for stamp, key in seen:
+            j = index.get(key)
+            if j is not None:
+                stamps[j] = stamp
+    truth = [(stamps[i], entries[i][1]) for i in range(len(entries))]
+    truth.sort(key=lambda e: e[0])
+    return truth
 
 
 def truth_at(
