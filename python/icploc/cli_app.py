@@ -220,19 +220,25 @@ if RuntimeParam is not None:
                     if not any(g is _DECLINE for g in got):
                         return got
             else:
-                got = _plain_value(ann, info, value, param, ctx)
+                try:
+                    got = _plain_value(ann, info, value, param, ctx)
+                except (TypeError, AttributeError):  # typer's private helpers changed: its own way
+                    got = _DECLINE
                 if got is not _DECLINE:
                     return got
             return _TYPER_BUILD(self.descriptor)._coerce_value(value, param=param, ctx=ctx)
 
     def _build_runtime_param(descriptor: Any) -> Any:
         """typer's ``build_runtime_param`` without pydantic for the plain types."""
-        if _handles(descriptor):
-            return _PlainRuntimeParam(
-                parameter_info=descriptor.parameter_info,
-                annotation=descriptor.annotation,
-                descriptor=descriptor,
-            )
+        try:
+            if _handles(descriptor):
+                return _PlainRuntimeParam(
+                    parameter_info=descriptor.parameter_info,
+                    annotation=descriptor.annotation,
+                    descriptor=descriptor,
+                )
+        except (TypeError, AttributeError):  # typer's private layer changed: its own way
+            pass
         return _TYPER_BUILD(descriptor)
 
     if os.environ.get("ICPLOC_TYPER_PYDANTIC") != "1":  # 1: typer's own, for comparison

@@ -25,6 +25,7 @@ command again and reports the error as before.
 from __future__ import annotations
 
 import inspect
+import os
 import sys
 import types
 from collections.abc import Callable
@@ -280,6 +281,9 @@ def _convert(p: _Param, text: str) -> Any:
     if p.base is str:
         return text
     if p.base is Path:
+        # typer's path check (click.Path, readable=True) refuses an existing unreadable path
+        if "\x00" in text or (os.path.lexists(text) and not os.access(text, os.R_OK)):
+            return _DECLINE
         return Path(text)
     if p.base is int:
         if not plain_int(text):
