@@ -358,10 +358,10 @@ class LocalizerSection(Section):
     process_sigma_theta: float = _f(0.002, "... in heading", "rad", ge=0)
     calibrate_odometry: bool = _f(
         True,
-        "online odometry calibration (icploc.calibration): distance scale, turn scale and "
-        "heading drift from verified scan matches",
+        "online odometry calibration (icploc.calibration): distance scale, turn scale, "
+        "heading drift and sideways skew from verified scan matches",
     )
-    calibration_memory: float = _f(50.0, "the calibration's memory, in distance driven", "m", gt=0)
+    calibration_memory: float = _f(50.0, "the calibration's memory, in distance driven (and radians turned for the turn scale)", "m", gt=0)
     calibration_baseline: float = _f(2.0, "verified matches this far apart are compared", "m", gt=0)
     calibration_max_sigma: float = _f(
         0.05, "... whose position is known to this standard deviation", "m", gt=0

@@ -54,9 +54,11 @@ class Reason(_StrEnum):
     #: that was not ``tracking`` (up to ``dispute_scans`` of them in a row): it does not pin
     #: the pose along its weak direction
     UNCONSTRAINED = "unconstrained"
-    #: a pose taken against the odometry (``odometry_off``) that has not yet explained the
-    #: scan as well as this map's verified fits usually do (at least the map's usual hit
-    #: share) on ``dispute_scans`` verified scans since
+    #: a pose that has not settled since an ``odometry_off`` jump, an ``inflated`` fit that
+    #: moved it farther than the map can tell apart (or came right after another), or the
+    #: first verified fit after a stretch without one: ``settle_scans`` verified scans in a
+    #: row have not yet explained the scan at least as well as the map's usual hit share
+    #: from before
     UNSETTLED = "unsettled"
     RELOCALIZED = "relocalized"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
