@@ -1170,9 +1170,11 @@ fn align_plain(
     // shrinks only once it has settled at the current one (a step below 1 mm and 1 mrad):
     // shrinking sooner strands it with too few pairs in a local minimum.
     let mut stage = 0usize;
+    let mut used_thr = cfg.threshold_at(0);
     for k in 0..cfg.max_iterations {
         iterations = k + 1;
         let thr = cfg.threshold_at(stage);
+        used_thr = thr;
         let thr2 = thr * thr;
         let at_final = (thr - final_thr).abs() <= 1e-12 * final_thr.max(1.0);
 
@@ -1196,17 +1198,9 @@ fn align_plain(
             pairs.clear();
             gather(scan, index, pose, thr2, 0..n, pairs, moved);
         }
-        // trimmed variant: keep the best fraction
-        if cfg.trim_fraction < 1.0 && ws.pairs.len() > 3 {
-            let keep = ((cfg.trim_fraction * ws.pairs.len() as f64).ceil() as usize)
-                .clamp(3, ws.pairs.len());
-            if keep < ws.pairs.len() {
-                ws.pairs
-                    .select_nth_unstable_by(keep - 1, |a, b| a.d2.total_cmp(&b.d2));
-                ws.pairs.truncate(keep);
-            }
-        }
-        if ws.pairs.len() < min_inl {
+        trim(&mut ws.pairs, cfg.trim_fraction);
+        // a coarse stage's subsample needs its share of the inliers, not the whole scan's
+        if ws.pairs.len() < if last_coarse { coarse_min } else { min_inl } {
             termination = Termination::TooFewInliers;
             mse = if ws.pairs.is_empty() {
                 f64::INFINITY
@@ -1305,23 +1299,15 @@ fn align_plain(
 
     // stopped in a coarse stage (an iteration limit): the pairs of every point at the
     // final pose, so that the inliers, MSE and covariance are the whole scan's
+    // (at the threshold of the iteration that stopped, trimmed as every iteration is)
     if last_coarse {
-        let thr = cfg.threshold_at(stage);
+        let thr = used_thr;
         let (s, c) = pose.theta.sin_cos();
         ws.pairs.clear();
-        let mut sum = 0.0;
         for (i, p) in scan.iter().enumerate() {
             let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
             let (d2, j) = index.correspondence(q);
             if d2 <= thr * thr {
-                let e2 = match normals {
-                    Some(nrm) => {
-                        let (x, nv) = (map[j], nrm[j]);
-                        (nv[0] * (q[0] - x[0]) + nv[1] * (q[1] - x[1])).powi(2)
-                    }
-                    None => d2,
-                };
-                sum += e2;
                 ws.pairs.push(Pair {
                     i: i as u32,
                     j: j as u32,
@@ -1329,6 +1315,20 @@ fn align_plain(
                 });
             }
         }
+        trim(&mut ws.pairs, cfg.trim_fraction);
+        let sum: f64 = ws
+            .pairs
+            .iter()
+            .map(|pr| match normals {
+                Some(nrm) => {
+                    let p = scan[pr.i as usize];
+                    let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+                    let (x, nv) = (map[pr.j as usize], nrm[pr.j as usize]);
+                    (nv[0] * (q[0] - x[0]) + nv[1] * (q[1] - x[1])).powi(2)
+                }
+                None => pr.d2,
+            })
+            .sum();
         mse = if ws.pairs.is_empty() {
             f64::INFINITY
         } else {
@@ -1358,6 +1358,18 @@ fn align_plain(
 
 /// The point-to-line stop on a step below √`step_tolerance` uses at most this (m, rad).
 const QUADRATIC_STOP: f64 = 1e-3;
+
+/// The trimmed variant: keep the best `fraction` of the pairs (by squared distance; at
+/// least 3).
+fn trim(pairs: &mut Vec<Pair>, fraction: f64) {
+    if fraction < 1.0 && pairs.len() > 3 {
+        let keep = ((fraction * pairs.len() as f64).ceil() as usize).clamp(3, pairs.len());
+        if keep < pairs.len() {
+            pairs.select_nth_unstable_by(keep - 1, |a, b| a.d2.total_cmp(&b.d2));
+            pairs.truncate(keep);
+        }
+    }
+}
 
 /// Scan points (about) that the ICP's coarse stages see: see [`align_plain`].
 const COARSE_POINTS: usize = 96;

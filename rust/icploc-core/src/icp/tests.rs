@@ -1,5 +1,5 @@
 use super::*;
-use crate::testkit::{cases, office_segments, sample_segments, Rng};
+use crate::testkit::{cases, make_scan, office_segments, sample_segments, Rng};
 use proptest::prelude::*;
 
 fn scattered_map(seed: u64, n: usize) -> Vec<[f64; 2]> {
@@ -78,8 +78,10 @@ fn an_iteration_limit_in_a_coarse_stage_reports_the_whole_scans_pairs() {
     };
     let r = align(&c.scan, &idx, c.initial, &conf).unwrap();
     assert_eq!(r.termination, Termination::MaxIterations);
-    // the threshold of the stage after the two coarse ones, over every scan point
-    let thr = conf.threshold_at(2);
+    // point-to-line takes one stage per iteration: the second iteration ran at stage 1,
+    // a coarse one (its threshold above the final one)
+    let thr = conf.threshold_at(1);
+    assert!(thr > conf.min_correspondence_distance);
     let whole = c
         .scan
         .iter()
@@ -87,6 +89,47 @@ fn an_iteration_limit_in_a_coarse_stage_reports_the_whole_scans_pairs() {
         .count();
     assert_eq!(r.num_points, c.scan.len());
     assert_eq!(r.inliers, whole);
+    // trimmed as every iteration is: the best 80 % of those pairs
+    let trimmed = IcpConfig {
+        trim_fraction: 0.8,
+        ..conf.clone()
+    };
+    let t = align(&c.scan, &idx, c.initial, &trimmed).unwrap();
+    assert_eq!(t.termination, Termination::MaxIterations);
+    let whole_t = c
+        .scan
+        .iter()
+        .filter(|p| idx.correspondence(t.pose.transform(**p)).0 <= thr * thr)
+        .count();
+    assert_eq!(t.inliers, (0.8 * whole_t as f64).ceil() as usize);
+}
+
+/// A coarse stage sees ~96 of the scan's points: it needs its share of `min_inlier_ratio`
+/// (0.2 of a 720-beam scan: 144, more than the subsample holds),
+/// not the whole scan's count (which it can never reach: the call used to stop at once,
+/// `too_few_inliers`, with the pose unchanged).
+#[test]
+fn a_coarse_stage_needs_only_its_share_of_the_inliers() {
+    let segs = office_segments();
+    let idx = office_index(0.05);
+    let c = &cases(&segs, 1, (0.2, 0.2, 0.05), 0.01, 0.0, 3)[0];
+    // a 720-beam scan of the same place (a 0.25° laser): its subsample holds ~100 points
+    let scan = make_scan(&segs, c.truth, 720, 30.0, 0.01, 0.0, &mut Rng::new(5));
+    assert!(scan.len() >= 600, "a scan the coarse stages subsample");
+    let conf = IcpConfig {
+        min_inlier_ratio: 0.2,
+        window_search: false,
+        ..IcpConfig::default()
+    };
+    // plain ICP itself (align's verified start would retry a failed call from elsewhere)
+    let r = align_plain(&scan, &idx, c.initial, &conf, &mut Workspace::default());
+    assert!(
+        r.converged,
+        "{:?} after {} iterations",
+        r.termination, r.iterations
+    );
+    let dt = ((r.pose.x - c.truth.x).powi(2) + (r.pose.y - c.truth.y).powi(2)).sqrt();
+    assert!(dt < 0.02, "{:?} vs {:?}", r.pose, c.truth);
 }
 
 #[test]
