@@ -398,6 +398,27 @@ fn an_exact_fit_is_not_replaced_by_a_window_pose_explaining_less() {
     );
 }
 
+/// Regression (found by `prop_rigid_transform_recovered`): a sensor 70 m from a small map,
+/// outside its bounds, where the plain point-to-line ICP from 0.01 rad off runs out of
+/// iterations 9 m away; the window around the start lies outside the likelihood grid,
+/// and its poses must still count (their clearance is at least the distance to the grid).
+#[test]
+fn window_poses_outside_the_maps_bounds_are_searched() {
+    let map = scattered_map(210, 150);
+    let idx = MapIndex::new(map.clone(), None).unwrap();
+    let truth = Pose2::new(49.81322314579517, 49.342899726035014, 0.0);
+    let scan = exact_scan(&map, truth);
+    let init = Pose2::new(truth.x, truth.y, -0.009927417612509658);
+    let r = align(&scan, &idx, init, &cfg(Metric::PointToLine)).unwrap();
+    assert!((r.pose.x - truth.x).abs() < 1e-9, "{:?}", r.pose);
+    assert!((r.pose.y - truth.y).abs() < 1e-9, "{:?}", r.pose);
+    assert!(
+        wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9,
+        "{:?}",
+        r.pose
+    );
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, .. ProptestConfig::default() })]
 
