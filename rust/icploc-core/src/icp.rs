@@ -1660,8 +1660,13 @@ fn heading_search(
 /// the current threshold and the rotation at 0.5 rad (a step farther than any pair's
 /// distance cannot be trusted).
 fn solve_step(h: &Matrix3<f64>, g: &Vector3<f64>, thr: f64) -> [f64; 3] {
-    let lambda = 1e-9 * (h.trace() + 1.0);
-    let hd = h + Matrix3::identity() * lambda;
+    // damping relative to each diagonal term (Marquardt): a trace-scaled one is dominated
+    // by the rotation's term (r² per pair) and, with the scan far from the map (70 m),
+    // damps the translation so hard that the stop on a small step comes 1e-9 m early
+    let mut hd = *h;
+    for k in 0..3 {
+        hd[(k, k)] += 1e-9 * h[(k, k)] + 1e-12;
+    }
     let step = match hd.cholesky() {
         Some(ch) => ch.solve(&(-g)),
         None => {
