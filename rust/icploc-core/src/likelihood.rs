@@ -200,6 +200,20 @@ impl LikelihoodField {
         }
     }
 
+    /// Clearance (m) of `p` from the map: the stored distance inside the grid; outside it
+    /// the distance to the grid's rectangle, a lower bound (the map lies inside it). A
+    /// pose beyond the map's bounds — a robot standing outside the mapped area, or looking
+    /// at a small map from afar — is still a pose.
+    pub fn clearance_at(&self, p: [f64; 2]) -> f64 {
+        self.distance_at(p).unwrap_or_else(|| {
+            let x1 = self.x0 + self.w as f64 * self.res;
+            let y1 = self.y0 + self.h as f64 * self.res;
+            let dx = (self.x0 - p[0]).max(p[0] - x1).max(0.0);
+            let dy = (self.y0 - p[1]).max(p[1] - y1).max(0.0);
+            dx.hypot(dy)
+        })
+    }
+
     /// The cell (i, j) of a map-frame point (may lie outside the grid).
     #[inline]
     pub(crate) fn cell(&self, p: [f64; 2]) -> (i32, i32) {
@@ -291,5 +305,23 @@ mod grid_bound_tests {
         assert!(e
             .to_string()
             .starts_with("resolution: a 5000.0 m x 5000.0 m map"));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clearance_outside_the_grid_is_the_distance_to_it() {
+        let pts = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+        let index = MapIndex::new(pts, None).unwrap();
+        let f = LikelihoodField::build(&index, 0.1, 0.1, 2).unwrap();
+        // inside: the stored distance
+        let inside = [0.55, 0.55];
+        assert_eq!(Some(f.clearance_at(inside)), f.distance_at(inside));
+        // outside, beside the grid's right edge (x = 1.1: 11 cells of 0.1 m) and beyond a corner
+        assert!((f.clearance_at([3.1, 0.5]) - 2.0).abs() < 1e-9);
+        assert!((f.clearance_at([-3.0, -4.0]) - 5.0).abs() < 1e-9);
     }
 }

@@ -390,7 +390,7 @@ impl<'a> Lattice<'a> {
                         self.center.x + n.a as f64 * field.res,
                         self.center.y + n.b as f64 * field.res,
                     ];
-                    if field.distance_at(p).is_none_or(|d| d < MIN_CLEARANCE) {
+                    if field.clearance_at(p) < MIN_CLEARANCE {
                         continue;
                     }
                     leaves.push(n);
