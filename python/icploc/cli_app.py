@@ -28,6 +28,7 @@ import typer.core
 from typer.core import TyperArgument, TyperGroup, TyperOption
 
 from icploc.cli_args import (
+    DECLINE,
     Argument,
     BadUsage,
     CommandExit,
@@ -147,7 +148,6 @@ try:  # typer 0.29's private coercion layer; without it typer's own is used as i
 except (ImportError, AttributeError):  # pragma: no cover - another typer
     RuntimeParam = None  # type: ignore[assignment,misc]
 
-_DECLINE = object()
 _PLAIN_TYPES = (str, Path, int, float, bool)
 
 
@@ -177,16 +177,16 @@ def _in_bounds(info: Any, value: float) -> bool:
 
 
 def _plain_value(ann: Any, info: Any, value: Any, param: Any, ctx: Any) -> Any:
-    """``value`` as typer converts it for ``ann``, or ``_DECLINE`` (typer's own then)."""
+    """``value`` as typer converts it for ``ann``, or ``DECLINE`` (typer's own then)."""
     if ann is str:
-        return value if type(value) is str else _DECLINE
+        return value if type(value) is str else DECLINE
     if ann is bool:
-        return value if type(value) is bool else _DECLINE
+        return value if type(value) is bool else DECLINE
     if ann is Path:
         if isinstance(value, Path):
             return coerce_cli_path(value, info, path_type=Path, param=param, ctx=ctx)
         if type(value) is not str or "\x00" in value:
-            return _DECLINE
+            return DECLINE
         return coerce_cli_path(Path(value), info, path_type=Path, param=param, ctx=ctx)
     if ann is int:
         if type(value) is int:
@@ -194,15 +194,15 @@ def _plain_value(ann: Any, info: Any, value: Any, param: Any, ctx: Any) -> Any:
         elif type(value) is str and plain_int(value):
             got = int(value)
         else:
-            return _DECLINE
+            return DECLINE
     else:
         if type(value) is float:
             got = value
         elif type(value) is str and plain_float(value):
             got = float(value)
         else:
-            return _DECLINE
-    return got if _in_bounds(info, got) else _DECLINE
+            return DECLINE
+    return got if _in_bounds(info, got) else DECLINE
 
 
 if RuntimeParam is not None:
@@ -217,14 +217,14 @@ if RuntimeParam is not None:
                 if isinstance(value, (list, tuple)):
                     item = get_args(ann)[0]
                     got: Any = [_plain_value(item, info, v, param, ctx) for v in value]
-                    if not any(g is _DECLINE for g in got):
+                    if not any(g is DECLINE for g in got):
                         return got
             else:
                 try:
                     got = _plain_value(ann, info, value, param, ctx)
                 except (TypeError, AttributeError):  # typer's private helpers changed: its own way
-                    got = _DECLINE
-                if got is not _DECLINE:
+                    got = DECLINE
+                if got is not DECLINE:
                     return got
             return _TYPER_BUILD(self.descriptor)._coerce_value(value, param=param, ctx=ctx)
 

@@ -250,7 +250,8 @@ def params(func: Callable[..., Any]) -> list[_Param]:
     return got
 
 
-_DECLINE = object()
+#: what a converter returns for a value it is not sure of (typer then reads it)
+DECLINE = object()
 
 
 def _digits(s: str) -> bool:
@@ -277,24 +278,24 @@ def plain_float(text: str) -> bool:
 
 
 def _convert(p: _Param, text: str) -> Any:
-    """``text`` as typer converts it for ``p``, or ``_DECLINE`` where it is not sure."""
+    """``text`` as typer converts it for ``p``, or ``DECLINE`` where it is not sure."""
     if p.base is str:
         return text
     if p.base is Path:
         # typer's path check (click.Path, readable=True) refuses an existing unreadable path
         if "\x00" in text or (os.path.lexists(text) and not os.access(text, os.R_OK)):
-            return _DECLINE
+            return DECLINE
         return Path(text)
     if p.base is int:
         if not plain_int(text):
-            return _DECLINE
+            return DECLINE
         value: float = int(text)
     else:
         if not plain_float(text):
-            return _DECLINE
+            return DECLINE
         value = float(text)
     if (p.min is not None and not value >= p.min) or (p.max is not None and not value <= p.max):
-        return _DECLINE
+        return DECLINE
     return value
 
 
@@ -331,14 +332,14 @@ def parse_plain(func: Callable[..., Any], args: list[str]) -> dict[str, Any] | N
             text = args[i]
             i += 1
         v = _convert(p, text)
-        if v is _DECLINE:
+        if v is DECLINE:
             return None
         values[p.name] = v
     for p in ps:
         if p.is_arg:
             if positional:
                 v = _convert(p, positional.pop(0))
-                if v is _DECLINE:
+                if v is DECLINE:
                     return None
                 values[p.name] = v
             elif p.default is inspect.Parameter.empty:
