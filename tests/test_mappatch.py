@@ -192,6 +192,12 @@ def test_replay_leaves_a_stretch_not_back_in_the_map_out_of_the_patch_and_says_s
     res = replay(items, m, initial_pose=tuple(run.truth[0]), map_patch=tmp_path / "patch.yaml")
     said = [n for n in res.notes if n.startswith("map patch: stretch 1 left out")]
     assert [(tmp_path / "patch.yaml").exists(), len(said)] == [False, 1]
+    # asked for (--map-patch-open): drawn, and said to be unchecked
+    res = replay(
+        items, m, initial_pose=tuple(run.truth[0]), map_patch=tmp_path / "open.yaml", map_patch_open=True
+    )
+    said = [n for n in res.notes if n.startswith("map patch: stretch 1 drawn although not back")]
+    assert [(tmp_path / "open.yaml").exists(), len(said)] == [True, 1]
 
 
 def test_replay_refuses_a_patch_over_the_map_before_any_work(tmp_path: Path) -> None:

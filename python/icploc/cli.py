@@ -269,6 +269,9 @@ def replay(
     map_patch: Annotated[
         Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
     ] = None,
+    map_patch_open: Annotated[
+        bool, Option("--map-patch-open", help="Also draw the stretches the run never brought back into the map (their poses are unchecked dead reckoning)")
+    ] = False,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -287,6 +290,7 @@ def replay(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
         map_cache=False if no_cache else None, partial_map=partial_map, map_patch=map_patch,
+        map_patch_open=map_patch_open,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
                        tell=echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip

@@ -664,21 +664,33 @@ class OutsideMonitor:
         """Lines for the replay summary: which stretches were outside the map."""
         return stretch_lines(self.stretches, scans)
 
-    def finish(self, res: Any, map_: Any, patch: str | os.PathLike[str] | None) -> None:
+    def finish(
+        self, res: Any, map_: Any, patch: str | os.PathLike[str] | None, include_open: bool = False
+    ) -> None:
         """At the end of a replay: the stretches into its summary, the map patch written
-        (``icploc replay --map-patch``)."""
+        (``icploc replay --map-patch``; ``include_open``: ``--map-patch-open``, also the
+        stretches that never came back into the map)."""
         res.notes.extend(self.summary_lines(res.scans))
         if patch is None:
             return
         from icploc.mappatch import in_patch, write_patch
 
-        left = [i for i, s in enumerate(self.stretches, 1) if s.scans and not in_patch(s)]
-        g = write_patch(patch, self.stretches, map_, mounting=self.mounting, walls=self.walls)
-        for i in left:
-            res.notes.append(
-                f"map patch: stretch {i} left out: not back in the map, its poses are dead "
-                "reckoning nothing checked"
-            )
+        g = write_patch(
+            patch, self.stretches, map_, mounting=self.mounting, walls=self.walls, include_open=include_open
+        )
+        for i, s in enumerate(self.stretches, 1):
+            if not s.scans or in_patch(s):
+                continue
+            if include_open:
+                res.notes.append(
+                    f"map patch: stretch {i} drawn although not back in the map (--map-patch-open): "
+                    "its poses are dead reckoning nothing checked"
+                )
+            else:
+                res.notes.append(
+                    f"map patch: stretch {i} left out: not back in the map, its poses are dead "
+                    "reckoning nothing checked (--map-patch-open draws it)"
+                )
         if g is None:
             why = "never outside the map" if not self.stretches else "no stretch came back into the map"
             res.notes.append(f"map patch: nothing to write to {patch} ({why})")

@@ -198,6 +198,7 @@ def replay(
     map_cache: bool | None = None,
     partial_map: bool = False,
     map_patch: str | Path | None = None,
+    map_patch_open: bool = False,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -383,7 +384,7 @@ def replay(
         if res.evaluation is not None:
             res.metrics = res.evaluation.metrics()
     if outside is not None:
-        outside.finish(res, m, map_patch)
+        outside.finish(res, m, map_patch, include_open=map_patch_open)
     if plot is not None and got:
         from icploc.plotting import plot_run
 
