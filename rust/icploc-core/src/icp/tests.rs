@@ -33,6 +33,14 @@ fn exact_scan(map: &[[f64; 2]], truth: Pose2) -> Vec<[f64; 2]> {
     map.iter().map(|p| inv.transform(*p)).collect()
 }
 
+/// The fit is the exact pose (to 1e-9 m and rad).
+fn assert_exact(r: &IcpResult, truth: Pose2) {
+    let ok = (r.pose.x - truth.x).abs() < 1e-9
+        && (r.pose.y - truth.y).abs() < 1e-9
+        && wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9;
+    assert!(ok, "{:?} vs {:?} ({:?})", r.pose, truth, r.fit);
+}
+
 #[test]
 fn noise_free_is_recovered_exactly_both_metrics() {
     let map = scattered_map(1, 200);
@@ -427,18 +435,7 @@ fn an_exact_fit_is_not_replaced_by_a_window_pose_explaining_less() {
     let scan = exact_scan(&map, truth);
     let init = Pose2::new(truth.x + 0.0093, truth.y, truth.theta);
     let r = align(&scan, &idx, init, &cfg(Metric::PointToPoint)).unwrap();
-    assert!(
-        (r.pose.x - truth.x).abs() < 1e-9,
-        "{:?} {:?}",
-        r.pose,
-        r.fit
-    );
-    assert!((r.pose.y - truth.y).abs() < 1e-9, "{:?}", r.pose);
-    assert!(
-        wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9,
-        "{:?}",
-        r.pose
-    );
+    assert_exact(&r, truth);
 }
 
 /// Regression (found by `prop_rigid_transform_recovered`): a sensor 70 m from a small map,
@@ -453,13 +450,7 @@ fn window_poses_outside_the_maps_bounds_are_searched() {
     let scan = exact_scan(&map, truth);
     let init = Pose2::new(truth.x, truth.y, -0.009927417612509658);
     let r = align(&scan, &idx, init, &cfg(Metric::PointToLine)).unwrap();
-    assert!((r.pose.x - truth.x).abs() < 1e-9, "{:?}", r.pose);
-    assert!((r.pose.y - truth.y).abs() < 1e-9, "{:?}", r.pose);
-    assert!(
-        wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9,
-        "{:?}",
-        r.pose
-    );
+    assert_exact(&r, truth);
 }
 
 /// Regression (found by `prop_rigid_transform_recovered`): a scan taken 70 m from a small
@@ -473,13 +464,7 @@ fn point_to_line_from_far_away_converges_to_the_exact_pose() {
     let scan = exact_scan(&map, truth);
     let init = Pose2::new(truth.x, truth.y - 0.0259318106262427, -0.00828622596042658);
     let r = align(&scan, &idx, init, &cfg(Metric::PointToLine)).unwrap();
-    assert!((r.pose.x - truth.x).abs() < 1e-9, "{:?}", r.pose);
-    assert!((r.pose.y - truth.y).abs() < 1e-9, "{:?}", r.pose);
-    assert!(
-        wrap_angle(r.pose.theta - truth.theta).abs() < 1e-9,
-        "{:?}",
-        r.pose
-    );
+    assert_exact(&r, truth);
 }
 
 proptest! {
