@@ -11,6 +11,7 @@ from icploc.config import LocalizerConfig
 from icploc.localizer import prepare_scan
 from icploc.messages import Scan
 from icploc.recovery import LocalRecovery, RecoveryView
+from sampled_walls import walls_index
 
 
 def _view(index: MapIndex, pose: tuple[float, float, float], verdicts: list[bool]) -> RecoveryView:
@@ -34,14 +35,7 @@ def test_one_scan_that_does_not_verify_pauses_the_lock_count_it_does_not_end_it(
     restarted on every such scan kept a robot on biased odometry lost until it was metres
     off (freiburg-campus, 10 cm grid, bad odometry: 4 scans > 5 m off while lost)."""
     lab = worlds.lab(people=0)
-    pts, nrm = [], []
-    for x1, y1, x2, y2 in lab.lines:
-        length = math.hypot(x2 - x1, y2 - y1)
-        n = max(int(length / 0.05), 1)
-        t = (np.arange(n) + 0.5) / n
-        pts.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
-        nrm.append(np.tile([-(y2 - y1) / length, (x2 - x1) / length], (n, 1)))
-    index = MapIndex(np.vstack(pts), np.vstack(nrm))
+    index = walls_index(lab.lines)
     truth = (0.3, -0.4, 0.5)
     angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
     r = lab.ranges(truth, angles, 8.0, 0.0, np.random.default_rng(0), 0.0)

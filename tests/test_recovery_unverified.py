@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-from icploc import MapIndex
 from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, Status, prepare_scan
@@ -23,6 +22,7 @@ from icploc.recovery import RecoveryStep, RecoveryView
 from icploc.relocalize import GlobalRelocalization, Relocalizer, global_localizer
 from icploc.se2 import Pose, between
 from icploc.status import Reason
+from sampled_walls import walls_index
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benches"))
 import global_bench as gb  # noqa: E402
@@ -88,18 +88,11 @@ class _Stub:
 
 def _lab_lock(verified: bool) -> tuple[Any, Pose]:
     lab = worlds.lab(people=0)
-    pts, nrm = [], []
-    for x1, y1, x2, y2 in lab.lines:
-        length = math.hypot(x2 - x1, y2 - y1)
-        n = max(int(length / 0.05), 1)
-        t = (np.arange(n) + 0.5) / n
-        pts.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
-        nrm.append(np.tile([-(y2 - y1) / length, (x2 - x1) / length], (n, 1)))
     truth = (0.3, -0.4, 0.5)
     angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
     r = lab.ranges(truth, angles, 8.0, 0.0, np.random.default_rng(0), 0.0)
     scan = Scan(stamp=0.0, ranges=r, angles=angles, max_range=8.0)
-    loc = Localizer(MapIndex(np.vstack(pts), np.vstack(nrm)), CFG, initial_pose=truth)
+    loc = Localizer(walls_index(lab.lines), CFG, initial_pose=truth)
     ok, res, z = loc.verify_pose(prepare_scan(scan, CFG), truth)
     assert ok and res is not None  # a lock the localizer would verify: only the flag differs
     loc.recovery = _Stub(z, res, verified)
