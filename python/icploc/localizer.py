@@ -601,8 +601,14 @@ class Localizer:
         return cfg
 
     def _run_icp(
-        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64] | None = None
+        self,
+        pts: NDArray[np.float64],
+        pred: Pose,
+        pred_cov: NDArray[np.float64] | None = None,
+        count: bool = True,
     ) -> Any:
+        """ICP from ``pred``; ``count``: a point-to-point fallback counts in the counters
+        (not for a retry, counted as such)."""
         from icploc._core import IcpError, icp
 
         cfg = self._icp_config_for(pts, pred_cov)
@@ -615,7 +621,8 @@ class Localizer:
             # Point-to-line that does not settle is sliding or oscillating on ambiguous
             # geometry; the paper's point-to-point from the same prediction has the wider
             # basin. Keep whichever explains more of the scan.
-            self._counters.point_to_point_fallbacks += 1
+            if count:
+                self._counters.point_to_point_fallbacks += 1
             try:
                 alt = icp(pts, index, pred, self._fallback_config(cfg))
             except IcpError:
@@ -649,7 +656,7 @@ class Localizer:
         best, best_hit = res, base.hit + lc.arbitration_margin
         for sign in (-1.0, 1.0):
             seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * d))
-            alt = self._run_icp(pts, seed, pred_cov)
+            alt = self._run_icp(pts, seed, pred_cov, count=False)
             if alt is None:
                 continue
             ma = self._measurement(alt)
