@@ -67,6 +67,10 @@ __all__ = [
 #: a fit whose translational information's smallest eigenvalue is below this share of its
 #: largest can slide along that direction (a corridor, an aisle)
 _SLIDE_DEGENERACY = 0.1
+#: a fit that does not verify is retried from the prediction turned by this many standard
+#: deviations of its heading either way, at least by ``_HEADING_RETRY_MIN_DEG``
+_HEADING_RETRY_SIGMAS = 2.0
+_HEADING_RETRY_MIN_DEG = 3.0
 
 
 @dataclass(frozen=True)
@@ -246,6 +250,7 @@ class _Counters:
     scans: int = 0
     bad_in_row: int = 0
     point_to_point_fallbacks: int = 0
+    heading_retries: int = 0
     status_counts: dict[str, int] = field(default_factory=lambda: {s.value: 0 for s in Status})
 
 
@@ -596,8 +601,14 @@ class Localizer:
         return cfg
 
     def _run_icp(
-        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64] | None = None
+        self,
+        pts: NDArray[np.float64],
+        pred: Pose,
+        pred_cov: NDArray[np.float64] | None = None,
+        count: bool = True,
     ) -> Any:
+        """ICP from ``pred``; ``count``: a point-to-point fallback counts in the counters
+        (not for a retry, counted as such)."""
         from icploc._core import IcpError, icp
 
         cfg = self._icp_config_for(pts, pred_cov)
@@ -610,7 +621,8 @@ class Localizer:
             # Point-to-line that does not settle is sliding or oscillating on ambiguous
             # geometry; the paper's point-to-point from the same prediction has the wider
             # basin. Keep whichever explains more of the scan.
-            self._counters.point_to_point_fallbacks += 1
+            if count:
+                self._counters.point_to_point_fallbacks += 1
             try:
                 alt = icp(pts, index, pred, self._fallback_config(cfg))
             except IcpError:
@@ -618,6 +630,44 @@ class Localizer:
             if alt.inlier_ratio > res.inlier_ratio:
                 return alt
         return res
+
+    def _heading_retry(
+        self, pts: NDArray[np.float64], pred: Pose, pred_cov: NDArray[np.float64], res: Any
+    ) -> Any:
+        """A fit from ``pred`` that does not verify, retried from the prediction turned by
+        ``heading_retry_sigmas`` of its heading uncertainty either way: after a turn, an
+        odometry whose rotation scale is off leaves the prediction's heading out by a
+        tenth of a radian, and point-to-line from there settles in a half-fitting minimum
+        (half the usual beams on walls) whose heading error the fusion then takes into the
+        pose, and the next steps' dead reckoning carries it metres off. The retry that
+        verifies and explains clearly more of the scan (``arbitration_margin``) replaces
+        the fit; the gates then judge it against the prediction as any fit."""
+        lc = self.config.localizer
+        k = _HEADING_RETRY_SIGMAS
+        m = self._measurement(res)
+        if m is None:
+            return res
+        z = m[0]
+        base = self._check(pts, z, z, res)
+        if self._verified(base):
+            return res
+        sth = math.sqrt(max(float(pred_cov[2, 2]), 0.0))
+        d = max(k * sth, math.radians(_HEADING_RETRY_MIN_DEG))
+        best, best_hit = res, base.hit + lc.arbitration_margin
+        for sign in (-1.0, 1.0):
+            seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * d))
+            alt = self._run_icp(pts, seed, pred_cov, count=False)
+            if alt is None:
+                continue
+            ma = self._measurement(alt)
+            if ma is None:
+                continue
+            at = self._check(pts, ma[0], ma[0], alt)
+            if self._verified(at) and at.hit >= best_hit:
+                best, best_hit = alt, at.hit
+        if best is not res:
+            self._counters.heading_retries += 1
+        return best
 
     def _fallback_config(self, cfg: Any) -> Any:
         key = ("p2p", cfg.max_correspondence_distance, cfg.min_correspondence_distance)
@@ -725,6 +775,8 @@ class Localizer:
         n = pts.shape[0]
         P0 = pred_cov  # the prediction's covariance before any arbitration inflates it
         res = self._run_icp(pts, pred, pred_cov) if n >= self.config.scan.min_points else None
+        if res is not None:
+            res = self._heading_retry(pts, pred, pred_cov, res)
         reason: str = Reason.NONE
         pose, cov = pred, pred_cov
         accepted = False
