@@ -178,3 +178,14 @@ def test_a_leader_far_from_the_dead_reckoning_takes_three_scans(bld, bld_glob) -
 def test_window_settings_are_validated(bad: dict) -> None:
     with pytest.raises(ConfigError):
         LocalizerConfig().replace(relocalize=bad).validate()
+
+
+def test_a_leader_outside_the_searched_window_needs_the_usual_scans(bld, bld_glob) -> None:
+    """The sooner lock is for a leader inside the window the recovery searches (± 3 σ of
+    the covariance's larger axis + 1 m: 2.5 m here); a leader 3 m from the dead reckoning
+    (inside the old, looser 3·√(σ² + 1 m²) = 3.35 m) needs the usual confirm_scans."""
+    from icploc.relocalize import window_extent
+
+    half, _ = window_extent(np.diag([0.25, 0.25, 0.01]), CFG.relocalize)
+    assert half == pytest.approx(2.5)
+    assert _statuses(bld_glob, _drive(bld, START, 2), prior_offset=3.0) == ["confirming", "confirming"]

@@ -130,6 +130,20 @@ def _subsample(points: NDArray[np.float64], n: int) -> NDArray[np.float64]:
     return points[k]
 
 
+def window_extent(covariance: Any, settings: Any) -> tuple[float, float]:
+    """The search window of a dead-reckoned pose with ``covariance``: half its side in
+    position (``window_sigmas`` x the position covariance's larger axis + ``window_margin``)
+    and in heading (``window_sigmas`` x the heading sigma + ``window_heading_margin``);
+    ``settings``: the ``relocalize`` section. One definition for the window searched and the
+    window a leader locks in sooner."""
+    P = np.asarray(covariance, dtype=np.float64)
+    a, b, c = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
+    lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+    half = settings.window_sigmas * math.sqrt(max(lmax, 0.0)) + settings.window_margin
+    w = settings.window_sigmas * math.sqrt(max(float(P[2, 2]), 0.0)) + settings.window_heading_margin
+    return half, w
+
+
 class Relocalizer:
     """Multi-hypothesis global localization: :meth:`update` once per scan with the
     odometry motion since the previous call (robot frame, ``between(odom_prev, odom_now)``)
@@ -360,21 +374,22 @@ class Relocalizer:
             return self._result("locked", search_time, search_amb)
         return self._result("confirming", search_time, search_amb)
 
+    @property
+    def held_longer_than_needed(self) -> bool:
+        """The current leader has dominated one scan more than a lock of it needs."""
+        return self._leader is not None and self._streak >= self._need + 1
+
     def in_prior(self, pose: Pose) -> bool:
-        """``pose`` lies within ``window_sigmas`` of the prior given to this update."""
+        """``pose`` lies inside the window of the prior given to this update (the window
+        :meth:`GlobalRelocalization.window` searches: :func:`window_extent`)."""
         if self._prior is None:
             return False
-        c = self.config
         q, P = self._prior
-        d = np.array([pose[0] - q[0], pose[1] - q[1]])
-        S = np.asarray(P, dtype=np.float64)[:2, :2] + np.eye(2) * c.window_margin**2
-        try:
-            d2 = float(d @ np.linalg.solve(S, d))
-        except np.linalg.LinAlgError:
+        half, wth = window_extent(P, self.config)
+        if not math.isfinite(half):
             return False
-        dth = abs(wrap_angle(pose[2] - q[2]))
-        wth = c.window_sigmas * math.sqrt(max(float(P[2, 2]), 0.0)) + c.window_heading_margin
-        return d2 <= c.window_sigmas**2 and dth <= wth
+        inside = abs(pose[0] - q[0]) <= half and abs(pose[1] - q[1]) <= half
+        return inside and abs(wrap_angle(pose[2] - q[2])) <= wth
 
     def _result(self, status: str, search_time: float, search_amb: bool) -> RelocalizeResult:
         best = self.hypotheses[0] if self.hypotheses else None
@@ -559,14 +574,11 @@ class GlobalRelocalization:
         ``window_margin``, clipped to the map, and its heading +- as many sigmas plus
         ``window_heading_margin`` (None: every heading); None (the whole map) for a pose
         that says nothing or a window that would cover most of the map anyway."""
-        st = self.settings
         P = np.asarray(view.covariance, dtype=np.float64)
         x, y, th = view.pose
         if not (np.isfinite(P).all() and math.isfinite(x) and math.isfinite(y)):
             return None
-        a, b, c = float(P[0, 0]), float(P[0, 1]), float(P[1, 1])
-        lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
-        half = st.window_sigmas * math.sqrt(max(lmax, 0.0)) + st.window_margin
+        half, w = window_extent(P, self.settings)
         try:
             x0, y0, x1, y1 = (float(v) for v in view.index.bounds)
         except (AttributeError, TypeError, ValueError):
@@ -576,7 +588,6 @@ class GlobalRelocalization:
             return None  # the dead reckoning left the map: search all of it
         if (r[2] - r[0]) * (r[3] - r[1]) > 0.5 * max(x1 - x0, 1e-9) * max(y1 - y0, 1e-9):
             return None
-        w = st.window_sigmas * math.sqrt(max(float(P[2, 2]), 0.0)) + st.window_heading_margin
         heading = None if w >= math.pi else (th - w, th + w)
         return r, heading
 
@@ -683,8 +694,7 @@ class GlobalRelocalization:
             # odometry: 10 scans locked, 1-5 cm off, the dead reckoning 0.5 -> 2.6 m).
             # A lock held one scan longer than a lock needs, on a fit as good as recovery
             # asks for, resumes there degraded: no promise, no dead reckoning
-            held = rel._streak >= rel.config.confirm_scans + 1
-            if not (held and float(fit.inlier_ratio) >= lc.recover_inlier_ratio):
+            if not (rel.held_longer_than_needed and float(fit.inlier_ratio) >= lc.recover_inlier_ratio):
                 return RecoveryStep("confirming", hyps)
             self.reset()
             return RecoveryStep("locked", hyps, lock=pose, result=fit, verified=False)
