@@ -86,7 +86,7 @@ class _Stub:
         pass
 
 
-def _lab_lock(verified: bool) -> tuple[Any, Pose]:
+def _lab_lock(verified: bool) -> tuple[Any, Pose, Localizer, Scan]:
     lab = worlds.lab(people=0)
     truth = (0.3, -0.4, 0.5)
     angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
@@ -98,15 +98,25 @@ def _lab_lock(verified: bool) -> tuple[Any, Pose]:
     loc.recovery = _Stub(z, res, verified)
     loc.declare_lost()
     est = loc.update(scan)
-    return est, truth
+    return est, truth, loc, scan
 
 
 def test_an_unverified_lock_resumes_degraded_not_tracking() -> None:
-    est, truth = _lab_lock(verified=False)
+    est, truth, _, _ = _lab_lock(verified=False)
     assert (est.status, est.reason) == (Status.DEGRADED, Reason.RELOCALIZED)
     assert math.dist(est.pose[:2], truth[:2]) < 0.05
 
 
 def test_the_same_lock_verified_resumes_tracking() -> None:
-    est, _ = _lab_lock(verified=True)
+    est, _, _, _ = _lab_lock(verified=True)
     assert (est.status, est.reason) == (Status.TRACKING, Reason.RELOCALIZED)
+
+
+def test_after_an_unverified_lock_the_pose_settles_before_it_is_tracking() -> None:
+    """The lock skipped the localizer's verification: the scans after it are not promised
+    at once (the localizer's reset forgot every guard) but settle as after a jump:
+    settle_scans verified scans first."""
+    _, _, loc, scan = _lab_lock(verified=False)
+    n = CFG.localizer.settle_scans
+    got = [(e.status, e.reason) for e in (loc.update(scan) for _ in range(n + 1))]
+    assert got == [(Status.DEGRADED, Reason.UNSETTLED)] * (n - 1) + [(Status.TRACKING, Reason.NONE)] * 2

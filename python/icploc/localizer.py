@@ -1373,6 +1373,12 @@ class Localizer:
             status = Status.TRACKING if self._confident(R) else Status.DEGRADED
             if self._lock_unconfirmed or not step.verified:  # hook (lost2): no promise
                 status = Status.DEGRADED
+            if not step.verified:
+                # a lock the verification refused: not tracking until settle_scans verified
+                # scans explain the scan as well as the map's usual share (as after a jump)
+                q = self.quality
+                self._unsettled = self.config.localizer.settle_scans
+                self._settle_hit = q.hit_reference if q.hit_measured else 0.0
             self.status = status
             return Estimate(
                 stamp=scan.stamp,
