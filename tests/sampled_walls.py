@@ -10,9 +10,9 @@ import numpy as np
 from icploc import MapIndex
 
 
-def walls_index(lines: Iterable[tuple[float, float, float, float]], spacing: float = 0.05) -> MapIndex:
+def walls_index(lines: Iterable[tuple[float, float, float, float]] | np.ndarray, spacing: float = 0.05) -> MapIndex:
     pts, nrm = [], []
-    for x1, y1, x2, y2 in lines:
+    for x1, y1, x2, y2 in np.asarray(lines, dtype=float):
         length = math.hypot(x2 - x1, y2 - y1)
         n = max(int(length / spacing), 1)
         t = (np.arange(n) + 0.5) / n

@@ -12,19 +12,9 @@ from icploc.config import LocalizerConfig
 from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
 from icploc.messages import BEAM_DAZZLE, BEAM_NO_RETURN, Odometry, Scan
 from icploc.se2 import compose, wrap_angle
+from sampled_walls import walls_index as sample_lines
 
 ANGLES = np.linspace(-math.pi / 2, math.pi / 2, 361)
-
-
-def sample_lines(lines: np.ndarray, spacing: float = 0.05) -> MapIndex:
-    pts, nrm = [], []
-    for x1, y1, x2, y2 in np.asarray(lines, dtype=float):
-        length = math.hypot(x2 - x1, y2 - y1)
-        k = max(int(length / spacing), 1)
-        t = (np.arange(k) + 0.5) / k
-        pts.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
-        nrm.append(np.tile([-(y2 - y1) / length, (x2 - x1) / length], (k, 1)))
-    return MapIndex(np.vstack(pts), np.vstack(nrm))
 
 
 def scan_at(
