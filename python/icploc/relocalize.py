@@ -484,9 +484,6 @@ class GlobalRelocalization:
         self._last_search: tuple[int, float] | None = None
         #: (scan count, stamp) of the last whole-map search
         self._last_full: tuple[int, float] | None = None
-        #: global searches this episode; whether the last one covered a window only
-        self._searches = 0
-        self.windowed = False
         #: the latest relocalizer results (at most 100)
         self.results: list[RelocalizeResult] = []
         self.state = ""
@@ -518,7 +515,6 @@ class GlobalRelocalization:
             self._relocalizer.reset()
         self._last_search = None
         self._last_full = None
-        self._searches = 0
         self._inflight = None
         self.state = ""
         self._motion = (0.0, 0.0, 0.0)
@@ -655,8 +651,6 @@ class GlobalRelocalization:
             self._last_search = (n, stamp)
             if window is None:
                 self._last_full = (n, stamp)
-            self._searches += 1
-            self.windowed = window is not None
         if view.motion is not None:
             self._motion = compose(self._motion, view.motion)
         if self.background:
