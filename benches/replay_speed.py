@@ -51,7 +51,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -164,6 +166,16 @@ def run_icploc(python: str, cell: dict, tmp: Path, cold: bool) -> dict:
     return got
 
 
+def sparse_logs(names: list[str]) -> Iterator[tuple[str, Any, Any]]:
+    """(name, corrected log, indices of the scans kept 0.5 m / 0.5 rad apart) of each log."""
+    import eval_real as er
+    import real_logs as rl
+
+    for p in er.find_logs(er.DATA, names):
+        log = rl.read_flaser(p)
+        yield p.name.replace("-corrected.log.gz", ""), log, rl.sparsify(log.poses, distance=0.5, angle=0.5)
+
+
 def cells_for(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
     """(log, map, start pose) of every fold of eval_real's cells (reads the corrected logs)."""
     import eval_real as er
@@ -171,11 +183,8 @@ def cells_for(names: list[str], bases: list[str], res: list[int]) -> list[dict]:
 
     cache = er.cache_dir()
     out = []
-    for p in er.find_logs(er.DATA, names):
-        log = rl.read_flaser(p)
-        name = p.name.replace("-corrected.log.gz", "")
+    for name, log, keep in sparse_logs(names):
         ref = log.poses
-        keep = rl.sparsify(ref, distance=0.5, angle=0.5)
         gap = max(1, int(round(0.05 * len(log))))
         ends = rl.endpoints_world(log, 30.0)
         for f in rl.split_folds(ref[:, :2], 3, gap):
@@ -211,11 +220,8 @@ def long_cells(names: list[str], bases: list[str], res: list[int]) -> list[dict]
     (out_dir / "maps").mkdir(parents=True, exist_ok=True)
     models = er.fit_bases(er.DATA)
     out = []
-    for p in er.find_logs(er.DATA, names):
-        log = rl.read_flaser(p)
-        name = p.name.replace("-corrected.log.gz", "")
+    for name, log, keep in sparse_logs(names):
         ref = log.poses
-        keep = rl.sparsify(ref, distance=0.5, angle=0.5)
         max_range = min(30.0, log.no_return)
         stamps = er._stamps(log)
         for base in bases:

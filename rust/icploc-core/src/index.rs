@@ -617,15 +617,21 @@ mod tests {
         v
     }
 
-    #[test]
-    fn saved_grid_cells_rebuild_the_same_index() {
-        let mut rng = crate::testkit::Rng::new(21);
+    /// Walls and scattered points, and their index with a 2 cm closest-point grid.
+    fn built_walls(rng: &mut crate::testkit::Rng) -> (Vec<[f64; 2]>, MapIndex) {
         let mut pts = wall_points();
         pts.extend((0..200).map(|_| [rng.range(-1.0, 6.0), rng.range(-1.0, 6.0)]));
         let built = MapIndex::new(pts.clone(), None)
             .unwrap()
             .with_cache(Some(0.02))
             .unwrap();
+        (pts, built)
+    }
+
+    #[test]
+    fn saved_grid_cells_rebuild_the_same_index() {
+        let mut rng = crate::testkit::Rng::new(21);
+        let (pts, built) = built_walls(&mut rng);
         let (v, n) = runs::encode(&built.cache_cells().unwrap());
         let cells = runs::decode(&v, &n, MAX_CACHE_CELLS).unwrap();
         assert!(
@@ -648,12 +654,7 @@ mod tests {
     #[test]
     fn saved_grid_runs_rebuild_the_same_index_lazily() {
         let mut rng = crate::testkit::Rng::new(22);
-        let mut pts = wall_points();
-        pts.extend((0..200).map(|_| [rng.range(-1.0, 6.0), rng.range(-1.0, 6.0)]));
-        let built = MapIndex::new(pts.clone(), None)
-            .unwrap()
-            .with_cache(Some(0.02))
-            .unwrap();
+        let (pts, built) = built_walls(&mut rng);
         let (v, n) = runs::encode(&built.cache_cells().unwrap());
         let loaded = MapIndex::new(pts.clone(), None)
             .unwrap()

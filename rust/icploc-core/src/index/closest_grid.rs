@@ -419,12 +419,13 @@ impl ClosestGrid {
             w * TILE as u64,
             h * TILE as u64,
         ];
+        // the cells a given layout must hold (every cell of the box, or of the tiles)
+        let want = match full {
+            Some(_) => (b[2] * b[3]) as usize,
+            None => keys.len() * TILE_CELLS,
+        };
         let tiled = match fill {
             Fill::Given(cells) => {
-                let want = match full {
-                    Some(_) => (b[2] * b[3]) as usize,
-                    None => keys.len() * TILE_CELLS,
-                };
                 if cells.len() != want {
                     return Ok(Err(format!(
                         "{} cells given, the layout has {want}",
@@ -440,10 +441,6 @@ impl ClosestGrid {
                 return Ok(Ok(grid));
             }
             Fill::Runs(lazy) => {
-                let want = match full {
-                    Some(_) => (b[2] * b[3]) as usize,
-                    None => keys.len() * TILE_CELLS,
-                };
                 if lazy.len() != want {
                     return Ok(Err(format!(
                         "{} cells given, the layout has {want}",
