@@ -96,6 +96,13 @@ def test_replace_updates_a_section() -> None:
         ("localizer", {"recover_after": True}, "localizer.recover_after: expected an integer"),
         ("gating", {"max_translation_jump": float("nan")}, "gating.max_translation_jump"),
         ("map", {"spacing": 1e-6}, "map.spacing: must be >= 0.001"),
+        ("localizer", {"calibration_max_skew": -0.01}, "localizer.calibration_max_skew: must be >= 0"),
+        ("localizer", {"noise_gain_window": 0}, "localizer.noise_gain_window: must be >= 1"),
+        (
+            "localizer",
+            {"noise_gain_window": 4, "noise_gain_min_samples": 5},
+            "noise_gain_min_samples: must not exceed noise_gain_window",
+        ),
     ],
 )
 def test_sections_are_validated_at_construction_naming_the_field(

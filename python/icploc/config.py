@@ -352,6 +352,12 @@ class LocalizerSection(Section):
         "noise_gain_max) until the prediction is consistent with the fits the map backs",
     )
     noise_gain_max: float = _f(10.0, "largest factor on the alphas", gt=0)
+    noise_gain_window: int = _f(
+        31, "the learned factor is the median over the last this many trusted fits", "scans", ge=1
+    )
+    noise_gain_min_samples: int = _f(
+        5, "... once at least this many are in (until then: 1, the configured alphas)", "scans", ge=1
+    )
     process_sigma_xy: float = _f(
         0.002, "process noise per scan even without motion (slip, a push)", "m", ge=0
     )
@@ -369,6 +375,9 @@ class LocalizerSection(Section):
     calibration_max_scale: float = _f(0.05, "bound of the distance scale error (0.05: 5 %)", ge=0)
     calibration_max_turn_scale: float = _f(0.1, "bound of the turn scale error", ge=0)
     calibration_max_drift_deg: float = _f(2.0, "bound of the heading drift", "deg/m", ge=0)
+    calibration_max_skew: float = _f(
+        0.05, "bound of the sideways skew (0.05: 5 cm sideways per metre forward)", "m/m", ge=0
+    )
     calibration_uncertainty: bool = _f(
         True,
         "the prediction's covariance also holds what the calibration has not learned yet "
@@ -507,6 +516,15 @@ class LocalizerSection(Section):
     )
 
     _pose = field_validator("initial_pose", mode="before")(_tuple)
+
+    @model_validator(mode="after")
+    def _check(self) -> LocalizerSection:
+        if self.noise_gain_min_samples > self.noise_gain_window:
+            raise ValueError(
+                "noise_gain_min_samples: must not exceed noise_gain_window "
+                f"({self.noise_gain_min_samples} > {self.noise_gain_window})"
+            )
+        return self
 
 
 class MapSection(Section):
