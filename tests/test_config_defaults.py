@@ -4,6 +4,8 @@ validated construction gives."""
 
 from __future__ import annotations
 
+import importlib
+import json
 import subprocess
 import sys
 
@@ -89,3 +91,58 @@ def test_a_config_pickles_to_an_equal_one() -> None:
 
     cfg = LocalizerConfig.from_dict({"localizer": {"lost_sigma_xy": 3.0}})
     assert pickle.loads(pickle.dumps(cfg)) == cfg
+
+
+# -- the classes whose defaults are settings: one source, the config model ---------------------
+
+#: (module, class, attribute) -> the localizer: setting its default comes from (and how)
+_FROM_CONFIG = {
+    ("icploc.calibration", "OdometryCalibration", "memory"): ("calibration_memory", "x"),
+    ("icploc.calibration", "OdometryCalibration", "max_scale"): ("calibration_max_scale", "x"),
+    ("icploc.calibration", "OdometryCalibration", "max_turn_scale"): ("calibration_max_turn_scale", "x"),
+    ("icploc.calibration", "OdometryCalibration", "max_drift"): ("calibration_max_drift_deg", "math.radians(x)"),
+    ("icploc.calibration", "OdometryCalibration", "max_skew"): ("calibration_max_skew", "x"),
+    ("icploc.calibration", "OdometryCalibration", "enabled"): ("calibrate_odometry", "x"),
+    ("icploc.motion", "NoiseGain", "max_gain"): ("noise_gain_max", "x"),
+    ("icploc.motion", "NoiseGain", "window"): ("noise_gain_window", "x"),
+    ("icploc.motion", "NoiseGain", "min_samples"): ("noise_gain_min_samples", "x"),
+}
+
+
+@pytest.mark.parametrize("name", ["OdometryCalibration", "NoiseGain"])
+def test_a_default_object_is_the_one_the_default_config_makes(name: str) -> None:
+    """What the localizer builds from the default config (``from_config``) is what the
+    class's own defaults give: no default of its differs from the config's."""
+    from icploc.calibration import OdometryCalibration
+    from icploc.config import LocalizerSection
+    from icploc.motion import NoiseGain
+
+    cls = {"OdometryCalibration": OdometryCalibration, "NoiseGain": NoiseGain}[name]
+    assert cls() == cls.from_config(LocalizerSection())
+
+
+def test_the_class_defaults_are_read_from_the_config_model() -> None:
+    """One source, not two equal literals: with the config model's defaults changed before
+    the classes are imported (a fresh interpreter), the classes' defaults change with them."""
+    code = (
+        "import json, math, importlib\n"
+        "import icploc.config as c\n"
+        f"table = {_FROM_CONFIG!r}\n"
+        "F = c.LocalizerSection._fields\n"
+        "for setting, _ in table.values():\n"
+        "    d = F[setting].default\n"
+        "    F[setting].default = (not d) if isinstance(d, bool) else d * 2 + 1\n"
+        "out = []\n"
+        "for (mod, cls, attr), (setting, how) in table.items():\n"
+        "    got = getattr(getattr(importlib.import_module(mod), cls)(), attr)\n"
+        "    want = eval(how, {'math': math, 'x': F[setting].default})\n"
+        "    out.append([mod, cls, attr, got, want])\n"
+        "print(json.dumps(out))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    rows = json.loads(out.stdout)
+    assert len(rows) == len(_FROM_CONFIG)
+    assert [r for r in rows if r[3] != r[4]] == []
+    # and the change was real: each class default there differs from the one here
+    here = [getattr(getattr(importlib.import_module(mod), cls)(), attr) for mod, cls, attr in _FROM_CONFIG]
+    assert [r[:3] for r, h in zip(rows, here, strict=True) if r[3] == h] == []

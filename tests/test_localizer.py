@@ -569,10 +569,3 @@ def test_point_to_line_that_does_not_settle_falls_back_to_point_to_point(
         err.append(math.hypot(e.x - f.truth[0], e.y - f.truth[1]))
     assert loc._counters.point_to_point_fallbacks == len(frames)
     assert max(err) < 0.05
-
-
-def test_the_estimate_reports_the_learned_sideways_skew(lab: worlds.World, lab_index: MapIndex) -> None:
-    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0))
-    loc.calibration.skew = 0.01  # as if learned
-    e = loc.update(scan_at(lab, (0.0, 0.0, 0.0)), (0.0, 0.0, 0.0))
-    assert e.calibration_skew == 0.01

@@ -154,6 +154,55 @@ def test_noise_gain_is_relative_to_the_gain_already_in_use() -> None:
     assert 3.5 < float(np.median(_gains(4.0, model_gain=4.0))) < 4.5
 
 
+def _feed(ng: NoiseGain, factor: float, n: int) -> list[float]:
+    """``n`` scans whose prediction error is exactly what ``factor`` x P explains (the
+    chi-square statistic at its median): the learned gain after each."""
+    from icploc.fusion import CHI2_3_MEDIAN
+
+    P = np.diag([0.03**2, 0.03**2, 0.01**2])
+    R = np.diag([1e-12, 1e-12, 1e-12])
+    v = (0.03 * math.sqrt(factor * CHI2_3_MEDIAN), 0.0, 0.0)
+    out = []
+    for _ in range(n):
+        ng.observe((0.0, 0.0, 0.0), P, v, R)
+        out.append(ng.gain)
+    return out
+
+
+@pytest.mark.parametrize("settings", [{}, {"min_samples": 2}, {"min_samples": 9, "window": 9}])
+def test_noise_gain_keeps_the_model_until_min_samples_factors_are_in(settings: dict) -> None:
+    ng = NoiseGain(**settings)
+    got = _feed(ng, 4.0, ng.min_samples + 3)
+    assert got[: ng.min_samples - 1] == [1.0] * (ng.min_samples - 1)
+    assert got[ng.min_samples - 1 :] == pytest.approx([4.0] * 4, rel=1e-3)
+
+
+@pytest.mark.parametrize("settings", [{}, {"window": 7}, {"window": 8, "min_samples": 1}])
+def test_noise_gain_forgets_factors_older_than_its_window(settings: dict) -> None:
+    """Odometry that was 4x noisier than its model, then 2x: the median over the last
+    ``window`` factors moves to 2 once more than half of the window is the new ones."""
+    ng = NoiseGain(**settings)
+    _feed(ng, 4.0, ng.window)
+    got = _feed(ng, 2.0, ng.window)  # got[j - 1]: with j new factors in the window
+    old = [got[j - 1] for j in range(1, ng.window + 1) if j < ng.window / 2]
+    new = [got[j - 1] for j in range(1, ng.window + 1) if j > ng.window / 2]
+    assert old == pytest.approx([4.0] * len(old), rel=1e-3)
+    assert new == pytest.approx([2.0] * len(new), rel=1e-3)
+
+
+def test_noise_gain_settings_of_the_config_reach_the_localizer() -> None:
+    from icploc.config import LocalizerConfig
+    from icploc.localizer import Localizer
+
+    pts = np.array([[x * 0.05, 0.0] for x in range(100)] + [[0.0, y * 0.05] for y in range(100)])
+    cfg = LocalizerConfig().replace(localizer={"noise_gain_window": 5, "noise_gain_min_samples": 2})
+    ng = Localizer(pts, cfg, (1.0, 1.0, 0.0))._noise
+    got = _feed(ng, 3.0, 4) + _feed(ng, 1.0, 3)
+    # learned from the second factor on; the seventh leaves two of the four old ones in the
+    # window of five: the median is a new one (the default window of 31 would keep 3)
+    assert got == pytest.approx([1.0, 3.0, 3.0, 3.0, 3.0, 3.0, 1.0], rel=1e-3)
+
+
 def test_scan_covariance_beam_count_does_not_grow_on_a_finer_map() -> None:
     from icploc.config import LocalizerConfig
     from icploc.localizer import Localizer
@@ -172,7 +221,7 @@ def test_calibration_learns_the_turn_scale_of_a_route_that_turns_a_little_at_a_t
     # turn evidence per pair is small against the distance; after 200 m the turn scale is
     # learned (a prior fading with the turn alone held it near 1.3 % here)
     rng = np.random.default_rng(3)
-    cal = OdometryCalibration(memory=50.0)
+    cal = OdometryCalibration()  # the localizer's (the config's) memory
     for _ in range(100):
         turn = float(rng.choice([0.0, 0.5, -0.5, 1.0]))
         cal.observe((2.0, 0.0, turn * 0.95 - math.radians(1.0) * 2.0), (2.0, 0.0, turn))
@@ -249,9 +298,10 @@ def _dead_reckoning_error(cal: OdometryCalibration | None) -> float:
     return math.hypot(raw[0] - truth[0], raw[1] - truth[1])
 
 
-def _learned(max_skew: float = 0.05) -> OdometryCalibration:
+def _learned(cal: OdometryCalibration | None = None) -> OdometryCalibration:
+    """``cal`` (None: one with the defaults) after 300 m of the base of :func:`_odometry_of`."""
     rng = np.random.default_rng(1)
-    cal = OdometryCalibration(max_skew=max_skew)
+    cal = cal or OdometryCalibration()
     for _ in range(150):  # 300 m of 2 m pairs, some turning
         step = (2.0, 0.0, float(rng.choice([0.0, 0.0, 0.3, -0.3])))
         cal.observe(_odometry_of(step), _odometry_of(step, exact=True))
@@ -268,4 +318,72 @@ def test_calibrated_dead_reckoning_drifts_a_fraction_of_the_raw_odometry() -> No
 
 
 def test_without_the_skew_the_calibrated_dead_reckoning_drifts_sideways() -> None:
-    assert _dead_reckoning_error(_learned(max_skew=0.0)) > 0.2
+    assert _dead_reckoning_error(_learned(OdometryCalibration(max_skew=0.0))) > 0.2
+
+
+def test_the_config_bound_on_the_skew_reaches_the_calibration() -> None:
+    """``localizer.calibration_max_skew`` reaches the calibration: the same 300 m, the skew
+    held at the configured bound, the dead reckoning worse for it."""
+    from icploc.config import LocalizerSection
+
+    cfg = LocalizerSection().replace(calibration_max_skew=0.005)
+    cal = _learned(OdometryCalibration.from_config(cfg))
+    assert cal.skew == pytest.approx(0.005)  # the base's 2 %, held at the bound
+    assert _dead_reckoning_error(cal) > _dead_reckoning_error(_learned())
+
+
+def _skewed_lab_run(config: object = None, skew: float = 0.02) -> tuple[float, float]:
+    """The localizer in the simulated lab over a 100 m random walk, scans ~0.5 m apart, on
+    odometry that runs ``skew`` sideways per metre forward (nothing else wrong with it);
+    returns the sideways skew its last estimate reports and the largest other factor's
+    distance from no correction."""
+    from icploc import sim as worlds
+    from icploc.localizer import Localizer
+    from icploc.se2 import between
+
+    lab = worlds.lab(people=0)
+    frames = list(worlds.simulate(lab, worlds.lab_random_walk(100.0, seed=4), seed=3))
+    loc = Localizer(_lab_index(lab), config, initial_pose=frames[0].truth)  # type: ignore[arg-type]
+    odo, last, e = frames[0].truth, frames[0], None
+    for f in frames[1:]:
+        d = between(last.truth, f.truth)
+        if math.hypot(d[0], d[1]) < 0.5 and abs(d[2]) < 0.5:
+            continue
+        odo = compose(odo, (d[0], d[1] + skew * d[0], d[2]))
+        e = loc.update(f.scan, odo)
+        last = f
+    assert e is not None
+    scale, turn, drift = e.calibration
+    return e.calibration_skew, max(abs(scale - 1.0), abs(turn - 1.0), abs(drift))
+
+
+def test_the_estimate_reports_the_skew_the_localizer_learns_from_the_scans() -> None:
+    """Odometry 2 % sideways per metre: the localizer learns the correction (most of it
+    after ~90 m, the rest held back by the prior) and its estimates report it, the other
+    factors staying near no correction; with the skew bounded to 0 by the config, none."""
+    from icploc.config import LocalizerConfig
+
+    learned, others = _skewed_lab_run()
+    assert -0.022 < learned < -0.012
+    assert others < 0.005
+    off, _ = _skewed_lab_run(LocalizerConfig().replace(localizer={"calibration_max_skew": 0.0}))
+    assert off == 0.0
+
+
+def test_the_chi_square_constants_are_the_distributions_quantiles() -> None:
+    """The gate's quantiles and the median NoiseGain solves for (3 degrees of freedom),
+    against scipy's (imported here only: the package does not import scipy for them)."""
+    from icploc.fusion import CHI2_3, CHI2_3_MEDIAN
+    from scipy.stats import chi2
+
+    table = {**CHI2_3, 0.5: CHI2_3_MEDIAN}
+    assert table == pytest.approx({p: float(chi2.ppf(p, 3)) for p in table}, abs=1e-3)
+
+
+def test_the_motion_model_and_the_fusion_import_no_scipy() -> None:
+    import subprocess
+    import sys
+
+    code = "import sys, icploc.motion, icploc.fusion, icploc.calibration; print('scipy' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

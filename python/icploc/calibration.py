@@ -27,9 +27,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from icploc.config import LocalizerSection
 from icploc.se2 import Pose, wrap_angle
 
 __all__ = ["OdometryCalibration"]
+
+#: the defaults (one source: the config model, ``localizer.calibration_*`` in a config file)
+_L = LocalizerSection()
 
 
 @dataclass
@@ -38,22 +42,25 @@ class OdometryCalibration:
 
     ``memory``: the filter's memory in metres driven (and radians turned for the turn
     scale): evidence older than that fades. ``max_scale`` / ``max_turn_scale``: the factors
-    stay within 1 +- these; ``max_drift``: the drift within +- this (rad/m).
-    ``min_distance`` / ``min_turn``: a straight pair (turned less than ``min_turn``) counts
-    for the scale and drift when it moved at least ``min_distance``; a pair that turned at
-    least ``min_turn`` counts for the turn scale."""
+    stay within 1 +- these; ``max_drift``: the drift within +- this (rad/m); ``max_skew``:
+    the skew within +- this (sideways per metre forward). ``min_distance`` / ``min_turn``: a
+    straight pair (turned less than ``min_turn``) counts for the scale and drift when it
+    moved at least ``min_distance``; a pair that turned at least ``min_turn`` counts for the
+    turn scale. The bounds, the memory and ``enabled`` default to the ``localizer:``
+    section's ``calibration_*`` / ``calibrate_odometry`` (:class:`icploc.config.LocalizerSection`);
+    the rest are the filter's own constants."""
 
-    memory: float = 30.0
-    max_scale: float = 0.05
-    max_turn_scale: float = 0.1
-    max_drift: float = math.radians(2.0)
-    max_skew: float = 0.05
+    memory: float = _L.calibration_memory
+    max_scale: float = _L.calibration_max_scale
+    max_turn_scale: float = _L.calibration_max_turn_scale
+    max_drift: float = math.radians(_L.calibration_max_drift_deg)
+    max_skew: float = _L.calibration_max_skew
     min_distance: float = 0.2
     min_turn: float = 0.1
     #: the shrinkage prior's weight: metres driven (turn: rad^2 turned) of "no correction"
     prior: float = 20.0
     prior_turn: float = 10.0
-    enabled: bool = True
+    enabled: bool = _L.calibrate_odometry
     scale: float = 1.0
     turn_scale: float = 1.0
     drift: float = 0.0
@@ -70,6 +77,19 @@ class OdometryCalibration:
     _td: float = 0.0  # heading: the weighted normal equations of (turn scale - 1, drift)
     _sdr: float = 0.0
     _dd: float = 0.0
+
+    @classmethod
+    def from_config(cls, settings: LocalizerSection) -> OdometryCalibration:
+        """A calibration with a config's ``localizer:`` settings (``calibration_*``,
+        ``calibrate_odometry``); the filter's own constants at their defaults."""
+        return cls(
+            memory=settings.calibration_memory,
+            max_scale=settings.calibration_max_scale,
+            max_turn_scale=settings.calibration_max_turn_scale,
+            max_drift=math.radians(settings.calibration_max_drift_deg),
+            max_skew=settings.calibration_max_skew,
+            enabled=settings.calibrate_odometry,
+        )
 
     @property
     def factors(self) -> tuple[float, float, float]:

@@ -27,10 +27,13 @@ from numpy.typing import NDArray
 
 from icploc.se2 import Pose, wrap_angle
 
-__all__ = ["CHI2_3", "fuse", "mahalanobis2", "scan_covariance"]
+__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "fuse", "mahalanobis2", "scan_covariance"]
 
-#: chi-square quantiles with 3 degrees of freedom (probability -> value)
+#: chi-square quantiles with 3 degrees of freedom (probability -> value): the gate's
+#: quantiles (the tables' values, 3 decimals; scipy is not imported for them)
 CHI2_3 = {0.9: 6.251, 0.95: 7.815, 0.99: 11.345, 0.999: 16.266, 0.9999: 21.108}
+#: ... and its median (the 0.5 quantile; icploc.motion.NoiseGain solves for it)
+CHI2_3_MEDIAN = 2.366
 
 #: largest variance given to a direction the scan does not constrain (m^2 / rad^2)
 _HUGE = 1e6

@@ -326,13 +326,7 @@ class Localizer:
             floor_xy=lc.process_sigma_xy,
             floor_theta=lc.process_sigma_theta,
         )
-        self.calibration = OdometryCalibration(
-            memory=lc.calibration_memory,
-            max_scale=lc.calibration_max_scale,
-            max_turn_scale=lc.calibration_max_turn_scale,
-            max_drift=math.radians(lc.calibration_max_drift_deg),
-            enabled=lc.calibrate_odometry,
-        )
+        self.calibration = OdometryCalibration.from_config(lc)
         self.odometry = OdometryBuffer(max_extrapolation=min(0.25, lc.max_odometry_gap))
         self._trig = _TrigCache()
         self._counters = _Counters()
@@ -343,7 +337,7 @@ class Localizer:
         #: the last rejected scan pose: (pose, covariance, odometry then, agreeing in a row)
         self._rejected: tuple[Pose, NDArray[np.float64], Pose | None, int] | None = None
         #: the odometry noise learned online (icploc.motion.NoiseGain)
-        self._noise = NoiseGain(max_gain=lc.noise_gain_max)
+        self._noise = NoiseGain.from_config(lc)
         self._map_points: NDArray[np.float64] | None = None
         self._map_normals: NDArray[np.float64] | None = None
         self.last_estimate: Estimate | None = None

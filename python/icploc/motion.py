@@ -29,14 +29,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icploc.config import LocalizerSection
+from icploc.fusion import CHI2_3_MEDIAN
 from icploc.se2 import Pose, compose, inverse
 
 __all__ = ["MotionModel", "NoiseGain", "fit_alphas"]
 
 #: below this translation (m) a motion is a turn on the spot: rot1 is taken as 0
 _MIN_TRANS = 0.01
-#: the median of the chi-square distribution with 3 degrees of freedom
-_CHI2_3_MEDIAN = 2.366
+#: the defaults (one source: the config model, ``localizer.noise_gain_*`` in a config file)
+_L = LocalizerSection()
 
 
 @dataclass(frozen=True)
@@ -129,13 +131,24 @@ class NoiseGain:
     and explain the scan at least as well as the prediction): that is where odometry worse
     than its model shows. The median keeps a few wrong fits from raising it much (10 % of
     the fits 1 m off: about 1.2 over simulated runs; 30 %: about 1.9). ``P`` already holds
-    the gain in use (``current``): the factors are relative to it."""
+    the gain in use (``current``): the factors are relative to it. The defaults are the
+    ``localizer:`` section's ``noise_gain_max`` / ``noise_gain_window`` /
+    ``noise_gain_min_samples`` (:class:`icploc.config.LocalizerSection`)."""
 
-    max_gain: float = 10.0
-    window: int = 31
+    max_gain: float = _L.noise_gain_max
+    window: int = _L.noise_gain_window
     #: factors kept before the median is used (until then: 1)
-    min_samples: int = 5
+    min_samples: int = _L.noise_gain_min_samples
     _g: deque[float] = field(default_factory=deque, repr=False)
+
+    @classmethod
+    def from_config(cls, settings: LocalizerSection) -> NoiseGain:
+        """A noise gain with a config's ``localizer:`` settings (``noise_gain_*``)."""
+        return cls(
+            max_gain=settings.noise_gain_max,
+            window=settings.noise_gain_window,
+            min_samples=settings.noise_gain_min_samples,
+        )
 
     @property
     def gain(self) -> float:
@@ -162,14 +175,14 @@ class NoiseGain:
         if not (np.all(np.isfinite(v)) and np.all(np.isfinite(P)) and np.all(np.isfinite(R))):
             return
         lo, hi = 1e-3, self.max_gain * 4.0
-        if _nis(v, hi * P, R) > _CHI2_3_MEDIAN:
+        if _nis(v, hi * P, R) > CHI2_3_MEDIAN:
             g = hi  # beyond what any gain explains: counted at the top
-        elif _nis(v, lo * P, R) < _CHI2_3_MEDIAN:
+        elif _nis(v, lo * P, R) < CHI2_3_MEDIAN:
             g = lo  # the scan's own noise explains it
         else:
             for _ in range(40):  # bisection on log g (the statistic falls as g grows)
                 mid = math.sqrt(lo * hi)
-                if _nis(v, mid * P, R) > _CHI2_3_MEDIAN:
+                if _nis(v, mid * P, R) > CHI2_3_MEDIAN:
                     lo = mid
                 else:
                     hi = mid
