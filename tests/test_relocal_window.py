@@ -54,7 +54,7 @@ class Recording:
         return getattr(self.glob, name)
 
 
-def _view(glob: GlobalLocalizer, pose: Pose, cov: np.ndarray, k: int) -> RecoveryView:
+def _view(glob: GlobalLocalizer, pose: Pose, cov: np.ndarray, k: int, cfg: LocalizerConfig = CFG) -> RecoveryView:
     return RecoveryView(
         pose=pose,
         covariance=cov,
@@ -63,8 +63,8 @@ def _view(glob: GlobalLocalizer, pose: Pose, cov: np.ndarray, k: int) -> Recover
         scans_processed=k,
         lost_scans=k + 1,
         index=glob.index,
-        icp_config=CFG.icp.to_icp_config(window_search=False),
-        config=CFG,
+        icp_config=cfg.icp.to_icp_config(window_search=False),
+        config=cfg,
         verify=lambda pts, p: (False, None, p),  # never locks: only the searches matter
     )
 
@@ -72,16 +72,27 @@ def _view(glob: GlobalLocalizer, pose: Pose, cov: np.ndarray, k: int) -> Recover
 #: the dead-reckoned pose (in the corridor) and where the robot really is (an office)
 DR = (10.0, 1.0, 0.3)
 TRUTH = (30.0, 15.0, 1.0)
+#: the search schedule under the defaults and under other settings (no time throttle, so
+#: the scan counts alone decide): the tests check the schedule follows the settings
+SCHEDULES = [
+    CFG,
+    CFG.replace(
+        localizer={"global_search_every": 6, "global_search_interval": 0.0, "local_recovery_scans": 2},
+        relocalize={"full_search_every": 3},
+    ),
+]
 
 
-def _searches(bld: worlds.World, glob: GlobalLocalizer, cov: np.ndarray, n: int) -> list:
+def _searches(
+    bld: worlds.World, glob: GlobalLocalizer, cov: np.ndarray, n: int, cfg: LocalizerConfig = CFG
+) -> list:
     rec = Recording(glob)
-    gr = GlobalRelocalization(Relocalizer(None, localizer=rec), config=CFG)
-    pts = prepare_scan(gb.scan_at(bld, TRUTH, 0.0, SENSOR, np.random.default_rng(0)), CFG)
+    gr = GlobalRelocalization(Relocalizer(None, localizer=rec), config=cfg)
+    pts = prepare_scan(gb.scan_at(bld, TRUTH, 0.0, SENSOR, np.random.default_rng(0)), cfg)
     calls = []
     for k in range(n):
         before = len(rec.calls)
-        gr.recover(_view(glob, DR, cov, k), pts)
+        gr.recover(_view(glob, DR, cov, k, cfg), pts)
         calls += [(k, *c) for c in rec.calls[before:]]
     return calls
 
@@ -99,36 +110,100 @@ def test_a_meaningful_dead_reckoned_pose_bounds_the_search(bld, bld_glob) -> Non
     assert heading == pytest.approx((0.3 - 0.65, 0.3 + 0.65))
 
 
-def test_the_whole_map_after_a_fruitless_window_and_then_once_per_four_periods(
-    bld, bld_glob
+def _periods(cfg: LocalizerConfig) -> tuple[int, int, int]:
+    lc = cfg.localizer
+    return lc.local_recovery_scans, lc.global_search_every, cfg.relocalize.full_search_every
+
+
+@pytest.mark.parametrize("cfg", SCHEDULES, ids=["defaults", "other-settings"])
+def test_the_whole_map_after_a_fruitless_window_and_then_once_per_full_search_every_periods(
+    bld, bld_glob, cfg: LocalizerConfig
 ) -> None:
     """A robot carried off that the lost detector caught before any kidnap check did: its
-    covariance does not say its dead reckoning means nothing. After a window search that
-    brought no leader the whole map, then once per full_search_every (4) x
-    global_search_every (10) scans."""
-    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 50)
-    whole = [k for k, region, _ in calls if region is None]
-    assert whole == [4, 44]
+    covariance does not say its dead reckoning means nothing. The first global search (after
+    the local phase) is the window; it brings no leader, so the next scan searches the whole
+    map; from then on the whole map once per full_search_every x global_search_every scans,
+    the window in the periods between."""
+    local, every, k = _periods(cfg)
+    n = local + 2 + 2 * every * k  # the window, the whole map, then two full periods
+    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), n, cfg)
+    whole = [s for s, region, _ in calls if region is None]
+    first_window = min(s for s, region, _ in calls if region is not None)
+    assert first_window == local
+    assert whole[0] == first_window + 1
+    assert np.diff(whole).tolist() == [every * k] * 2
+    between = [s for s, region, _ in calls if region is not None and whole[0] < s < whole[1]]
+    assert len(between) == k - 1
 
 
-def test_the_window_is_throttled_as_the_whole_map_is(bld, bld_glob) -> None:
-    """Refining a window's seeds costs about as much as a whole-map search's: at most one
-    search per global_search_every (10) scans, except to verify a leader."""
-    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), 50)
-    windowed = [k for k, region, _ in calls if region is not None]
-    assert windowed[:2] == [3, 14]
+@pytest.mark.parametrize("cfg", SCHEDULES, ids=["defaults", "other-settings"])
+def test_the_window_is_throttled_as_the_whole_map_is(bld, bld_glob, cfg: LocalizerConfig) -> None:
+    """Refining a window's seeds costs about as much as a whole-map search's: after the
+    whole map, at most one search per global_search_every scans (none locks here, so none
+    is made to verify a leader), each a full period after the last."""
+    local, every, k = _periods(cfg)
+    calls = _searches(bld, bld_glob, np.diag([0.25, 0.25, 0.01]), local + 2 + 2 * every * k, cfg)
+    steps = [s for s, _, _ in calls]
+    assert steps == sorted(set(steps))  # one search per scan at most
+    assert np.diff(steps[1:]).tolist() == [every] * (len(steps) - 2)
 
 
-def test_a_pose_that_says_nothing_searches_the_whole_map(bld, bld_glob) -> None:
-    """A kidnapping (or no initial pose): the localizer's unknown covariance; throttled as
-    before (global_search_every 10 scans)."""
-    calls = _searches(bld, bld_glob, np.diag([1e6, 1e6, math.pi**2]), 25)
-    assert [(k, r) for k, r, _ in calls if r is None] == [(0, None), (10, None), (20, None)]
+@pytest.mark.parametrize("cfg", SCHEDULES, ids=["defaults", "other-settings"])
+def test_a_pose_that_says_nothing_searches_the_whole_map(bld, bld_glob, cfg: LocalizerConfig) -> None:
+    """A kidnapping (or no initial pose): the localizer's unknown covariance; the whole map
+    from the first lost scan on (no local phase: the pose is nowhere near), throttled as
+    before (one search per global_search_every scans)."""
+    _, every, _ = _periods(cfg)
+    calls = _searches(bld, bld_glob, np.diag([1e6, 1e6, math.pi**2]), 2 * every + 5, cfg)
+    assert {r for _, r, _ in calls} == {None}
+    assert [s for s, _, _ in calls] == [0, every, 2 * every]
 
 
 def test_a_window_covering_most_of_the_map_searches_all_of_it(bld, bld_glob) -> None:
     calls = _searches(bld, bld_glob, np.diag([25.0, 25.0, 0.01]), 1)  # sigma 5 m
     assert [(r, h) for _, r, h in calls] == [(None, None)]
+
+
+class _Index:
+    """A stand-in for a MapIndex with the given ``bounds`` (``missing``: no attribute)."""
+
+    def __init__(self, bounds: Any = "missing") -> None:
+        if bounds != "missing":
+            self.bounds = bounds
+
+
+def _window_of(index: Any, pose: Pose = DR) -> Any:
+    gr = GlobalRelocalization(None, config=CFG)
+    view = _view(_FakeGlob(index), pose, np.diag([0.25, 0.25, 0.01]), 5)  # type: ignore[arg-type]
+    return gr.window(view)
+
+
+class _FakeGlob:
+    def __init__(self, index: Any) -> None:
+        self.index = index
+
+
+def test_the_window_is_clipped_to_the_map_bounds() -> None:
+    got = _window_of(_Index((0.0, 0.0, 40.0, 20.0)))
+    assert got is not None
+    assert got[0] == pytest.approx((7.5, 0.0, 12.5, 3.5))
+
+
+@pytest.mark.parametrize("bounds", ["missing", None], ids=["no-attribute", "none"])
+def test_an_index_without_bounds_searches_the_whole_map(bounds: Any) -> None:
+    """No map extent: the window can be neither clipped nor compared with the map, so the
+    whole map is searched (as for a pose that says nothing), where the same pose on a map
+    with bounds gets a window."""
+    assert _window_of(_Index((0.0, 0.0, 40.0, 20.0))) is not None
+    assert _window_of(_Index(bounds)) is None
+
+
+@pytest.mark.parametrize(
+    "bounds", [(0.0, 0.0, 40.0), (0.0, 0.0, math.nan, 20.0), (40.0, 0.0, 0.0, 20.0), "abcd", 7]
+)
+def test_broken_index_bounds_are_an_error_not_a_whole_map_search(bounds: Any) -> None:
+    with pytest.raises(ValueError, match=r"map index bounds .*expected \(xmin, ymin, xmax, ymax\)"):
+        _window_of(_Index(bounds))
 
 
 def _drive(world: worlds.World, start: Pose, n: int) -> list[tuple[Pose, np.ndarray]]:

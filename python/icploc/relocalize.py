@@ -568,17 +568,32 @@ class GlobalRelocalization:
         """Where a global search while lost looks: the dead-reckoned position +-
         ``relocalize.window_sigmas`` sigmas of its covariance (the larger axis) plus
         ``window_margin``, clipped to the map, and its heading +- as many sigmas plus
-        ``window_heading_margin`` (None: every heading); None (the whole map) for a pose
-        that says nothing or a window that would cover most of the map anyway."""
+        ``window_heading_margin`` (None: every heading).
+
+        None (the whole map) for a pose that says nothing, a window that would cover most
+        of the map anyway, one that lies off the map, and a map index that has no bounds
+        (no ``bounds`` attribute, or ``None``: a stand-in for a :class:`MapIndex`, which
+        always has them): without the map's extent the window can neither be clipped to
+        the map nor told from one covering most of it, so the whole map is searched, as
+        for a pose that says nothing. Bounds that are not four finite numbers
+        ``(xmin, ymin, xmax, ymax)`` with ``xmin <= xmax`` and ``ymin <= ymax`` are a
+        broken index, not a missing one: ``ValueError``."""
         P = np.asarray(view.covariance, dtype=np.float64)
         x, y, th = view.pose
         if not (np.isfinite(P).all() and math.isfinite(x) and math.isfinite(y)):
             return None
         half, w = window_extent(P, self.settings)
+        bounds = getattr(view.index, "bounds", None)
+        if bounds is None:
+            return None  # no map extent: the whole map (see above)
         try:
-            x0, y0, x1, y1 = (float(v) for v in view.index.bounds)
-        except (AttributeError, TypeError, ValueError):
-            return None
+            x0, y0, x1, y1 = (float(v) for v in bounds)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"map index bounds {bounds!r}: expected (xmin, ymin, xmax, ymax)"
+            ) from None
+        if not (all(map(math.isfinite, (x0, y0, x1, y1))) and x0 <= x1 and y0 <= y1):
+            raise ValueError(f"map index bounds {bounds!r}: expected (xmin, ymin, xmax, ymax)")
         r = (max(x - half, x0), max(y - half, y0), min(x + half, x1), min(y + half, y1))
         if r[0] >= r[2] or r[1] >= r[3]:
             return None  # the dead reckoning left the map: search all of it
