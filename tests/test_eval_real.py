@@ -118,6 +118,23 @@ def test_real_fit_reproduces_the_real_odometry_drift() -> None:
     assert 0.5 * real_end < float(np.median(sim_end)) < 2.0 * real_end
 
 
+@pytest.mark.shared_data
+@pytest.mark.skipif(not (SHARED / "radish_corrected_logs").exists(), reason="../shared/data not present")
+def test_each_unseen_log_is_one_file_of_180_degree_scans_with_a_reference_path() -> None:
+    """The logs no one tuned on (eval_real.UNSEEN_LOGS): each name finds exactly one log,
+    its FLASER scans cover 180 degrees at 1 or 0.5 degree steps, and its corrected path is
+    long enough to cut into the three folds."""
+    import eval_real as ev
+
+    for name in ev.UNSEEN_LOGS:
+        (path,) = ev.find_logs(SHARED, [name])
+        log = rl.read_flaser(path)
+        assert log.ranges.shape[1] in (180, 181, 360, 361)
+        assert math.degrees(log.angles[-1] - log.angles[0]) == pytest.approx(180.0, abs=1.01)
+        travelled = float(np.sum(np.hypot(*np.diff(log.poses[:, :2], axis=0).T)))
+        assert len(log) > 200 and travelled > 150.0, name
+
+
 # --------------------------------------------------------------------------- sparsifier
 
 
