@@ -77,6 +77,19 @@ PATCH_PEAK_RADIUS = 0.1
 #: real logs' 0.5 m steps the few beams along a corridor are what holds it (belgioioso's
 #: patch 68 -> 40 % within 10 cm without them), so a long step keeps them.
 WEAK_AXIS_BEAMS = 20.0
+#: the keyframe spacing of a stretch's pose graph: scans this far apart (metres travelled,
+#: or radians turned: :data:`KEYFRAME_TURN`) are the loop matches' keyframes, and a chain
+#: step within both is a *short* step (:data:`WEAK_AXIS_BEAMS`)
+KEYFRAME_STEP = 0.25
+#: the turn that makes a keyframe by itself [rad] (see :data:`KEYFRAME_STEP`)
+KEYFRAME_TURN = 0.3
+
+
+def _apart(u: Pose, step: float = KEYFRAME_STEP, turn: float = KEYFRAME_TURN) -> bool:
+    """Whether a motion ``u`` (a relative pose) spans the keyframe spacing: at least
+    ``step`` m travelled or ``turn`` rad turned. The one measure of the loop matches'
+    keyframes and of a chain's short steps."""
+    return math.hypot(u[0], u[1]) >= step or abs(wrap_angle(u[2])) >= turn
 
 
 def corrected_poses(
@@ -146,12 +159,12 @@ def _chain(
     min_inliers: float = 0.6,
     gate: float = 16.0,
     weak_axis_beams: float = WEAK_AXIS_BEAMS,
-    short_step: float = 0.25,
+    keyframe_step: float = KEYFRAME_STEP,
 ) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
-    """:func:`refined_poses` and per step its covariance (map frame). A step shorter than
-    ``short_step`` (its motion: metres plus 0.3 per radian turned) leaves a direction its
-    match holds by fewer than ``weak_axis_beams`` beams to the odometry
-    (:data:`WEAK_AXIS_BEAMS`)."""
+    """:func:`refined_poses` and per step its covariance (map frame). A step within the
+    keyframe spacing (:func:`_apart`: under ``keyframe_step`` m and :data:`KEYFRAME_TURN`)
+    leaves a direction its match holds by fewer than ``weak_axis_beams`` beams to the
+    odometry (:data:`WEAK_AXIS_BEAMS`)."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -185,7 +198,7 @@ def _chain(
                 res = None
             if res is not None and res.converged and res.inlier_ratio >= min_inliers:
                 z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
-                weak = weak_axis_beams if step < short_step else 0.0
+                weak = 0.0 if _apart(u, keyframe_step) else weak_axis_beams
                 R = scan_covariance(
                     res.information, int(res.inliers), float(res.mse), 0.02, 5.0, weak
                 )
@@ -334,7 +347,7 @@ def graph_poses(
     *,
     anchor_sigma: tuple[float, float] = (0.03, 0.01),
     keep: int = 5,
-    keyframe_step: float = 0.25,
+    keyframe_step: float = KEYFRAME_STEP,
     loop_radius: float = 5.0,
     loop_gap: float = 0.4,
     nearest: int = 12,
@@ -350,7 +363,7 @@ def graph_poses(
     chain edges are the scan-matched odometry steps of :func:`refined_poses`; the
     re-entry ``lock`` (when there is one) is a second prior of ``anchor_sigma``. Solved
     once from the lock's correction spread along the chain (:func:`corrected_poses`),
-    then loop edges are added: each keyframe scan (``keyframe_step`` m / 0.3 rad apart)
+    then loop edges are added: each keyframe scan (``keyframe_step`` m / :data:`KEYFRAME_TURN` apart, :func:`_apart`)
     matched against its ``nearest`` earlier keyframes within ``loop_radius`` (at least
     ``loop_gap`` m of travel and two scans back: the robot came by again, in the wing or
     on the way back), drawn at that solution; a loop edge the solved graph disagrees with
@@ -375,7 +388,7 @@ def graph_poses(
         scans = [*scans, *lead[0]]
     total = len(coasted)
     chain, _, covs = _chain(
-        start, scans, coasted, keep=keep, min_inliers=min_inliers, short_step=keyframe_step
+        start, scans, coasted, keep=keep, min_inliers=min_inliers, keyframe_step=keyframe_step
     )
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
@@ -405,10 +418,7 @@ def graph_poses(
     for k in range(1, total + 1):
         if scans[k - 1].shape[0] < 20:
             continue
-        if not keys or (
-            math.hypot(*(x[k, :2] - x[keys[-1], :2])) >= keyframe_step
-            or abs(wrap_angle(x[k, 2] - x[keys[-1], 2])) >= 0.3
-        ):
+        if not keys or _apart(between(tuple(x[keys[-1]]), tuple(x[k])), keyframe_step):
             keys.append(k)
     for _ in range(rounds):
         loop = _loop_edges(x, keys, scans, cfg, loop_radius, loop_gap, nearest, min_inliers)
