@@ -95,7 +95,8 @@ class Estimate:
     #: odometry_off fit overruled still explains the scans as well), unconstrained (a
     #: corridor fit right after a stretch not tracking), unsettled (a pose a fit took
     #: against the odometry, or the first after a stretch without a verified fit, not yet
-    #: confirmed at the map's usual hit share), relocalized, suspect (a kidnap
+    #: confirmed at the map's usual hit share), relocalized, lock_unverified (a recovery's
+    #: lock the localizer's verification refused: degraded), suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
@@ -1389,7 +1390,7 @@ class Localizer:
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
                 accepted=True,
-                reason=Reason.RELOCALIZED,
+                reason=Reason.RELOCALIZED if step.verified else Reason.LOCK_UNVERIFIED,
                 degeneracy=float(res.degeneracy),
                 prediction=pred,
                 odometry=odom,

@@ -61,6 +61,10 @@ class Reason(_StrEnum):
     #: from before
     UNSETTLED = "unsettled"
     RELOCALIZED = "relocalized"
+    #: a lock the recovery took on its own evidence (its leader held longer than a lock
+    #: needs) that the localizer's verification refused: resumed ``degraded``, then
+    #: ``unsettled`` until its own fits verify at the map's usual share
+    LOCK_UNVERIFIED = "lock_unverified"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
     UNCONFIRMED = "unconfirmed"  #: a lock whose strict check is out
     ELSEWHERE = "elsewhere"  #: the check found the better pose again: lost
