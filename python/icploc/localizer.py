@@ -939,8 +939,20 @@ class Localizer:
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
         if self._rival is not None:
-            status, reason = self._dispute(pts, pose, check, status, reason)
-        if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
+            status, reason, back = self._dispute(pts, pose, check, status, reason)
+            if back is not None:
+                # the rival explains the scan clearly better than the pose now: the jump
+                # it overruled was a neighbouring minimum, the pose goes back to the rival
+                pose, cov, check = back
+                status, reason = Status.DEGRADED, Reason.REVERTED
+                if not self._unsettled:
+                    q = self.quality
+                    self._settle_hit = q.hit_reference if q.hit_measured else 0.0
+                self._unsettled = lc.settle_scans
+                self._anchor = None  # no calibration pair spans the jump back
+        if accepted and reason == Reason.ODOMETRY_OFF:
+            # the latest prediction a fit overruled is the rival (an older one disputed a
+            # pose the map has since left)
             self._rival = _Rival(*overruled)
         if status is Status.TRACKING and self._unsettled:
             status, reason = Status.DEGRADED, Reason.UNSETTLED
@@ -1058,7 +1070,7 @@ class Localizer:
         check: FitCheck,
         status: Status,
         reason: str,
-    ) -> tuple[Status, str]:
+    ) -> tuple[Status, str, tuple[Pose, NDArray[np.float64], FitCheck] | None]:
         """Follow the rival one scan: the prediction an ``odometry_off`` fit overruled,
         dead-reckoned (fits near it would follow the map's neighbouring minimum as readily
         as the pose did). Its evidence is the share of beams ending on walls at it, or at a
@@ -1069,7 +1081,13 @@ class Localizer:
         clearly more on ``dispute_scans`` scans in a row (the map has decided), or once it
         is as uncertain as a lost pose. Not by the chi-square gate: a dead-reckoned pose's
         covariance soon covers the neighbouring minimum the pose jumped to (and the pose's
-        own is so tight that a fit a few centimetres off would count as distinct)."""
+        own is so tight that a fit a few centimetres off would count as distinct).
+
+        The third item is where the pose goes back to (pose, covariance, its check), or None:
+        the rival's own fit verifies, is consistent with the rival's dead reckoning and
+        explains clearly more of the scan (``arbitration_margin``) than the pose — the same
+        test by which the jump was taken, now against it (after a jump to a neighbouring
+        minimum the pose's fits soon explain little while the rival's explain the scan)."""
         rv = self._rival
         assert rv is not None
         lc = self.config.localizer
@@ -1079,7 +1097,7 @@ class Localizer:
         vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
         if vague or not self._apart(pose, rp):
             self._rival = None
-            return status, reason
+            return status, reason, None
         if pts.shape[0] >= self.config.scan.min_points:
             hit = self.checker.check(pts, rp).hit
             res = self._run_icp(pts, rp, rP)
@@ -1090,16 +1108,23 @@ class Localizer:
                 at = self._check(pts, m[0], m[0], res)
                 if self._verified(at):
                     hit = max(hit, at.hit)
+                    if (
+                        at.hit >= check.hit + lc.arbitration_margin
+                        and mahalanobis2(rp, rP, m[0], m[1]) <= self._chi2_reject
+                    ):
+                        self._rival = None
+                        bp, bP = fuse(rp, rP, m[0], m[1])
+                        return status, reason, (bp, bP, self._check(pts, bp, m[0], res))
             if check.hit >= hit + lc.arbitration_margin:
                 rv.misses += 1
                 if rv.misses >= lc.dispute_scans:
                     self._rival = None
-                    return status, reason
+                    return status, reason, None
             else:
                 rv.misses = 0  # the map cannot tell the two apart
         if status is Status.TRACKING:
             status, reason = Status.DEGRADED, Reason.DISPUTED
-        return status, reason
+        return status, reason, None
 
     def _apart(self, a: Pose, b: Pose) -> bool:
         """Two poses the map can tell apart: farther than its hit distance, or turned by

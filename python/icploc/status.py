@@ -48,6 +48,10 @@ class Reason(_StrEnum):
     CONTRADICTED = "contradicted"  #: the fused pose explains far less of the scan than usual
     #: the prediction an ``odometry_off`` fit overruled still verifies (a rival pose)
     DISPUTED = "disputed"
+    #: the rival (the prediction an ``odometry_off`` fit overruled) explained the scan
+    #: clearly better than the pose, its own fit verified: the pose went back to it (then
+    #: ``unsettled`` as after any jump)
+    REVERTED = "reverted"
     UNVERIFIED = "unverified"
     UNCERTAIN = "uncertain"  #: verified, but the covariance is too wide to promise
     #: a weakly constrained fit (degeneracy below 0.1: a corridor) right after a stretch
