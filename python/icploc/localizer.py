@@ -360,6 +360,8 @@ class Localizer:
         self._unsettled = 0
         #: the last scan's fit was accepted beyond the accept quantile (``inflated``)
         self._inflated = False
+        #: the last scan's fit was rejected and grew the prediction's covariance
+        self._grown = False
         #: the hit share an unsettled pose's fits must reach (the usual one before it)
         self._settle_hit = 0.0
         #: scans in a row without a verified fit
@@ -428,6 +430,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._grown = False
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -449,6 +452,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._grown = False
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -788,6 +792,7 @@ class Localizer:
         R: NDArray[np.float64] | None = None
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
+        grown = False  # a rejected fit grew the prediction's covariance
         overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
@@ -862,6 +867,19 @@ class Localizer:
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                         if self._verified(at_z) and at_z.hit >= at_pred.hit:
                             self._learn_noise(pred, P0, z, m[1])  # the map backs the fit
+                        if not supported and at_z.hit >= at_pred.hit + lc.arbitration_margin:
+                            # the prediction stands, but the fit explains clearly more of the
+                            # scan than it: the chi-square test failed on a prediction whose
+                            # covariance is too tight (odometry off beyond its model: a turn
+                            # on the spot, a slip), so it is grown until the fit is at the
+                            # accept quantile and the next scan's fit can be weighed
+                            cov = _grown_until_consistent(pred, pred_cov, z, R, self._chi2_accept)
+                            grown = True
+                if accepted and self._grown and reason in (Reason.NONE, Reason.INFLATED) and self._apart(pred, z):
+                    # the last scan's fit was rejected and grew the covariance: this fit,
+                    # farther from the prediction than the map can tell apart, is taken
+                    # against the odometry as much as one the map arbitrated
+                    reason = Reason.ODOMETRY_OFF
                 if accepted:
                     self._rejected = None
                     self._learn_noise(pred, P0, z, m[1])
@@ -897,6 +915,7 @@ class Localizer:
         # the calibration's bias is what makes the odometry disagree with the fits; only
         # the calibration pair across a jump is dropped)
         self._settle(accepted, verified, reason, check, pred, pose)
+        self._grown = grown
         if verified:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
@@ -1553,6 +1572,23 @@ class Localizer:
 
         return restore(self, os.fspath(path))
 
+
+
+def _grown_until_consistent(
+    pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64], target: float
+) -> NDArray[np.float64]:
+    """``P`` scaled by the smallest factor (at least 1) that brings ``v'(fP + R)^-1 v``
+    down to ``target`` (bisection in log f; the statistic falls as f grows)."""
+    if mahalanobis2(pred, P, z, R) <= target:
+        return P
+    lo, hi = 0.0, math.log(1e6)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if mahalanobis2(pred, P * math.exp(mid), z, R) > target:
+            lo = mid
+        else:
+            hi = mid
+    return P * math.exp(hi)
 
 
 def _unknown_covariance() -> NDArray[np.float64]:
