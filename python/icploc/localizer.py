@@ -872,9 +872,14 @@ class Localizer:
                             # scan than it: the chi-square test failed on a prediction whose
                             # covariance is too tight (odometry off beyond its model: a turn
                             # on the spot, a slip), so it is grown until the fit is at the
-                            # accept quantile and the next scan's fit can be weighed
-                            cov = _grown_until_consistent(pred, pred_cov, z, R, self._chi2_accept)
-                            grown = True
+                            # accept quantile and the next scan's fit can be weighed. Only by
+                            # as much as the learned odometry noise may grow
+                            # (``noise_gain_max``): a fit farther off than that is another
+                            # place, not odometry off beyond its model
+                            grow = _growth_to_consistent(pred, pred_cov, z, R, self._chi2_accept)
+                            if grow <= lc.noise_gain_max:
+                                cov = pred_cov * grow
+                                grown = True
                 if accepted and self._grown and reason in (Reason.NONE, Reason.INFLATED) and self._apart(pred, z):
                     # the last scan's fit was rejected and grew the covariance: this fit,
                     # farther from the prediction than the map can tell apart, is taken
@@ -1574,13 +1579,15 @@ class Localizer:
 
 
 
-def _grown_until_consistent(
+def _growth_to_consistent(
     pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64], target: float
-) -> NDArray[np.float64]:
-    """``P`` scaled by the smallest factor (at least 1) that brings ``v'(fP + R)^-1 v``
-    down to ``target`` (bisection in log f; the statistic falls as f grows)."""
+) -> float:
+    """The smallest factor f (at least 1) that brings ``v'(fP + R)^-1 v`` down to
+    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6)."""
     if mahalanobis2(pred, P, z, R) <= target:
-        return P
+        return 1.0
+    if mahalanobis2(pred, P * 1e6, z, R) > target:
+        return math.inf
     lo, hi = 0.0, math.log(1e6)
     for _ in range(40):
         mid = 0.5 * (lo + hi)
@@ -1588,7 +1595,7 @@ def _grown_until_consistent(
             lo = mid
         else:
             hi = mid
-    return P * math.exp(hi)
+    return math.exp(hi)
 
 
 def _unknown_covariance() -> NDArray[np.float64]:
