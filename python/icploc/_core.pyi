@@ -275,6 +275,31 @@ def parse_floats(text: str) -> NDArray[np.float64]:
     """Every whitespace-separated token of ``text`` as float64 (decimal, exponent, nan, inf),
     in order, exact; :class:`InvalidInputError` naming the first token that is not a number."""
 
+def fit_score(
+    index: MapIndex,
+    points: ArrayLike,
+    pose: Sequence[float],
+    max_beams: int,
+    hit_distance: float,
+) -> tuple[float, float, int]:
+    """``(hit, rms, beams)``: the evidence of the (N, 2) scan ``points`` (robot frame) at
+    ``pose``. At most ``max_beams`` beams spread evenly over the scan (first and last
+    included) are moved into the map frame; a beam hits when its exact nearest map point is
+    closer than ``hit_distance``. ``hit`` is the share of beams that hit, ``rms`` the RMS of
+    their offsets from those points along the points' normals (inf when none hits)."""
+
+def noise_factor(
+    v: tuple[float, float, float],
+    p: ArrayLike,
+    r: ArrayLike,
+    max_gain: float,
+) -> float | None:
+    """The factor ``g`` on the (3, 3) prediction covariance ``p`` that makes
+    ``v' (g p + r)^-1 v`` equal to 2.366, the median of the chi-square distribution with 3
+    degrees of freedom (``v``: scan pose minus prediction, heading wrapped; ``r``: the scan
+    pose's covariance). Bisection on ``log g`` within ``[1e-3, 4 max_gain]``, an end when the
+    root lies beyond it; None when an input is not finite."""
+
 def raycast(
     segments: ArrayLike,
     pose: Sequence[float],

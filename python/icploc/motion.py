@@ -29,14 +29,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icploc._core import noise_factor
 from icploc.se2 import Pose, compose, inverse
 
 __all__ = ["MotionModel", "NoiseGain", "fit_alphas"]
 
 #: below this translation (m) a motion is a turn on the spot: rot1 is taken as 0
 _MIN_TRANS = 0.01
-#: the median of the chi-square distribution with 3 degrees of freedom
-_CHI2_3_MEDIAN = 2.366
 
 
 @dataclass(frozen=True)
@@ -156,37 +155,18 @@ class NoiseGain:
     ) -> None:
         """One trusted scan pose ``meas`` (covariance ``R``) against the prediction ``pred``
         (covariance ``P``, made with the gain ``current``)."""
-        v = np.array(
-            [meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau)]
-        )
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(P)) and np.all(np.isfinite(R))):
+        v = (meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau))
+        # bisection on log g within [1e-3, 4 max_gain] (the statistic falls as g grows; at
+        # an end when the root lies beyond it); None: an input is not finite
+        g = noise_factor(v, P, R, self.max_gain)
+        if g is None:
             return
-        lo, hi = 1e-3, self.max_gain * 4.0
-        if _nis(v, hi * P, R) > _CHI2_3_MEDIAN:
-            g = hi  # beyond what any gain explains: counted at the top
-        elif _nis(v, lo * P, R) < _CHI2_3_MEDIAN:
-            g = lo  # the scan's own noise explains it
-        else:
-            for _ in range(40):  # bisection on log g (the statistic falls as g grows)
-                mid = math.sqrt(lo * hi)
-                if _nis(v, mid * P, R) > _CHI2_3_MEDIAN:
-                    lo = mid
-                else:
-                    hi = mid
-            g = math.sqrt(lo * hi)
         self._g.append(g * max(float(current), 1e-6))
         while len(self._g) > self.window:
             self._g.popleft()
 
     def reset(self) -> None:
         self._g.clear()
-
-
-def _nis(v: NDArray[np.float64], P: NDArray[np.float64], R: NDArray[np.float64]) -> float:
-    try:
-        return float(v @ np.linalg.solve(P + R, v))
-    except np.linalg.LinAlgError:
-        return math.inf
 
 
 def fit_alphas(

@@ -13,6 +13,8 @@
 //!   degeneracy from the Hessian of the final cost.
 //! * [`likelihood`]: the likelihood grid and max-pooled pyramid of the correlative searches.
 //! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
+//! * [`fitscore`]: the verification evidence of a scan at a pose (hit share, residual).
+//! * [`noisegain`]: the odometry noise factor of one trusted scan pose (online noise).
 //! * [`gridlines`]: wall lines (and leftover surface points) traced from occupancy grids.
 //! * [`gridcast`]: occupancy grids from scans by ray casting (building maps from logs).
 //! * [`raycast`]: ray casting against wall segments (simulation, visibility).
@@ -22,12 +24,14 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod error;
+pub mod fitscore;
 pub mod global;
 pub mod gridcast;
 pub mod gridlines;
 pub mod icp;
 pub mod index;
 pub mod likelihood;
+pub mod noisegain;
 pub mod quaternion;
 pub mod raycast;
 pub mod se2;
