@@ -174,3 +174,93 @@ def test_noise_factor_without_finite_input_is_no_evidence() -> None:
     assert list(ng._g) == [pytest.approx(_reference_factor(np.array([0.1, 0.0, 0.0]), P, P, 10.0))]
     with pytest.raises(_core.InvalidInputError, match="P"):
         _core.noise_factor((0.1, 0.0, 0.0), np.eye(2), P, 10.0)
+
+
+def _reference_scan_covariance(information: np.ndarray, inliers: int, mse: float, sigma_floor: float,
+                               independent_beams: float, min_axis_beams: float) -> np.ndarray:
+    """``fusion.scan_covariance`` as it was in Python (its weak-axis branch left out: the
+    core hands those cases back to it)."""
+    from icploc.fusion import _HUGE, _inv3
+
+    n = max(int(inliers), 1)
+    H = np.asarray(information, dtype=np.float64).reshape(3, 3).tolist()
+    s2 = max(float(mse) if math.isfinite(mse) else 0.0, sigma_floor * sigma_floor)
+    f = min(float(independent_beams), float(n)) / (n * s2)
+    eps = 1.0 / _HUGE
+    info = [
+        [H[0][0] * f + eps, 0.5 * (H[0][1] + H[1][0]) * f, 0.5 * (H[0][2] + H[2][0]) * f],
+        [0.0, H[1][1] * f + eps, 0.5 * (H[1][2] + H[2][1]) * f],
+        [0.0, 0.0, H[2][2] * f + eps],
+    ]
+    inv = _inv3(info)
+    return np.eye(3) * _HUGE if inv is None else np.array(inv)
+
+
+def test_scan_covariance_equals_the_python_bit_for_bit() -> None:
+    from icploc.fusion import scan_covariance
+
+    rng = np.random.default_rng(5)
+    handed_back = 0
+    for _ in range(500):
+        # the information of unit normals: counts of beams along two directions plus coupling
+        a, b = 10.0 ** rng.uniform(-1.0, 2.5, 2)
+        u = rng.uniform(0, math.pi)
+        c, s = math.cos(u), math.sin(u)
+        H = np.array([[a * c * c + b * s * s, (a - b) * c * s, rng.normal(0, 5)],
+                      [(a - b) * c * s, a * s * s + b * c * c, rng.normal(0, 5)],
+                      [0.0, 0.0, rng.uniform(10.0, 5000.0)]])
+        H[2, 0], H[2, 1] = H[0, 2] + rng.normal(0, 1e-3), H[1, 2]  # slightly asymmetric, as fits are
+        inliers = int(rng.integers(0, 400))
+        mse = float(rng.choice([rng.uniform(1e-6, 1e-2), math.nan, math.inf]))
+        floor, beams = float(rng.uniform(0.005, 0.05)), float(rng.choice([5.0, 12.0, 40.0]))
+        bound = float(rng.choice([0.0, 8.0]))
+        got = _core.scan_covariance(H, inliers, mse, floor, beams, bound)
+        if got is None:
+            handed_back += 1
+            assert bound > 0.0
+            continue
+        np.testing.assert_array_equal(got, _reference_scan_covariance(H, inliers, mse, floor, beams, bound))
+        np.testing.assert_array_equal(scan_covariance(H, inliers, mse, floor, beams, bound), got)
+    assert 50 < handed_back < 250  # both paths are exercised
+    # no information at all: a huge covariance
+    np.testing.assert_array_equal(_core.scan_covariance(np.full((3, 3), math.nan), 0, 0.0, 0.01, 12.0, 8.0),
+                                  np.eye(3) * 1e6)
+
+
+def test_prepare_points_equals_the_numpy_preparation() -> None:
+    from icploc.config import LocalizerConfig
+    from icploc.messages import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
+    from icploc.scanprep import prepare_scan
+
+    rng = np.random.default_rng(9)
+    n = 361
+    ang = np.linspace(-math.pi / 2, math.pi / 2, n)
+    bad = BEAM_NO_RETURN | BEAM_DAZZLE | BEAM_INVALID
+    for k in range(30):
+        r = rng.uniform(0.0, 40.0, n)
+        r[rng.integers(0, n, 20)] = math.inf
+        r[rng.integers(0, n, 5)] = math.nan
+        flags = rng.choice([0, 0, 0, BEAM_DAZZLE, 8], n).astype(np.uint8) if k % 2 else None
+        scan = Scan(float(k), r, ang, flags, max_range=float(rng.choice([30.0, math.inf])), min_range=0.02)
+        cfg = LocalizerConfig().replace(scan={
+            "decimation": int(rng.choice([1, 2, 3])),
+            "laser_x": float(rng.choice([0.0, 0.12])), "laser_y": float(rng.choice([0.0, -0.03])),
+            "laser_theta": float(rng.choice([0.0, 0.05])), "min_range": float(rng.choice([0.0, 0.5])),
+        })
+        sc = cfg.scan
+        # the numpy preparation as it was
+        hi = sc.max_range if sc.max_range > 0.0 else scan.max_range
+        if hi != math.inf:
+            hi = hi * sc.max_range_margin
+        lo = sc.min_range if sc.min_range > scan.min_range else scan.min_range
+        ok = (r < hi) & (r > lo)
+        if flags is not None:
+            ok &= (flags & np.uint8(bad)) == 0
+        idx = ok.nonzero()[0][:: sc.decimation]
+        c, s = np.cos(ang + sc.laser_theta), np.sin(ang + sc.laser_theta)
+        want = np.column_stack((r[idx] * c[idx], r[idx] * s[idx]))
+        if sc.laser_x != 0.0 or sc.laser_y != 0.0:
+            want += (sc.laser_x, sc.laser_y)
+        got = prepare_scan(scan, cfg)
+        assert got.shape == want.shape and got.shape[0] > 50
+        np.testing.assert_array_equal(got, want)

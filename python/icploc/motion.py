@@ -135,15 +135,22 @@ class NoiseGain:
     #: factors kept before the median is used (until then: 1)
     min_samples: int = 5
     _g: deque[float] = field(default_factory=deque, repr=False)
+    #: the gain of the factors in ``_g`` (None: to be computed; read once a scan)
+    _gain: float | None = field(default=None, repr=False)
 
     @property
     def gain(self) -> float:
+        if self._gain is not None:
+            return self._gain
         if len(self._g) < self.min_samples:
-            return 1.0
-        v = sorted(self._g)
-        n = len(v)
-        m = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
-        return min(max(m, 1.0), self.max_gain)
+            g = 1.0
+        else:
+            v = sorted(self._g)
+            n = len(v)
+            m = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+            g = min(max(m, 1.0), self.max_gain)
+        self._gain = g
+        return g
 
     def observe(
         self,
@@ -164,9 +171,11 @@ class NoiseGain:
         self._g.append(g * max(float(current), 1e-6))
         while len(self._g) > self.window:
             self._g.popleft()
+        self._gain = None
 
     def reset(self) -> None:
         self._g.clear()
+        self._gain = None
 
 
 def fit_alphas(

@@ -1,16 +1,19 @@
 //! The localizer's per-scan arithmetic that ran in numpy: the verification evidence of a
-//! pose (`fit_score`, for `icploc.fitcheck.FitChecker`) and the online odometry noise
-//! factor (`noise_factor`, for `icploc.motion.NoiseGain`). Small inputs, called several
+//! pose (`fit_score`, for `icploc.fitcheck.FitChecker`), the online odometry noise factor
+//! (`noise_factor`, for `icploc.motion.NoiseGain`) and the scan match's covariance
+//! (`scan_covariance`, for `icploc.fusion.scan_covariance`). Small inputs, called several
 //! times a scan: the arguments are read without numpy conversions (tuples as they are,
-//! 3x3 arrays element by element), the result is plain floats.
+//! 3x3 arrays element by element), the results are plain floats or one 3x3 array.
 
-use numpy::{PyReadonlyArray2, PyUntypedArrayMethods};
+use std::borrow::Cow;
+
+use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use icploc_core as core;
 use icploc_core::Pose2;
 
-use crate::{array2, input_err, pose_fast, PyMapIndex};
+use crate::{array2, input_err, mat3, pose_fast, PyMapIndex};
 
 /// A (3, 3) float array (any layout), else a clear error naming it.
 fn mat3_arg(py: Python<'_>, obj: &Bound<'_, PyAny>, what: &str) -> PyResult<[[f64; 3]; 3]> {
@@ -83,7 +86,86 @@ fn noise_factor(
     ))
 }
 
+/// The (3, 3) covariance of an ICP pose from its fit's `information` (see
+/// `icploc_core::fusion`); None when a direction may be held by fewer than
+/// `min_axis_beams` beams (the caller's eigen-decomposition decides).
+#[pyfunction]
+fn scan_covariance<'py>(
+    py: Python<'py>,
+    information: &Bound<'py, PyAny>,
+    inliers: i64,
+    mse: f64,
+    sigma_floor: f64,
+    independent_beams: f64,
+    min_axis_beams: f64,
+) -> PyResult<Option<Bound<'py, PyArray2<f64>>>> {
+    let h = mat3_arg(py, information, "information")?;
+    Ok(core::fusion::scan_covariance(
+        &h,
+        inliers,
+        mse,
+        sigma_floor,
+        independent_beams,
+        min_axis_beams,
+    )
+    .map(|c| mat3(py, &c)))
+}
+
+/// A 1-D array's values: borrowed when contiguous, else copied.
+fn slice<'a, T: numpy::Element + Copy>(a: &'a PyReadonlyArray1<'_, T>) -> Cow<'a, [T]> {
+    match a.as_slice() {
+        Ok(s) => Cow::Borrowed(s),
+        Err(_) => Cow::Owned(a.as_array().iter().copied().collect()),
+    }
+}
+
+/// The (M, 2) robot-frame points of a scan's usable beams (see `icploc_core::scanprep`):
+/// `ranges`, `flags` (or None), `cos` and `sin` of the beam angles plus the laser's
+/// heading, all of one length.
+#[pyfunction]
+#[allow(clippy::too_many_arguments)]
+fn prepare_points<'py>(
+    py: Python<'py>,
+    ranges: PyReadonlyArray1<'py, f64>,
+    flags: Option<PyReadonlyArray1<'py, u8>>,
+    cos: PyReadonlyArray1<'py, f64>,
+    sin: PyReadonlyArray1<'py, f64>,
+    lo: f64,
+    hi: f64,
+    decimation: usize,
+    bad_flags: u8,
+    offset: (f64, f64),
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let n = ranges.len();
+    let lens = [cos.len(), sin.len(), flags.as_ref().map_or(n, |f| f.len())];
+    if lens.iter().any(|&k| k != n) {
+        return Err(input_err(
+            py,
+            "prepare_points",
+            format!("ranges, cos, sin and flags must be of one length, got {n} and {lens:?}"),
+        ));
+    }
+    let (r, c, s) = (slice(&ranges), slice(&cos), slice(&sin));
+    let f = flags.as_ref().map(slice);
+    let pts = py.detach(|| {
+        core::scanprep::prepare_points(
+            &r,
+            f.as_deref(),
+            &c,
+            &s,
+            lo,
+            hi,
+            decimation,
+            bad_flags,
+            [offset.0, offset.1],
+        )
+    });
+    Ok(crate::pairs_to_array(py, &pts))
+}
+
 pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(prepare_points, m)?)?;
+    m.add_function(wrap_pyfunction!(scan_covariance, m)?)?;
     m.add_function(wrap_pyfunction!(fit_score, m)?)?;
     m.add_function(wrap_pyfunction!(noise_factor, m)?)?;
     Ok(())
