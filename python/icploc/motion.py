@@ -56,7 +56,11 @@ class MotionModel:
 
     def motion_covariance(self, d: Sequence[float]) -> NDArray[np.float64]:
         """3x3 covariance of the motion ``d`` (dx, dy, dtheta) in its start frame."""
-        dx, dy, dth = float(d[0]), float(d[1]), float(d[2])
+        q00, q01, q11, q22 = self._motion_q(float(d[0]), float(d[1]), float(d[2]))
+        return np.array([[q00, q01, 0.0], [q01, q11, 0.0], [0.0, 0.0, q22]])
+
+    def _motion_q(self, dx: float, dy: float, dth: float) -> tuple[float, float, float, float]:
+        """The motion covariance's entries (xx, xy, yy, theta-theta), in floats."""
         t = math.hypot(dx, dy)
         g = self.gain
         t2, r2 = t * t, dth * dth
@@ -71,13 +75,7 @@ class MotionModel:
         q00 = c * c * v_al + s * s * v_lat + fxy
         q01 = c * s * (v_al - v_lat)
         q11 = s * s * v_al + c * c * v_lat + fxy
-        return np.array(
-            [
-                [q00, q01, 0.0],
-                [q01, q11, 0.0],
-                [0.0, 0.0, v_th + self.floor_theta * self.floor_theta],
-            ]
-        )
+        return q00, q01, q11, v_th + self.floor_theta * self.floor_theta
 
     def predict(
         self, pose: Pose, covariance: NDArray[np.float64], d: Sequence[float]
@@ -97,7 +95,7 @@ class MotionModel:
         f02 = p02 + a * p22
         f11 = p11 + 2 * b * p12 + b * b * p22
         f12 = p12 + b * p22
-        (q00, q01, _), (_, q11, _), (_, _, q22) = self.motion_covariance((dx, dy, dth)).tolist()
+        q00, q01, q11, q22 = self._motion_q(dx, dy, dth)
         # G Q G^T: rotate the motion's (x, y) block by the heading
         g00 = c * c * q00 - 2 * c * s * q01 + s * s * q11
         g01 = c * s * (q00 - q11) + (c * c - s * s) * q01
