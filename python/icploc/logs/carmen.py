@@ -918,7 +918,7 @@ def read_carmen(
             )
     elif use == "laser":
         # each block's rows as floats once (not three numpy scalars and a reduction a scan)
-        finite: list[list[bool]] = [np.isfinite(b.odom).all(axis=1).tolist() for b in blocks]
+        finite: list[list[bool]] = [np.isfinite(b.odom).all(axis=1).tolist() for b in blocks]  # type: ignore[misc]
         odom_rows = [b.odom.tolist() for b in blocks]
         vel_rows = [None if b.velocity is None else b.velocity.tolist() for b in blocks]
         for st, li, bi, j in rows:
