@@ -88,6 +88,7 @@ pub fn scan_covariance(
 }
 
 #[cfg(test)]
+#[allow(clippy::needless_range_loop)] // the 3x3 checks index rows and columns
 mod tests {
     use super::*;
 

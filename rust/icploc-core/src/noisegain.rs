@@ -18,6 +18,7 @@ pub const STEPS: usize = 40;
 
 /// `v' S^-1 v` for `S = g P + R`, by Gaussian elimination with partial pivoting (as
 /// LAPACK's `gesv`); infinite when `S` is singular.
+#[allow(clippy::needless_range_loop)]
 pub fn nis(v: &[f64; 3], p: &[[f64; 3]; 3], g: f64, r: &[[f64; 3]; 3]) -> f64 {
     let mut a = [[0.0f64; 3]; 3];
     for i in 0..3 {
@@ -34,6 +35,7 @@ pub fn nis(v: &[f64; 3], p: &[[f64; 3]; 3], g: f64, r: &[[f64; 3]; 3]) -> f64 {
 /// `A x = b` by LU with partial pivoting (the pivot the first largest in magnitude, the
 /// multipliers scaled by the pivot's reciprocal as LAPACK's `getf2` does); None when a
 /// pivot is exactly zero (numpy's `LinAlgError`).
+#[allow(clippy::needless_range_loop)] // LU on a 3x3: rows and columns by index
 pub fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
     for k in 0..3 {
         let mut piv = k;
