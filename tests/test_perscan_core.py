@@ -148,7 +148,7 @@ def test_noise_factor_equals_the_numpy_bisection() -> None:
             v = np.zeros(3)
         max_gain = float(rng.choice([3.0, 10.0]))
         want = _reference_factor(v, P, R, max_gain)
-        got = _core.noise_factor(tuple(v), P, R, max_gain)
+        got = _core.noise_factor(tuple(v), P, R, max_gain, 2.366)
         assert want is not None and got is not None
         # LAPACK's solve and the core's may round differently: the same root to 1e-9
         assert got == pytest.approx(want, rel=1e-9)
@@ -163,17 +163,17 @@ def test_noise_factor_equals_the_numpy_bisection() -> None:
 
 def test_noise_factor_without_finite_input_is_no_evidence() -> None:
     P = np.eye(3) * 1e-3
-    assert _core.noise_factor((math.nan, 0.0, 0.0), P, P, 10.0) is None
+    assert _core.noise_factor((math.nan, 0.0, 0.0), P, P, 10.0, 2.366) is None
     bad = P.copy()
     bad[2, 1] = math.inf
-    assert _core.noise_factor((0.1, 0.0, 0.0), P, bad, 10.0) is None
+    assert _core.noise_factor((0.1, 0.0, 0.0), P, bad, 10.0, 2.366) is None
     ng = NoiseGain()
     ng.observe((0.0, 0.0, 0.0), bad, (0.1, 0.0, 0.0), P)
     assert len(ng._g) == 0
     ng.observe((0.0, 0.0, 0.0), P, (0.1, 0.0, 0.0), P)
     assert list(ng._g) == [pytest.approx(_reference_factor(np.array([0.1, 0.0, 0.0]), P, P, 10.0))]
     with pytest.raises(_core.InvalidInputError, match="P"):
-        _core.noise_factor((0.1, 0.0, 0.0), np.eye(2), P, 10.0)
+        _core.noise_factor((0.1, 0.0, 0.0), np.eye(2), P, 10.0, 2.366)
 
 
 def _reference_scan_covariance(information: np.ndarray, inliers: int, mse: float, sigma_floor: float,

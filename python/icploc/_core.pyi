@@ -293,10 +293,11 @@ def noise_factor(
     p: ArrayLike,
     r: ArrayLike,
     max_gain: float,
+    median: float,
 ) -> float | None:
     """The factor ``g`` on the (3, 3) prediction covariance ``p`` that makes
-    ``v' (g p + r)^-1 v`` equal to 2.366, the median of the chi-square distribution with 3
-    degrees of freedom (``v``: scan pose minus prediction, heading wrapped; ``r``: the scan
+    ``v' (g p + r)^-1 v`` equal to ``median`` (the chi-square median with 3 degrees of
+    freedom, 2.366; ``v``: scan pose minus prediction, heading wrapped; ``r``: the scan
     pose's covariance). Bisection on ``log g`` within ``[1e-3, 4 max_gain]``, an end when the
     root lies beyond it; None when an input is not finite."""
 

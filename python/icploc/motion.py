@@ -36,6 +36,8 @@ __all__ = ["MotionModel", "NoiseGain", "fit_alphas"]
 
 #: below this translation (m) a motion is a turn on the spot: rot1 is taken as 0
 _MIN_TRANS = 0.01
+#: the median of the chi-square distribution with 3 degrees of freedom
+_CHI2_3_MEDIAN = 2.366
 
 
 @dataclass(frozen=True)
@@ -163,7 +165,7 @@ class NoiseGain:
         v = (meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau))
         # bisection on log g within [1e-3, 4 max_gain] (the statistic falls as g grows; at
         # an end when the root lies beyond it); None: an input is not finite
-        g = noise_factor(v, P, R, self.max_gain)
+        g = noise_factor(v, P, R, self.max_gain, _CHI2_3_MEDIAN)
         if g is None:
             return
         self._g.append(g * max(float(current), 1e-6))

@@ -1,14 +1,12 @@
 //! The odometry noise factor of one scan (the localizer's online noise estimate,
 //! `icploc.motion.NoiseGain`): the factor `g` on the prediction's covariance `P` that makes
-//! the normalised innovation `v' (g P + R)^-1 v` of a trusted scan pose equal to the median
-//! of its chi-square distribution (3 degrees of freedom).
+//! the normalised innovation `v' (g P + R)^-1 v` of a trusted scan pose equal to a target,
+//! the median of its chi-square distribution (3 degrees of freedom: 2.366, the caller's
+//! constant).
 //!
 //! The statistic falls as `g` grows; `g` is found by bisection on its logarithm within
 //! `[1e-3, 4 max_gain]` (40 halvings), counted at an end when the root lies beyond it.
 //! Each step solves a 3x3 system: in numpy that was ~40 `np.linalg.solve` calls a scan.
-
-/// The median of the chi-square distribution with 3 degrees of freedom.
-pub const CHI2_3_MEDIAN: f64 = 2.366;
 
 /// The lower end of the factor's bracket.
 pub const MIN_FACTOR: f64 = 1e-3;
@@ -74,12 +72,14 @@ pub fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
 
 /// The factor `g` of one trusted scan pose (see the module docstring): `v` the scan pose
 /// minus the prediction (heading wrapped), `p` the prediction's covariance, `r` the scan
-/// pose's. None when any input is not finite (no evidence).
+/// pose's, `median` the statistic's target. None when any input is not finite (no
+/// evidence).
 pub fn noise_factor(
     v: &[f64; 3],
     p: &[[f64; 3]; 3],
     r: &[[f64; 3]; 3],
     max_gain: f64,
+    median: f64,
 ) -> Option<f64> {
     let finite = v.iter().all(|x| x.is_finite())
         && p.iter().flatten().all(|x| x.is_finite())
@@ -88,15 +88,15 @@ pub fn noise_factor(
         return None;
     }
     let (mut lo, mut hi) = (MIN_FACTOR, max_gain * 4.0);
-    if nis(v, p, hi, r) > CHI2_3_MEDIAN {
+    if nis(v, p, hi, r) > median {
         return Some(hi); // beyond what any gain explains: counted at the top
     }
-    if nis(v, p, lo, r) < CHI2_3_MEDIAN {
+    if nis(v, p, lo, r) < median {
         return Some(lo); // the scan's own noise explains it
     }
     for _ in 0..STEPS {
         let mid = (lo * hi).sqrt();
-        if nis(v, p, mid, r) > CHI2_3_MEDIAN {
+        if nis(v, p, mid, r) > median {
             lo = mid;
         } else {
             hi = mid;
@@ -108,6 +108,9 @@ pub fn noise_factor(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// the median of the chi-square distribution with 3 degrees of freedom
+    const CHI2_3_MEDIAN: f64 = 2.366;
 
     fn diag(a: f64, b: f64, c: f64) -> [[f64; 3]; 3] {
         [[a, 0.0, 0.0], [0.0, b, 0.0], [0.0, 0.0, c]]
@@ -136,13 +139,13 @@ mod tests {
         // v_i^2 = p_i each term is 1/g, so g = 3 / 2.366
         let p = diag(0.01, 0.04, 0.001);
         let v = [0.1, 0.2, 0.001f64.sqrt()];
-        let g = noise_factor(&v, &p, &diag(0.0, 0.0, 0.0), 10.0).unwrap();
+        let g = noise_factor(&v, &p, &diag(0.0, 0.0, 0.0), 10.0, CHI2_3_MEDIAN).unwrap();
         assert!((g - 3.0 / CHI2_3_MEDIAN).abs() < 1e-9 * g, "g {g}");
         let at = nis(&v, &p, g, &diag(0.0, 0.0, 0.0));
         assert!((at - CHI2_3_MEDIAN).abs() < 1e-9, "nis {at}");
         // with a measurement covariance the factor is smaller (R explains part of v)
         let r = diag(0.005, 0.01, 0.0002);
-        let gr = noise_factor(&v, &p, &r, 10.0).unwrap();
+        let gr = noise_factor(&v, &p, &r, 10.0, CHI2_3_MEDIAN).unwrap();
         assert!(gr < g);
         assert!((nis(&v, &p, gr, &r) - CHI2_3_MEDIAN).abs() < 1e-9);
     }
@@ -152,15 +155,24 @@ mod tests {
         let p = diag(0.01, 0.01, 0.001);
         let r = diag(0.01, 0.01, 0.001);
         // far off: no gain explains it
-        assert_eq!(noise_factor(&[5.0, 0.0, 0.0], &p, &r, 10.0), Some(40.0));
+        assert_eq!(
+            noise_factor(&[5.0, 0.0, 0.0], &p, &r, 10.0, CHI2_3_MEDIAN),
+            Some(40.0)
+        );
         // right on: the scan's own noise explains it
         assert_eq!(
-            noise_factor(&[0.0, 0.0, 0.0], &p, &r, 10.0),
+            noise_factor(&[0.0, 0.0, 0.0], &p, &r, 10.0, CHI2_3_MEDIAN),
             Some(MIN_FACTOR)
         );
-        assert_eq!(noise_factor(&[f64::NAN, 0.0, 0.0], &p, &r, 10.0), None);
+        assert_eq!(
+            noise_factor(&[f64::NAN, 0.0, 0.0], &p, &r, 10.0, CHI2_3_MEDIAN),
+            None
+        );
         let mut bad = p;
         bad[1][2] = f64::INFINITY;
-        assert_eq!(noise_factor(&[0.1, 0.0, 0.0], &bad, &r, 10.0), None);
+        assert_eq!(
+            noise_factor(&[0.1, 0.0, 0.0], &bad, &r, 10.0, CHI2_3_MEDIAN),
+            None
+        );
     }
 }

@@ -66,8 +66,8 @@ fn fit_score(
 }
 
 /// The odometry noise factor of one trusted scan pose (see `icploc_core::noisegain`):
-/// `v` the scan pose minus the prediction, `p` and `r` their covariances; None when an
-/// input is not finite.
+/// `v` the scan pose minus the prediction, `p` and `r` their covariances, `median` the
+/// statistic's target; None when an input is not finite.
 #[pyfunction]
 fn noise_factor(
     py: Python<'_>,
@@ -75,6 +75,7 @@ fn noise_factor(
     p: &Bound<'_, PyAny>,
     r: &Bound<'_, PyAny>,
     max_gain: f64,
+    median: f64,
 ) -> PyResult<Option<f64>> {
     let p = mat3_arg(py, p, "P")?;
     let r = mat3_arg(py, r, "R")?;
@@ -83,6 +84,7 @@ fn noise_factor(
         &p,
         &r,
         max_gain,
+        median,
     ))
 }
 
