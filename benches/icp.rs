@@ -146,7 +146,7 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
         window_search: false,
         ..cfg.clone()
     };
-    let fastest = |f: &dyn Fn() -> ()| {
+    let fastest = |f: &dyn Fn()| {
         (0..3)
             .map(|_| {
                 let t0 = Instant::now();
@@ -168,9 +168,7 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
         .iter()
         .map(|c| {
             fastest(&|| {
-                drop(black_box(icploc_core::icp::assess(
-                    &c.scan, idx, c.truth, cfg,
-                )))
+                black_box(icploc_core::icp::assess(&c.scan, idx, c.truth, cfg));
             })
         })
         .collect();
@@ -178,9 +176,7 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
         .iter()
         .map(|c| {
             fastest(&|| {
-                drop(black_box(icploc_core::icp::see_through(
-                    &c.scan, idx, c.truth,
-                )))
+                black_box(icploc_core::icp::see_through(&c.scan, idx, c.truth));
             })
         })
         .collect();
@@ -211,7 +207,7 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
     for (t, k, _, d) in rows.iter().filter(|r| !r.2) {
         eprintln!("  {family} {start} MISS case {k} {t:?}: {d}");
     }
-    rows.sort_by(|a, b| b.0.cmp(&a.0));
+    rows.sort_by_key(|r| std::cmp::Reverse(r.0));
     for (t, k, ok, d) in rows.iter().take(cs.len().div_ceil(20)) {
         eprintln!("  {family} {start} slow case {k} {t:?} ok={ok}: {d}");
     }
