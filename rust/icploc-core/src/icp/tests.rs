@@ -754,3 +754,28 @@ fn the_heading_prior_sees_walls_within_two_metres() {
         "{some} priors, {close} within 1.5°"
     );
 }
+
+#[test]
+fn point_to_line_step_tolerance_caps_at_a_millimetre() {
+    // the documented stop: point-to-line stops at a step below √`step_tolerance`, at most
+    // `QUADRATIC_STOP` (1 mm / 1 mrad): any tolerance from 1e-6 up gives the same fit, and
+    // only a smaller one (√ below 1 mm) asks for more iterations
+    let segs = office_segments();
+    let (p, n) = sample_segments(&segs, 0.025);
+    let idx = MapIndex::new(p, Some(n)).unwrap();
+    let cs = cases(&segs, 10, (0.1, 0.1, 0.05), 0.01, 0.0, 4);
+    let run = |tol: f64| -> Vec<IcpResult> {
+        let c = IcpConfig {
+            step_tolerance: tol,
+            window_search: false,
+            ..IcpConfig::default()
+        };
+        cs.iter()
+            .map(|k| align(&k.scan, &idx, k.initial, &c).unwrap())
+            .collect()
+    };
+    let (a, b, tight) = (run(1e-6), run(1.0), run(1e-14));
+    assert_eq!(a, b);
+    let its = |v: &[IcpResult]| v.iter().map(|r| r.iterations).sum::<usize>();
+    assert!(its(&tight) > its(&a), "{} vs {}", its(&tight), its(&a));
+}
