@@ -96,6 +96,123 @@ fn success(
     )
 }
 
+/// With `ICPLOC_ALIGN_DETAIL` set: every failing case and the slowest twentieth of the
+/// cases of a cell (index, time of the fastest of three passes, the start path taken, the
+/// error and the fit), for finding what a cell's misses and its p95 are made of.
+fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &str) {
+    let mut rows: Vec<(Duration, usize, bool, String)> = Vec::new();
+    for (k, c) in cs.iter().enumerate() {
+        let mut best = Duration::MAX;
+        let mut r = None;
+        for _ in 0..3 {
+            let t0 = Instant::now();
+            let rr = align(&c.scan, idx, c.initial, cfg).expect("valid input");
+            best = best.min(t0.elapsed());
+            r = Some(rr);
+        }
+        let r = r.expect("three passes");
+        let dt = (r.pose.x - c.truth.x).hypot(r.pose.y - c.truth.y);
+        let dth = wrap_angle(r.pose.theta - c.truth.theta).to_degrees();
+        let ok = dt < 0.02 && dth.abs() < 0.5;
+        let f = r.fit;
+        rows.push((
+            best,
+            k,
+            ok,
+            format!(
+                "{:?} err ({:+.3}, {:+.3}) m {:+.2} deg, {} it, degeneracy {:.2}, fit {:?}, window {:?}/{:?}, truth ({:.2}, {:.2}, {:.1} deg)",
+                r.start,
+                r.pose.x - c.truth.x,
+                r.pose.y - c.truth.y,
+                dth,
+                r.iterations,
+                r.degeneracy,
+                f.map(|f| (
+                    (f.inlier_ratio * 1e3).round() / 1e3,
+                    (f.rms * 1e4).round() / 1e4,
+                    (f.see_through * 1e3).round() / 1e3,
+                    (f.score * 1e4).round() / 1e4
+                )),
+                r.window_score.map(|s| (s * 1e3).round() / 1e3),
+                r.window_second.map(|s| (s * 1e3).round() / 1e3),
+                c.truth.x,
+                c.truth.y,
+                c.truth.theta.to_degrees(),
+            ),
+        ));
+    }
+    // where the time goes: the plain ICP alone, the fit check, its see-through part, by path
+    let off = IcpConfig {
+        window_search: false,
+        ..cfg.clone()
+    };
+    let fastest = |f: &dyn Fn()| {
+        (0..3)
+            .map(|_| {
+                let t0 = Instant::now();
+                f();
+                t0.elapsed()
+            })
+            .min()
+            .expect("three passes")
+    };
+    let med = |mut v: Vec<Duration>| {
+        v.sort();
+        v[v.len() / 2]
+    };
+    let plain: Vec<Duration> = cs
+        .iter()
+        .map(|c| fastest(&|| drop(black_box(align(&c.scan, idx, c.initial, &off)))))
+        .collect();
+    let fit: Vec<Duration> = cs
+        .iter()
+        .map(|c| {
+            fastest(&|| {
+                black_box(icploc_core::icp::assess(&c.scan, idx, c.truth, cfg));
+            })
+        })
+        .collect();
+    let st: Vec<Duration> = cs
+        .iter()
+        .map(|c| {
+            fastest(&|| {
+                black_box(icploc_core::icp::see_through(&c.scan, idx, c.truth));
+            })
+        })
+        .collect();
+    eprintln!(
+        "  {family} {start} parts: plain ICP median {:?}, assess median {:?}, see-through median {:?}",
+        med(plain),
+        med(fit),
+        med(st)
+    );
+    let mut by: std::collections::BTreeMap<String, Vec<Duration>> = Default::default();
+    for (t, _, _, d) in &rows {
+        by.entry(d.split(' ').next().unwrap_or("").to_string())
+            .or_default()
+            .push(*t);
+    }
+    for (path, v) in by {
+        let n = v.len();
+        eprintln!(
+            "  {family} {start} path {path}: {n} cases, median {:?}",
+            med(v)
+        );
+    }
+    if std::env::var("ICPLOC_ALIGN_DETAIL").as_deref() == Ok("all") {
+        for (t, k, ok, d) in &rows {
+            eprintln!("  {family} {start} case {k} {t:?} ok={ok}: {d}");
+        }
+    }
+    for (t, k, _, d) in rows.iter().filter(|r| !r.2) {
+        eprintln!("  {family} {start} MISS case {k} {t:?}: {d}");
+    }
+    rows.sort_by_key(|r| std::cmp::Reverse(r.0));
+    for (t, k, ok, d) in rows.iter().take(cs.len().div_ceil(20)) {
+        eprintln!("  {family} {start} slow case {k} {t:?} ok={ok}: {d}");
+    }
+}
+
 const STARTS: [(&str, (f64, f64, f64)); 2] = [
     ("small", (0.3, 0.3, 0.174_532_925_199_432_95)),
     ("large", (1.0, 0.5, 0.436_332_312_998_582_4)),
@@ -112,8 +229,16 @@ fn bench_families(c: &mut Criterion) {
         idx.likelihood_field()
             .expect("the map fits the window grid"); // built on first use: not part of an alignment
         for (name, err) in STARTS {
+            if let Ok(only) = std::env::var("ICPLOC_ALIGN_ONLY") {
+                if !only.split(',').any(|o| o == format!("{}_{name}", w.name)) {
+                    continue;
+                }
+            }
             let cs = world_cases(&w, 200, err, 7);
             let (ok, med, p95, win, loc) = success(&idx, &cs, &cfg);
+            if std::env::var_os("ICPLOC_ALIGN_DETAIL").is_some() {
+                detail(&idx, &cs, &cfg, w.name, name);
+            }
             eprintln!(
                 "align {} {name} start error, default config: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}, local in {loc}",
                 w.name,
@@ -186,6 +311,9 @@ fn bench_correspondence(c: &mut Criterion) {
 }
 
 fn bench_align(c: &mut Criterion) {
+    if std::env::var_os("ICPLOC_ALIGN_ONLY").is_some() {
+        return;
+    }
     let segs = office_segments();
     for (name, err) in STARTS {
         let cs = cases(&segs, 200, err, 0.01, 0.2, 7);

@@ -24,13 +24,16 @@ use crate::se2::{wrap_angle, Pose2};
 pub(crate) const DIRECTION_BINS: usize = 180;
 /// Half-width (bins) of the triangular kernel that smooths the histograms.
 const SMOOTH_BINS: usize = 2;
-/// A scan line piece spans 4 beam steps; it counts when that chord is this long (m) at
-/// least (shorter: the range noise dominates its direction) ...
+/// A scan line piece spans 4, 8 or 16 beam steps (see [`PIECE_HALF_SPANS`]); it counts when
+/// that chord is this long (m) at least (shorter: the range noise dominates its direction) ...
 const MIN_CHORD: f64 = 0.08;
 /// ... at most this long (longer: a depth jump, not a wall) ...
 const MAX_CHORD: f64 = 0.6;
 /// ... and its middle points lie within this fraction of its length of the chord.
 const MAX_BEND: f64 = 0.08;
+/// Half-spans (beam steps either side of a point) a line piece may have, shortest first:
+/// the first whose chord is at least [`MIN_CHORD`] long is the point's piece.
+const PIECE_HALF_SPANS: [usize; 3] = [2, 4, 8];
 /// The heading prior needs at least this many line pieces.
 const MIN_PIECES: usize = 12;
 /// Candidates along the corridor are kept when they score at least this fraction of the
@@ -78,8 +81,8 @@ pub(crate) fn map_directions(normals: &[[f64; 2]]) -> Vec<f32> {
 
 /// The scan's histogram of line directions in the sensor frame: the points in bearing
 /// order (so not dependent on the order of the array), and for each the chord from the
-/// point two beams before to the one two after, when it is a straight wall piece; each
-/// piece weighted by its length. `None` with fewer than [`MIN_PIECES`] pieces.
+/// point two beams before to the one two after (four or eight when that chord is shorter
+/// than [`MIN_CHORD`]), when it is a straight wall piece; each piece weighted by its length. `None` with fewer than [`MIN_PIECES`] pieces.
 pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
     let mut pts: Vec<[f64; 2]> = scan
         .iter()
@@ -104,20 +107,34 @@ pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
     pts.extend(keyed.into_iter().map(|(_, p)| p));
     let mut h = vec![0.0f64; DIRECTION_BINS];
     let mut pieces = 0usize;
-    for w in pts.windows(5) {
-        let (a, b) = (w[0], w[4]);
-        let c = [b[0] - a[0], b[1] - a[1]];
-        let len = (c[0] * c[0] + c[1] * c[1]).sqrt();
-        if !(MIN_CHORD..=MAX_CHORD).contains(&len) {
-            continue;
-        }
-        let straight = w[1..4].iter().all(|m| {
-            let off = (c[0] * (m[1] - a[1]) - c[1] * (m[0] - a[0])).abs() / len;
-            off <= MAX_BEND * len
-        });
-        if straight {
-            h[bin_of(approx_atan2(c[1], c[0]))] += len;
-            pieces += 1;
+    let n = pts.len();
+    for i in 2..n.saturating_sub(2) {
+        // the shortest span (4, 8 or 16 beam steps about the point) whose chord is long
+        // enough: a wall 1-2 m away gives 4-step chords of 3-7 cm, whose direction the
+        // range noise sets (in the clinic's 3 m rooms most walls are that near)
+        for half in PIECE_HALF_SPANS {
+            if i < half || i + half >= n {
+                break;
+            }
+            let (a, b) = (pts[i - half], pts[i + half]);
+            let c = [b[0] - a[0], b[1] - a[1]];
+            let len = (c[0] * c[0] + c[1] * c[1]).sqrt();
+            if len < MIN_CHORD {
+                continue;
+            }
+            if len > MAX_CHORD {
+                break;
+            }
+            let q = half / 2;
+            let straight = [pts[i - q], pts[i], pts[i + q]].iter().all(|m| {
+                let off = (c[0] * (m[1] - a[1]) - c[1] * (m[0] - a[0])).abs() / len;
+                off <= MAX_BEND * len
+            });
+            if straight {
+                h[bin_of(approx_atan2(c[1], c[0]))] += len;
+                pieces += 1;
+            }
+            break;
         }
     }
     (pieces >= MIN_PIECES).then(|| smooth(&h))
@@ -252,6 +269,10 @@ pub(crate) fn slide_candidates(
     let best = scores.iter().copied().fold(0.0, f64::max);
     let keep = SLIDE_KEEP * best;
     let last = scores.len() - 1;
+    // a place is a peak of its neighbourhood of ±`SLIDE_MIN_OFFSET` (the range noise and
+    // people make ripples a step or two apart on the flank of one place; the places a fit
+    // can settle at are door frames and rack uprights a metre or more apart)
+    let nms = ((SLIDE_MIN_OFFSET / SLIDE_STEP).round() as usize).max(1);
     let mut peaks: Vec<(f64, i64)> = (0..=last)
         .filter(|&i| {
             let s = scores[i];
@@ -261,8 +282,10 @@ pub(crate) fn slide_candidates(
                 && t.abs() >= SLIDE_MIN_OFFSET
                 && i > 0
                 && i < last
-                && s >= scores[i - 1]
-                && s > scores[i + 1]
+                && scores[i.saturating_sub(nms)..i].iter().all(|&o| s >= o)
+                && scores[i + 1..(i + 1 + nms).min(last + 1)]
+                    .iter()
+                    .all(|&o| s > o)
         })
         .map(|i| (scores[i], i as i64 + k_lo))
         .collect();
