@@ -275,6 +275,62 @@ def parse_floats(text: str) -> NDArray[np.float64]:
     """Every whitespace-separated token of ``text`` as float64 (decimal, exponent, nan, inf),
     in order, exact; :class:`InvalidInputError` naming the first token that is not a number."""
 
+def fit_score(
+    index: MapIndex,
+    points: ArrayLike,
+    pose: Sequence[float],
+    max_beams: int,
+    hit_distance: float,
+) -> tuple[float, float, int]:
+    """``(hit, rms, beams)``: the evidence of the (N, 2) scan ``points`` (robot frame) at
+    ``pose``. At most ``max_beams`` beams spread evenly over the scan (first and last
+    included) are moved into the map frame; a beam hits when its exact nearest map point is
+    closer than ``hit_distance``. ``hit`` is the share of beams that hit, ``rms`` the RMS of
+    their offsets from those points along the points' normals (inf when none hits)."""
+
+def noise_factor(
+    v: tuple[float, float, float],
+    p: ArrayLike,
+    r: ArrayLike,
+    max_gain: float,
+) -> float | None:
+    """The factor ``g`` on the (3, 3) prediction covariance ``p`` that makes
+    ``v' (g p + r)^-1 v`` equal to 2.366, the median of the chi-square distribution with 3
+    degrees of freedom (``v``: scan pose minus prediction, heading wrapped; ``r``: the scan
+    pose's covariance). Bisection on ``log g`` within ``[1e-3, 4 max_gain]``, an end when the
+    root lies beyond it; None when an input is not finite."""
+
+def scan_covariance(
+    information: ArrayLike,
+    inliers: int,
+    mse: float,
+    sigma_floor: float,
+    independent_beams: float,
+    min_axis_beams: float,
+) -> NDArray[np.float64] | None:
+    """The (3, 3) covariance of an ICP pose: ``(f H_sym + 1e-6 I)^-1`` with
+    ``f = min(independent_beams, n) / (n s2)``, ``H`` the fit's (3, 3) ``information``, ``n``
+    its inliers (at least 1), ``s2`` its ``mse`` (0 when not finite) floored at
+    ``sigma_floor**2``; ``1e6 I`` when that is not positive definite. None when the smallest
+    eigenvalue of H's translational block may be below ``min_axis_beams`` (> 0): the caller
+    (``icploc.fusion.scan_covariance``) decides that case."""
+
+def prepare_points(
+    ranges: NDArray[np.float64],
+    flags: NDArray[np.uint8] | None,
+    cos: NDArray[np.float64],
+    sin: NDArray[np.float64],
+    lo: float,
+    hi: float,
+    decimation: int,
+    bad_flags: int,
+    offset: tuple[float, float],
+) -> NDArray[np.float64]:
+    """The (M, 2) points ``(r cos + offset_x, r sin + offset_y)`` of the beams with
+    ``lo < r < hi`` and no ``bad_flags`` bit set in ``flags``, every ``decimation``-th of
+    them from the first (``cos``, ``sin``: of the beam angles plus the laser's heading; the
+    offset added only when not zero). All arrays of one length."""
+
 def raycast(
     segments: ArrayLike,
     pose: Sequence[float],

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc import _core
 from icploc.median import median
 from icploc.se2 import Pose
 
@@ -126,13 +127,18 @@ class MapQuality:
         return 3.0 * self.sigma + 0.5 * self.resolution
 
 
+#: the see-through check's map: its points, their normals, the raster's origin and the
+#: occupancy raster at the map's resolution
+_Raster = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]
+
+
 class FitChecker:
     """Scores poses on one map (see the module docstring). ``points`` are the map's sample
     points (the ICP index's), ``normals`` their unit normals."""
 
     def __init__(
         self,
-        index: object,
+        index: _core.MapIndex,
         quality: MapQuality,
         max_beams: int = 120,
         see_through: bool = False,
@@ -146,29 +152,44 @@ class FitChecker:
         #: the beams of the Freiburg 079 grid "cross" a wall, 50-64 % at 0.5-1 m off: no
         #: margin to decide on. It costs ~0.3 ms a check.)
         self.see_through = bool(see_through)
-        pts = np.asarray(index.points, dtype=np.float64)  # type: ignore[attr-defined]
-        self._normals = np.asarray(index.normals, dtype=np.float64)  # type: ignore[attr-defined]
-        self._points = pts
+        self._cell = quality.resolution
         self._subsample: dict[int, NDArray[np.int64]] = {}
-        cell = quality.resolution
-        self._cell = cell
-        lo = pts.min(axis=0) - 2 * cell
-        hi = pts.max(axis=0) + 2 * cell
-        self._lo = lo
-        shape = (
-            int(math.ceil((hi[1] - lo[1]) / cell)) + 1,
-            int(math.ceil((hi[0] - lo[0]) / cell)) + 1,
-        )
-        occ = np.zeros(shape, dtype=bool)
-        ij = np.floor((pts - lo) / cell).astype(np.int64)
-        occ[ij[:, 1], ij[:, 0]] = True
-        self._occ = occ
+        #: the see-through check's inputs, built on its first use
+        self._raster: _Raster | None = None
+
+    def _see_through_raster(self) -> _Raster:
+        """(map points, their normals, the raster's origin, the occupancy raster at the
+        map's resolution)."""
+        if self._raster is None:
+            pts = np.asarray(self.index.points, dtype=np.float64)
+            normals = np.asarray(self.index.normals, dtype=np.float64)
+            cell = self._cell
+            lo = pts.min(axis=0) - 2 * cell
+            hi = pts.max(axis=0) + 2 * cell
+            shape = (
+                int(math.ceil((hi[1] - lo[1]) / cell)) + 1,
+                int(math.ceil((hi[0] - lo[0]) / cell)) + 1,
+            )
+            occ = np.zeros(shape, dtype=bool)
+            ij = np.floor((pts - lo) / cell).astype(np.int64)
+            occ[ij[:, 1], ij[:, 0]] = True
+            self._raster = (pts, normals, lo, occ)
+        return self._raster
 
     def check(self, points: NDArray[np.float64], pose: Pose) -> FitCheck:
-        """The evidence of the scan ``points`` (robot frame, (N, 2)) at ``pose``."""
+        """The evidence of the scan ``points`` (robot frame, (N, 2)) at ``pose``: at most
+        ``max_beams`` beams spread evenly over the scan, each a hit when its nearest map
+        point is within the hit distance, the residual of a hit its offset from that point
+        along the point's normal (point-to-line, as the ICP measures it). The hit share and
+        residual are the core's (``icploc._core.fit_score``), one call."""
         n = points.shape[0]
         if n == 0:
             return FitCheck(0.0, 0.0, math.inf, 0)
+        hd = self.quality.hit_distance()
+        if not self.see_through:
+            hit, rms, beams = _core.fit_score(self.index, points, pose, self.max_beams, hd)
+            return FitCheck(hit, 0.0, rms, beams)
+        map_points, normals, lo, occ_map = self._see_through_raster()
         if n > self.max_beams:
             k = self._subsample.get(n)
             if k is None:
@@ -181,21 +202,16 @@ class FitChecker:
         wx = pose[0] + c * points[:, 0] - s * points[:, 1]
         wy = pose[1] + s * points[:, 0] + c * points[:, 1]
         world = np.column_stack((wx, wy))
-        d, j = self.index.nearest(world)  # type: ignore[attr-defined]
-        q = self.quality
-        hd = q.hit_distance()
+        d, j = self.index.nearest(world)
         hits = d < hd
         nh = int(hits.sum())
-        nrm = self._normals[j]
+        nrm = normals[j]
         if nh:
-            # point-to-line residual, as the ICP measures it
-            mp = self._points[j[hits]]
+            mp = map_points[j[hits]]
             r = (wx[hits] - mp[:, 0]) * nrm[hits, 0] + (wy[hits] - mp[:, 1]) * nrm[hits, 1]
             rms = float(np.sqrt(np.mean(r * r)))
         else:
             rms = math.inf
-        if not self.see_through:
-            return FitCheck(nh / n, 0.0, rms, n)
         # see-through: sample each beam from the sensor up to a margin before its return
         ox, oy = pose[0], pose[1]
         vx, vy = wx - ox, wy - oy
@@ -214,12 +230,12 @@ class FitChecker:
         sx = ox + ux[:, None] * t[None, :]
         sy = oy + uy[:, None] * t[None, :]
         valid = t[None, :] < reach[:, None]
-        ix = np.floor((sx - self._lo[0]) / cell).astype(np.int64)
-        iy = np.floor((sy - self._lo[1]) / cell).astype(np.int64)
-        h, w = self._occ.shape
+        ix = np.floor((sx - lo[0]) / cell).astype(np.int64)
+        iy = np.floor((sy - lo[1]) / cell).astype(np.int64)
+        h, w = occ_map.shape
         inside = valid & (ix >= 0) & (iy >= 0) & (ix < w) & (iy < h)
         occ = np.zeros_like(inside)
-        occ[inside] = self._occ[iy[inside], ix[inside]]
+        occ[inside] = occ_map[iy[inside], ix[inside]]
         # a crossing is a run of occupied samples at least a cell long: a wall, not the
         # speck a person left in the map
         run = occ[:, 1:] & occ[:, :-1]

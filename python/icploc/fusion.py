@@ -25,6 +25,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc import _core
 from icploc.se2 import Pose, wrap_angle
 
 __all__ = ["CHI2_3", "CHI2_3_MEDIAN", "fuse", "mahalanobis2", "scan_covariance"]
@@ -90,8 +91,15 @@ def scan_covariance(
     end or door frame) is no measurement: one ambiguous pairing moves the fit along it by
     a gap while the covariance claims centimetres, and the prediction's own covariance
     along it shrinks for nothing. That direction is then left unconstrained."""
+    Ha = information
+    if not (isinstance(Ha, np.ndarray) and Ha.shape == (3, 3)):
+        Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    # the core computes it, to the bit as below, unless the weak axis may be dropped
+    got = _core.scan_covariance(Ha, inliers, mse, sigma_floor, independent_beams, min_axis_beams)
+    if got is not None:
+        return got
     n = max(int(inliers), 1)
-    Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    Ha = np.asarray(Ha, dtype=np.float64)
     if min_axis_beams > 0.0 and np.all(np.isfinite(Ha)) and _may_be_below(Ha, min_axis_beams):
         w, v = np.linalg.eigh(0.5 * (Ha[:2, :2] + Ha[:2, :2].T))
         if w[0] < min_axis_beams:

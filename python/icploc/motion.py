@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icploc._core import noise_factor
 from icploc.config import LocalizerSection
-from icploc.fusion import CHI2_3_MEDIAN
 from icploc.se2 import Pose, compose, inverse
 
 __all__ = ["MotionModel", "NoiseGain", "fit_alphas"]
@@ -59,7 +59,11 @@ class MotionModel:
 
     def motion_covariance(self, d: Sequence[float]) -> NDArray[np.float64]:
         """3x3 covariance of the motion ``d`` (dx, dy, dtheta) in its start frame."""
-        dx, dy, dth = float(d[0]), float(d[1]), float(d[2])
+        q00, q01, q11, q22 = self._motion_q(float(d[0]), float(d[1]), float(d[2]))
+        return np.array([[q00, q01, 0.0], [q01, q11, 0.0], [0.0, 0.0, q22]])
+
+    def _motion_q(self, dx: float, dy: float, dth: float) -> tuple[float, float, float, float]:
+        """The motion covariance's entries (xx, xy, yy, theta-theta), in floats."""
         t = math.hypot(dx, dy)
         g = self.gain
         t2, r2 = t * t, dth * dth
@@ -74,13 +78,7 @@ class MotionModel:
         q00 = c * c * v_al + s * s * v_lat + fxy
         q01 = c * s * (v_al - v_lat)
         q11 = s * s * v_al + c * c * v_lat + fxy
-        return np.array(
-            [
-                [q00, q01, 0.0],
-                [q01, q11, 0.0],
-                [0.0, 0.0, v_th + self.floor_theta * self.floor_theta],
-            ]
-        )
+        return q00, q01, q11, v_th + self.floor_theta * self.floor_theta
 
     def predict(
         self, pose: Pose, covariance: NDArray[np.float64], d: Sequence[float]
@@ -100,7 +98,7 @@ class MotionModel:
         f02 = p02 + a * p22
         f11 = p11 + 2 * b * p12 + b * b * p22
         f12 = p12 + b * p22
-        (q00, q01, _), (_, q11, _), (_, _, q22) = self.motion_covariance((dx, dy, dth)).tolist()
+        q00, q01, q11, q22 = self._motion_q(dx, dy, dth)
         # G Q G^T: rotate the motion's (x, y) block by the heading
         g00 = c * c * q00 - 2 * c * s * q01 + s * s * q11
         g01 = c * s * (q00 - q11) + (c * c - s * s) * q01
@@ -140,6 +138,8 @@ class NoiseGain:
     #: factors kept before the median is used (until then: 1)
     min_samples: int = _L.noise_gain_min_samples
     _g: deque[float] = field(default_factory=deque, repr=False)
+    #: the gain of the factors in ``_g`` (None: to be computed; read once a scan)
+    _gain: float | None = field(default=None, repr=False)
 
     @classmethod
     def from_config(cls, settings: LocalizerSection) -> NoiseGain:
@@ -152,12 +152,17 @@ class NoiseGain:
 
     @property
     def gain(self) -> float:
+        if self._gain is not None:
+            return self._gain
         if len(self._g) < self.min_samples:
-            return 1.0
-        v = sorted(self._g)
-        n = len(v)
-        m = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
-        return min(max(m, 1.0), self.max_gain)
+            g = 1.0
+        else:
+            v = sorted(self._g)
+            n = len(v)
+            m = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+            g = min(max(m, 1.0), self.max_gain)
+        self._gain = g
+        return g
 
     def observe(
         self,
@@ -169,37 +174,20 @@ class NoiseGain:
     ) -> None:
         """One trusted scan pose ``meas`` (covariance ``R``) against the prediction ``pred``
         (covariance ``P``, made with the gain ``current``)."""
-        v = np.array(
-            [meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau)]
-        )
-        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(P)) and np.all(np.isfinite(R))):
+        v = (meas[0] - pred[0], meas[1] - pred[1], math.remainder(meas[2] - pred[2], math.tau))
+        # bisection on log g within [1e-3, 4 max_gain] (the statistic falls as g grows; at
+        # an end when the root lies beyond it); None: an input is not finite
+        g = noise_factor(v, P, R, self.max_gain)
+        if g is None:
             return
-        lo, hi = 1e-3, self.max_gain * 4.0
-        if _nis(v, hi * P, R) > CHI2_3_MEDIAN:
-            g = hi  # beyond what any gain explains: counted at the top
-        elif _nis(v, lo * P, R) < CHI2_3_MEDIAN:
-            g = lo  # the scan's own noise explains it
-        else:
-            for _ in range(40):  # bisection on log g (the statistic falls as g grows)
-                mid = math.sqrt(lo * hi)
-                if _nis(v, mid * P, R) > CHI2_3_MEDIAN:
-                    lo = mid
-                else:
-                    hi = mid
-            g = math.sqrt(lo * hi)
         self._g.append(g * max(float(current), 1e-6))
         while len(self._g) > self.window:
             self._g.popleft()
+        self._gain = None
 
     def reset(self) -> None:
         self._g.clear()
-
-
-def _nis(v: NDArray[np.float64], P: NDArray[np.float64], R: NDArray[np.float64]) -> float:
-    try:
-        return float(v @ np.linalg.solve(P + R, v))
-    except np.linalg.LinAlgError:
-        return math.inf
+        self._gain = None
 
 
 def fit_alphas(

@@ -7,13 +7,14 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from icploc._core import prepare_points
 from icploc.config import LocalizerConfig
 from icploc.messages import BEAM_DAZZLE, BEAM_INVALID, BEAM_NO_RETURN, Scan
 
 __all__ = ["prepare_scan"]
 
 
-_BAD_FLAGS = np.uint8(BEAM_NO_RETURN | BEAM_DAZZLE | BEAM_INVALID)
+_BAD_FLAGS = BEAM_NO_RETURN | BEAM_DAZZLE | BEAM_INVALID
 
 
 class _TrigCache:
@@ -55,25 +56,15 @@ def prepare_scan(
     keeps every ``decimation``-th of the rest; applies the laser mounting offset.
     """
     sc = config.scan
-    r = scan.ranges
     hi = sc.max_range if sc.max_range > 0.0 else scan.max_range
     if hi != math.inf:
         hi = hi * sc.max_range_margin
     lo = sc.min_range if sc.min_range > scan.min_range else scan.min_range
-    ok = r < hi  # NaN and inf compare False (inf < inf is False)
-    ok &= r > lo
-    if scan.flags is not None:
-        ok &= (scan.flags & _BAD_FLAGS) == 0
-    idx = ok.nonzero()[0]
-    if sc.decimation > 1:
-        idx = idx[:: sc.decimation]
     if trig is None:
         trig = _TrigCache()
     c, s = trig.get(scan.angles, sc.laser_theta)
-    rr = r[idx]
-    pts = np.empty((idx.shape[0], 2))
-    np.multiply(rr, c[idx], out=pts[:, 0])
-    np.multiply(rr, s[idx], out=pts[:, 1])
-    if sc.laser_x != 0.0 or sc.laser_y != 0.0:
-        pts += (sc.laser_x, sc.laser_y)
-    return pts
+    # NaN and inf are never kept (inf < inf is False); the core's loop, the same products
+    return prepare_points(
+        scan.ranges, scan.flags, c, s, lo, hi, sc.decimation, _BAD_FLAGS,
+        (sc.laser_x, sc.laser_y),
+    )  # fmt: skip

@@ -917,19 +917,19 @@ def read_carmen(
                 )
             )
     elif use == "laser":
+        # each block's rows as floats once (not three numpy scalars and a reduction a scan)
+        finite: list[list[bool]] = [np.isfinite(b.odom).all(axis=1).tolist() for b in blocks]  # type: ignore[misc]
+        odom_rows = [b.odom.tolist() for b in blocks]
+        vel_rows = [None if b.velocity is None else b.velocity.tolist() for b in blocks]
         for st, li, bi, j in rows:
-            b = blocks[bi]
-            od = b.odom[j]
-            if np.all(np.isfinite(od)):
-                vel = (
-                    None
-                    if b.velocity is None
-                    else (float(b.velocity[j, 0]), float(b.velocity[j, 1]))
-                )
+            if finite[bi][j]:
+                od = odom_rows[bi][j]
+                vr = vel_rows[bi]
+                vel = None if vr is None else (vr[j][0], vr[j][1])
                 odoms.append(
                     Odometry(
                         stamp=st,
-                        pose=(float(od[0]), float(od[1]), float(od[2])),
+                        pose=(od[0], od[1], od[2]),
                         velocity=vel,
                         extra={"source": lines[li].split(None, 1)[0], "line": li + 1},
                     )

@@ -13,23 +13,31 @@
 //!   degeneracy from the Hessian of the final cost.
 //! * [`likelihood`]: the likelihood grid and max-pooled pyramid of the correlative searches.
 //! * [`quaternion`]: the closed-form registration of eq. 5–9 of the paper.
+//! * [`fitscore`]: the verification evidence of a scan at a pose (hit share, residual).
+//! * [`fusion`]: the covariance of a scan match (the localizer's measurement).
+//! * [`noisegain`]: the odometry noise factor of one trusted scan pose (online noise).
 //! * [`gridlines`]: wall lines (and leftover surface points) traced from occupancy grids.
 //! * [`gridcast`]: occupancy grids from scans by ray casting (building maps from logs).
 //! * [`raycast`]: ray casting against wall segments (simulation, visibility).
+//! * [`scanprep`]: a laser scan's usable beams as robot-frame points.
 //! * [`testkit`]: a deterministic office world and scan generator for tests and benchmarks.
 
 // `!(x > 0.0)` is deliberate throughout: unlike `x <= 0.0` it also rejects NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod error;
+pub mod fitscore;
+pub mod fusion;
 pub mod global;
 pub mod gridcast;
 pub mod gridlines;
 pub mod icp;
 pub mod index;
 pub mod likelihood;
+pub mod noisegain;
 pub mod quaternion;
 pub mod raycast;
+pub mod scanprep;
 pub mod se2;
 pub mod testkit;
 pub mod text;

@@ -23,6 +23,7 @@ use icploc_core::{IcpError as CoreError, Pose2};
 mod global;
 mod gridstore;
 mod maps;
+mod perscan;
 
 static ICP_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
 static INVALID_INPUT: PyOnceLock<Py<PyType>> = PyOnceLock::new();
@@ -252,6 +253,19 @@ fn pose_arg<'py>(py: Python<'py>, obj: &Bound<'py, PyAny>, what: &str) -> PyResu
         ));
     }
     Ok(Pose2::new(v[0], v[1], v[2]))
+}
+
+/// A pose argument: a tuple of three floats as it is (the localizer's poses; no numpy
+/// conversion), anything else as [`pose_arg`] reads it.
+pub(crate) fn pose_fast<'py>(
+    py: Python<'py>,
+    obj: &Bound<'py, PyAny>,
+    what: &str,
+) -> PyResult<Pose2> {
+    if let Ok((x, y, t)) = obj.extract::<(f64, f64, f64)>() {
+        return Ok(Pose2::new(x, y, t));
+    }
+    pose_arg(py, obj, what)
 }
 
 fn mat3<'py>(py: Python<'py>, m: &[[f64; 3]; 3]) -> Bound<'py, PyArray2<f64>> {
@@ -935,7 +949,7 @@ fn icp(
     config: Option<PyRef<'_, PyIcpConfig>>,
 ) -> PyResult<PyIcpResult> {
     let scan = array2(py, scan_xy, 2, "scan_xy")?;
-    let pose = pose_arg(py, initial_pose, "initial_pose")?;
+    let pose = pose_fast(py, initial_pose, "initial_pose")?;
     let cfg = config_arg(py, config)?;
     let idx = index.get().inner.clone();
     let s = scan.pairs();
@@ -1052,5 +1066,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     global::register(m)?;
     maps::register(m)?;
     gridstore::register(m)?;
+    perscan::register(m)?;
     Ok(())
 }
