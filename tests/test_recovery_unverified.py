@@ -103,7 +103,7 @@ def _lab_lock(verified: bool) -> tuple[Any, Pose, Localizer, Scan]:
 
 def test_an_unverified_lock_resumes_degraded_not_tracking() -> None:
     est, truth, _, _ = _lab_lock(verified=False)
-    assert (est.status, est.reason) == (Status.DEGRADED, Reason.RELOCALIZED)
+    assert (est.status, est.reason) == (Status.DEGRADED, Reason.LOCK_UNVERIFIED)
     assert math.dist(est.pose[:2], truth[:2]) < 0.05
 
 

@@ -95,7 +95,8 @@ class Estimate:
     #: odometry_off fit overruled still explains the scans as well), unconstrained (a
     #: corridor fit right after a stretch not tracking), unsettled (a pose a fit took
     #: against the odometry, or the first after a stretch without a verified fit, not yet
-    #: confirmed at the map's usual hit share), relocalized, suspect (a kidnap
+    #: confirmed at the map's usual hit share), relocalized, lock_unverified (a recovery's
+    #: lock the localizer's verification refused: degraded), suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
     #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
@@ -353,6 +354,8 @@ class Localizer:
         self._unsettled = 0
         #: the last scan's fit was accepted beyond the accept quantile (``inflated``)
         self._inflated = False
+        #: the last scan's fit was rejected and grew the prediction's covariance
+        self._grown = False
         #: the hit share an unsettled pose's fits must reach (the usual one before it)
         self._settle_hit = 0.0
         #: scans in a row without a verified fit
@@ -421,6 +424,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._grown = False
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -442,6 +446,7 @@ class Localizer:
         self._rival = None
         self._unsettled = 0
         self._inflated = False
+        self._grown = False
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -781,6 +786,7 @@ class Localizer:
         R: NDArray[np.float64] | None = None
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
+        grown = False  # a rejected fit grew the prediction's covariance
         overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
@@ -855,6 +861,24 @@ class Localizer:
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                         if self._verified(at_z) and at_z.hit >= at_pred.hit:
                             self._learn_noise(pred, P0, z, m[1])  # the map backs the fit
+                        if not supported and at_z.hit >= at_pred.hit + lc.arbitration_margin:
+                            # the prediction stands, but the fit explains clearly more of the
+                            # scan than it: the chi-square test failed on a prediction whose
+                            # covariance is too tight (odometry off beyond its model: a turn
+                            # on the spot, a slip), so it is grown until the fit is at the
+                            # accept quantile and the next scan's fit can be weighed. Only by
+                            # as much as the learned odometry noise may grow
+                            # (``noise_gain_max``): a fit farther off than that is another
+                            # place, not odometry off beyond its model
+                            grow = _growth_to_consistent(pred, pred_cov, z, R, self._chi2_accept)
+                            if grow <= lc.noise_gain_max:
+                                cov = pred_cov * grow
+                                grown = True
+                if accepted and self._grown and reason in (Reason.NONE, Reason.INFLATED) and self._apart(pred, z):
+                    # the last scan's fit was rejected and grew the covariance: this fit,
+                    # farther from the prediction than the map can tell apart, is taken
+                    # against the odometry as much as one the map arbitrated
+                    reason = Reason.ODOMETRY_OFF
                 if accepted:
                     self._rejected = None
                     self._learn_noise(pred, P0, z, m[1])
@@ -890,6 +914,7 @@ class Localizer:
         # the calibration's bias is what makes the odometry disagree with the fits; only
         # the calibration pair across a jump is dropped)
         self._settle(accepted, verified, reason, check, pred, pose)
+        self._grown = grown
         if verified:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
@@ -932,8 +957,20 @@ class Localizer:
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
         if self._rival is not None:
-            status, reason = self._dispute(pts, pose, check, status, reason)
-        if accepted and reason == Reason.ODOMETRY_OFF and self._rival is None:
+            status, reason, back = self._dispute(pts, pose, check, status, reason)
+            if back is not None:
+                # the rival explains the scan clearly better than the pose now: the jump
+                # it overruled was a neighbouring minimum, the pose goes back to the rival
+                pose, cov, check = back
+                status, reason = Status.DEGRADED, Reason.REVERTED
+                if not self._unsettled:
+                    q = self.quality
+                    self._settle_hit = q.hit_reference if q.hit_measured else 0.0
+                self._unsettled = lc.settle_scans
+                self._anchor = None  # no calibration pair spans the jump back
+        if accepted and reason == Reason.ODOMETRY_OFF:
+            # the latest prediction a fit overruled is the rival (an older one disputed a
+            # pose the map has since left)
             self._rival = _Rival(*overruled)
         if status is Status.TRACKING and self._unsettled:
             status, reason = Status.DEGRADED, Reason.UNSETTLED
@@ -1051,7 +1088,7 @@ class Localizer:
         check: FitCheck,
         status: Status,
         reason: str,
-    ) -> tuple[Status, str]:
+    ) -> tuple[Status, str, tuple[Pose, NDArray[np.float64], FitCheck] | None]:
         """Follow the rival one scan: the prediction an ``odometry_off`` fit overruled,
         dead-reckoned (fits near it would follow the map's neighbouring minimum as readily
         as the pose did). Its evidence is the share of beams ending on walls at it, or at a
@@ -1062,7 +1099,13 @@ class Localizer:
         clearly more on ``dispute_scans`` scans in a row (the map has decided), or once it
         is as uncertain as a lost pose. Not by the chi-square gate: a dead-reckoned pose's
         covariance soon covers the neighbouring minimum the pose jumped to (and the pose's
-        own is so tight that a fit a few centimetres off would count as distinct)."""
+        own is so tight that a fit a few centimetres off would count as distinct).
+
+        The third item is where the pose goes back to (pose, covariance, its check), or None:
+        the rival's own fit verifies, is consistent with the rival's dead reckoning and
+        explains clearly more of the scan (``arbitration_margin``) than the pose — the same
+        test by which the jump was taken, now against it (after a jump to a neighbouring
+        minimum the pose's fits soon explain little while the rival's explain the scan)."""
         rv = self._rival
         assert rv is not None
         lc = self.config.localizer
@@ -1072,7 +1115,7 @@ class Localizer:
         vague = math.sqrt(max(float(rP[0, 0] + rP[1, 1]), 0.0)) > lc.lost_sigma_xy
         if vague or not self._apart(pose, rp):
             self._rival = None
-            return status, reason
+            return status, reason, None
         if pts.shape[0] >= self.config.scan.min_points:
             hit = self.checker.check(pts, rp).hit
             res = self._run_icp(pts, rp, rP)
@@ -1083,16 +1126,23 @@ class Localizer:
                 at = self._check(pts, m[0], m[0], res)
                 if self._verified(at):
                     hit = max(hit, at.hit)
+                    if (
+                        at.hit >= check.hit + lc.arbitration_margin
+                        and mahalanobis2(rp, rP, m[0], m[1]) <= self._chi2_reject
+                    ):
+                        self._rival = None
+                        bp, bP = fuse(rp, rP, m[0], m[1])
+                        return status, reason, (bp, bP, self._check(pts, bp, m[0], res))
             if check.hit >= hit + lc.arbitration_margin:
                 rv.misses += 1
                 if rv.misses >= lc.dispute_scans:
                     self._rival = None
-                    return status, reason
+                    return status, reason, None
             else:
                 rv.misses = 0  # the map cannot tell the two apart
         if status is Status.TRACKING:
             status, reason = Status.DEGRADED, Reason.DISPUTED
-        return status, reason
+        return status, reason, None
 
     def _apart(self, a: Pose, b: Pose) -> bool:
         """Two poses the map can tell apart: farther than its hit distance, or turned by
@@ -1383,7 +1433,7 @@ class Localizer:
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
                 accepted=True,
-                reason=Reason.RELOCALIZED,
+                reason=Reason.RELOCALIZED if step.verified else Reason.LOCK_UNVERIFIED,
                 degeneracy=float(res.degeneracy),
                 prediction=pred,
                 odometry=odom,
@@ -1521,6 +1571,25 @@ class Localizer:
 
         return restore(self, os.fspath(path))
 
+
+
+def _growth_to_consistent(
+    pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64], target: float
+) -> float:
+    """The smallest factor f (at least 1) that brings ``v'(fP + R)^-1 v`` down to
+    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6)."""
+    if mahalanobis2(pred, P, z, R) <= target:
+        return 1.0
+    if mahalanobis2(pred, P * 1e6, z, R) > target:
+        return math.inf
+    lo, hi = 0.0, math.log(1e6)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if mahalanobis2(pred, P * math.exp(mid), z, R) > target:
+            lo = mid
+        else:
+            hi = mid
+    return math.exp(hi)
 
 
 def _unknown_covariance() -> NDArray[np.float64]:

@@ -566,7 +566,7 @@ class OutsideMonitor:
         from icploc.localizer import Status
 
         mapped = self.state != "outside"
-        if self.state == "reentering" and est.reason == "relocalized":
+        if self.state == "reentering" and est.reason in ("relocalized", "lock_unverified"):
             st = self.stretches[-1]
             k = loc.scans_processed
             st.end, st.end_stamp = k, float(est.stamp)

@@ -48,6 +48,10 @@ class Reason(_StrEnum):
     CONTRADICTED = "contradicted"  #: the fused pose explains far less of the scan than usual
     #: the prediction an ``odometry_off`` fit overruled still verifies (a rival pose)
     DISPUTED = "disputed"
+    #: the rival (the prediction an ``odometry_off`` fit overruled) explained the scan
+    #: clearly better than the pose, its own fit verified: the pose went back to it (then
+    #: ``unsettled`` as after any jump)
+    REVERTED = "reverted"
     UNVERIFIED = "unverified"
     UNCERTAIN = "uncertain"  #: verified, but the covariance is too wide to promise
     #: a weakly constrained fit (degeneracy below 0.1: a corridor) right after a stretch
@@ -61,6 +65,10 @@ class Reason(_StrEnum):
     #: from before
     UNSETTLED = "unsettled"
     RELOCALIZED = "relocalized"
+    #: a lock the recovery took on its own evidence (its leader held longer than a lock
+    #: needs) that the localizer's verification refused: resumed ``degraded``, then
+    #: ``unsettled`` until its own fits verify at the map's usual share
+    LOCK_UNVERIFIED = "lock_unverified"
     SUSPECT = "suspect"  #: a kidnap check is out, or found a better pose to re-check
     UNCONFIRMED = "unconfirmed"  #: a lock whose strict check is out
     ELSEWHERE = "elsewhere"  #: the check found the better pose again: lost
