@@ -22,7 +22,10 @@ What is done (reusing benches/eval_real.py, seeded):
   ``tracking`` > 0.5 m off (MRPT has no status: every scan > 0.5 m off counts); for
   icploc ``--partial-map`` also the stretches outside the map, the re-entry scans and its
   ``--map-patch``: the share of the patch's occupied cells within 10 / 20 cm of an
-  occupied cell of the full log's map at the reference poses.
+  occupied cell of the full log's map at the reference poses; the same for the patch's
+  *confident* cells (the sigma of where their walls are drawn, from the pose graph's
+  covariance, at most ``icploc.mappatch.PATCH_SIGMA_BOUND``, 5 cm: the patch's
+  ``.sigma.pgm``).
 
 Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
 replay, partial map), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
@@ -119,17 +122,28 @@ def patch_quality(patch: Path, full_map: Path) -> dict[str, Any]:
     """The map patch's walls against the map of the whole log at the reference poses: per
     occupied patch cell outside the partial map's walls, the distance to the nearest
     occupied cell of the full map."""
+    from icploc.mappatch import PATCH_SIGMA_BOUND, read_sigma_image, sigma_path
     from scipy.spatial import cKDTree
 
     p = rg.read_map_server(patch)
     f = rg.read_map_server(full_map)
     d, _ = cKDTree(f.occupied_centres()).query(p.occupied_centres(), k=1)
-    return {
+    out: dict[str, Any] = {
         "patch_cells": int(len(d)),
         "patch_wall_median_m": float(np.median(d)) if len(d) else None,
         "patch_wall_within_0_1m": float(np.mean(d <= 0.1 + 1e-9)) if len(d) else None,
         "patch_wall_within_0_2m": float(np.mean(d <= 0.2 + 1e-9)) if len(d) else None,
     }
+    sp = sigma_path(patch)
+    if sp.exists() and len(d):
+        # the same cells, those the patch is sure of (sigma within the bound)
+        sig = read_sigma_image(sp)[p.occupied]
+        ok = sig <= PATCH_SIGMA_BOUND + 1e-9
+        out["patch_confident_cells"] = int(ok.sum())
+        if ok.any():
+            out["patch_confident_within_0_1m"] = float(np.mean(d[ok] <= 0.1 + 1e-9))
+            out["patch_confident_within_0_2m"] = float(np.mean(d[ok] <= 0.2 + 1e-9))
+    return out
 
 
 def score(
@@ -249,14 +263,15 @@ def _pct(v: Any) -> str:
 
 HEADER = (
     "| log | method | scans | inside median cm | inside p95 cm | revisits | revisits within 0.5 m "
-    "| false tracking | lost | outside scans | re-entries (median scans) | patch walls within 10 / 20 cm |\n"
-    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|"
+    "| false tracking | lost | outside scans | re-entries (median scans) | patch walls within 10 / 20 cm "
+    "| confident patch walls (sigma <= 5 cm) within 10 / 20 cm |\n"
+    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|"
 )
 
 
 def md_row(r: dict) -> str:
     if "scans" not in r:
-        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
+        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
     re_ = "–"
     if r.get("reentries") is not None:
         med = r.get("reentry_scans_median")
@@ -269,6 +284,13 @@ def md_row(r: dict) -> str:
             f"{_pct(r['patch_wall_within_0_1m'])} / {_pct(r['patch_wall_within_0_2m'])} "
             f"of {r['patch_cells']}"
             if r.get("patch_cells")
+            else "–"
+        )
+        + " | "
+        + (
+            f"{_pct(r['patch_confident_within_0_1m'])} / {_pct(r['patch_confident_within_0_2m'])} "
+            f"of {r['patch_confident_cells']}"
+            if r.get("patch_confident_cells")
             else "–"
         )
         + " |"

@@ -1,6 +1,8 @@
 """The simulated building whose map lacks a wing (tests/partial_world.py), localized with
 and without the outside-the-map state; prints the false-tracking count, the errors inside
-the map and the map patch's walls against the true ones.
+the map and the map patch's walls against the true ones: all its wall cells in the wing,
+and those it is sure of (the sigma of where their walls are drawn at most
+icploc.mappatch.PATCH_SIGMA_BOUND, from the pose graph's covariance).
 
     .venv/bin/python benches/partial_sim.py [--seed N]
 """
@@ -23,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     from icploc.localizer import Localizer, run
-    from icploc.mappatch import patch_grid
+    from icploc.mappatch import PATCH_SIGMA_BOUND, patch_solution
     from icploc.outside import attach
 
     r, m = partial_run(a.seed)
@@ -45,8 +47,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         for line in mon.summary_lines(len(ests)):
             print("  " + line)
-        g = patch_grid(mon.stretches, resolution=float(m.resolution), walls=mon.walls)
-        if g is None:
+        g, sigma = patch_solution(mon.stretches, resolution=float(m.resolution), walls=mon.walls)
+        if g is None or sigma is None:
             continue
         occ = np.argwhere(g.occupied)
         xy = np.asarray(g.origin[:2]) + (occ[:, ::-1] + 0.5) * g.resolution
@@ -57,6 +59,15 @@ def main(argv: list[str] | None = None) -> int:
             f"  patch: {len(d)} wall cells in the wing, distance to the true walls: median "
             f"{np.median(d) * 100:.1f} cm, within 10 cm {np.mean(d <= 0.1) * 100:.1f} %, "
             f"p95 {np.percentile(d, 95) * 100:.1f} cm, max {d.max() * 100:.1f} cm"
+        )
+        sure = sigma[occ[box, 0], occ[box, 1]] <= PATCH_SIGMA_BOUND
+        dc = d[sure]
+        print(
+            f"  confident cells (sigma <= {PATCH_SIGMA_BOUND * 100:.0f} cm): {len(dc)} "
+            f"({np.mean(sure) * 100:.1f} %), within 10 cm "
+            + (f"{np.mean(dc <= 0.1) * 100:.1f} %, max {dc.max() * 100:.1f} cm" if len(dc) else "-")
+            + f"; cells more than 10 cm off: {int(np.sum(d > 0.1))}, "
+            f"of them flagged unsure {int(np.sum((d > 0.1) & ~sure))}"
         )
     return 0
 

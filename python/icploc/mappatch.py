@@ -44,14 +44,23 @@ __all__ = [
     "PATCH_PEAK_RADIUS",
     "PATCH_PEAK_SHARE",
     "PATCH_RESOLUTION",
+    "PATCH_SIGMA_BOUND",
     "MappedWalls",
+    "cell_sigmas",
+    "confidence_record",
     "corrected_poses",
     "graph_poses",
+    "graph_solution",
     "grid_from_scans",
     "in_patch",
     "patch_grid",
     "patch_record",
+    "patch_solution",
+    "read_sigma_image",
     "refined_poses",
+    "sigma_image",
+    "sigma_path",
+    "wall_sigmas",
     "write_patch",
 ]
 
@@ -77,6 +86,27 @@ PATCH_PEAK_RADIUS = 0.1
 #: real logs' 0.5 m steps the few beams along a corridor are what holds it (belgioioso's
 #: patch 68 -> 40 % within 10 cm without them), so a long step keeps them.
 WEAK_AXIS_BEAMS = 20.0
+#: a patch's wall cell is *confident* when the sigma of where its walls are drawn (along
+#: their normal, from the pose graph's marginal covariance of the scans that drew it:
+#: :func:`cell_sigmas`) is at most this [m]: half the 10 cm a patch's walls should lie
+#: within, so a confident wall is drawn within it at 2 sigma
+PATCH_SIGMA_BOUND = 0.05
+#: the sigma image's unit [m per grey level] (``<patch>.sigma.pgm``: 0..254, 255 where no
+#: beam ended or no pose covariance says how sure the cell is)
+PATCH_SIGMA_UNIT = 0.002
+#: the keyframe spacing of a stretch's pose graph: scans this far apart (metres travelled,
+#: or radians turned: :data:`KEYFRAME_TURN`) are the loop matches' keyframes, and a chain
+#: step within both is a *short* step (:data:`WEAK_AXIS_BEAMS`)
+KEYFRAME_STEP = 0.25
+#: the turn that makes a keyframe by itself [rad] (see :data:`KEYFRAME_STEP`)
+KEYFRAME_TURN = 0.3
+
+
+def _apart(u: Pose, step: float = KEYFRAME_STEP, turn: float = KEYFRAME_TURN) -> bool:
+    """Whether a motion ``u`` (a relative pose) spans the keyframe spacing: at least
+    ``step`` m travelled or ``turn`` rad turned. The one measure of the loop matches'
+    keyframes and of a chain's short steps."""
+    return math.hypot(u[0], u[1]) >= step or abs(wrap_angle(u[2])) >= turn
 
 
 def corrected_poses(
@@ -146,12 +176,12 @@ def _chain(
     min_inliers: float = 0.6,
     gate: float = 16.0,
     weak_axis_beams: float = WEAK_AXIS_BEAMS,
-    short_step: float = 0.25,
+    keyframe_step: float = KEYFRAME_STEP,
 ) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
-    """:func:`refined_poses` and per step its covariance (map frame). A step shorter than
-    ``short_step`` (its motion: metres plus 0.3 per radian turned) leaves a direction its
-    match holds by fewer than ``weak_axis_beams`` beams to the odometry
-    (:data:`WEAK_AXIS_BEAMS`)."""
+    """:func:`refined_poses` and per step its covariance (map frame). A step within the
+    keyframe spacing (:func:`_apart`: under ``keyframe_step`` m and :data:`KEYFRAME_TURN`)
+    leaves a direction its match holds by fewer than ``weak_axis_beams`` beams to the
+    odometry (:data:`WEAK_AXIS_BEAMS`)."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -185,7 +215,7 @@ def _chain(
                 res = None
             if res is not None and res.converged and res.inlier_ratio >= min_inliers:
                 z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
-                weak = weak_axis_beams if step < short_step else 0.0
+                weak = 0.0 if _apart(u, keyframe_step) else weak_axis_beams
                 R = scan_covariance(
                     res.information, int(res.inliers), float(res.mse), 0.02, 5.0, weak
                 )
@@ -243,6 +273,70 @@ class _Scale:
     value: float = 1.0
 
 
+def _linearized(
+    x: NDArray[np.float64],
+    edges: Sequence[_Edge],
+    priors: Sequence[tuple[int, Pose, NDArray[np.float64]]],
+    scale: _Scale | None,
+) -> tuple[Any, NDArray[np.float64]]:
+    """The whitened Jacobian (sparse, the poses' 3 N columns then the scale's) and
+    residuals of the graph at ``x``."""
+    from scipy.sparse import coo_matrix
+
+    n = len(x)
+    nv = 3 * n + (1 if scale is not None else 0)
+    sv = scale.value if scale is not None else 1.0
+    rows: list[NDArray[Any]] = []
+    cols: list[NDArray[Any]] = []
+    vals: list[NDArray[Any]] = []
+    res = np.zeros(3 * (len(edges) + len(priors)) + (1 if scale is not None else 0))
+    for k, e in enumerate(edges):
+        L = np.linalg.cholesky(e.info + np.eye(3) * 1e-12).T
+        xi, xj = x[e.i], x[e.j]
+        c, s = math.cos(xi[2]), math.sin(xi[2])
+        dx, dy = xj[0] - xi[0], xj[1] - xi[1]
+        f = sv if (scale is not None and e.scaled) else 1.0
+        r = np.array(
+            [
+                c * dx + s * dy - f * e.z[0],
+                -s * dx + c * dy - f * e.z[1],
+                wrap_angle(xj[2] - xi[2] - e.z[2]),
+            ]
+        )
+        ji = np.array([[-c, -s, -s * dx + c * dy], [s, -c, -c * dx - s * dy], [0, 0, -1.0]])
+        jj = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        res[3 * k : 3 * k + 3] = L @ r
+        for node, jac in ((e.i, L @ ji), (e.j, L @ jj)):
+            rr, cc = np.meshgrid(np.arange(3) + 3 * k, np.arange(3) + 3 * node, indexing="ij")
+            rows.append(rr.ravel())
+            cols.append(cc.ravel())
+            vals.append(jac.ravel())
+        if scale is not None and e.scaled:
+            rows.append(np.arange(3) + 3 * k)
+            cols.append(np.full(3, 3 * n))
+            vals.append(L @ np.array([-e.z[0], -e.z[1], 0.0]))
+    base = 3 * len(edges)
+    for k, (node, p, w) in enumerate(priors):
+        L = np.linalg.cholesky(w + np.eye(3) * 1e-12).T
+        r = np.array([x[node, 0] - p[0], x[node, 1] - p[1], wrap_angle(x[node, 2] - p[2])])
+        res[base + 3 * k : base + 3 * k + 3] = L @ r
+        rr, cc = np.meshgrid(np.arange(3) + base + 3 * k, np.arange(3) + 3 * node, indexing="ij")
+        rows.append(rr.ravel())
+        cols.append(cc.ravel())
+        vals.append(L.ravel())
+    if scale is not None:
+        last = len(res) - 1
+        res[last] = (sv - 1.0) / scale.sigma
+        rows.append(np.array([last]))
+        cols.append(np.array([3 * n]))
+        vals.append(np.array([1.0 / scale.sigma]))
+    J = coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(len(res), nv),
+    ).tocsc()
+    return J, res
+
+
 def _solve_graph(
     x0: NDArray[np.float64],
     edges: Sequence[_Edge],
@@ -254,79 +348,57 @@ def _solve_graph(
     ``priors`` (absolute ones: node, pose, information); with ``scale`` the ``scaled``
     edges' translations are multiplied by a variable (updated in place). Returns the
     poses (N, 3)."""
-    from scipy.sparse import coo_matrix
     from scipy.sparse.linalg import spsolve
 
     x = np.array(x0, dtype=np.float64).reshape(-1, 3)
     n = len(x)
-    nv = 3 * n + (1 if scale is not None else 0)
-    sv = scale.value if scale is not None else 1.0
-    # per edge the square root of its information (the residuals are whitened)
-    sq_e = [np.linalg.cholesky(e.info + np.eye(3) * 1e-12).T for e in edges]
-    sq_p = [np.linalg.cholesky(w + np.eye(3) * 1e-12).T for _, _, w in priors]
     for _ in range(iterations):
-        rows: list[NDArray[Any]] = []
-        cols: list[NDArray[Any]] = []
-        vals: list[NDArray[Any]] = []
-        res = np.zeros(3 * (len(edges) + len(priors)) + (1 if scale is not None else 0))
-        for k, (e, L) in enumerate(zip(edges, sq_e, strict=True)):
-            xi, xj = x[e.i], x[e.j]
-            c, s = math.cos(xi[2]), math.sin(xi[2])
-            dx, dy = xj[0] - xi[0], xj[1] - xi[1]
-            f = sv if (scale is not None and e.scaled) else 1.0
-            r = np.array(
-                [
-                    c * dx + s * dy - f * e.z[0],
-                    -s * dx + c * dy - f * e.z[1],
-                    wrap_angle(xj[2] - xi[2] - e.z[2]),
-                ]
-            )
-            ji = np.array([[-c, -s, -s * dx + c * dy], [s, -c, -c * dx - s * dy], [0, 0, -1.0]])
-            jj = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-            res[3 * k : 3 * k + 3] = L @ r
-            for node, jac in ((e.i, L @ ji), (e.j, L @ jj)):
-                rr, cc = np.meshgrid(np.arange(3) + 3 * k, np.arange(3) + 3 * node, indexing="ij")
-                rows.append(rr.ravel())
-                cols.append(cc.ravel())
-                vals.append(jac.ravel())
-            if scale is not None and e.scaled:
-                rows.append(np.arange(3) + 3 * k)
-                cols.append(np.full(3, 3 * n))
-                vals.append(L @ np.array([-e.z[0], -e.z[1], 0.0]))
-        base = 3 * len(edges)
-        for k, ((node, p, _), L) in enumerate(zip(priors, sq_p, strict=True)):
-            r = np.array([x[node, 0] - p[0], x[node, 1] - p[1], wrap_angle(x[node, 2] - p[2])])
-            res[base + 3 * k : base + 3 * k + 3] = L @ r
-            rr, cc = np.meshgrid(
-                np.arange(3) + base + 3 * k, np.arange(3) + 3 * node, indexing="ij"
-            )
-            rows.append(rr.ravel())
-            cols.append(cc.ravel())
-            vals.append(L.ravel())
-        if scale is not None:
-            last = len(res) - 1
-            res[last] = (sv - 1.0) / scale.sigma
-            rows.append(np.array([last]))
-            cols.append(np.array([3 * n]))
-            vals.append(np.array([1.0 / scale.sigma]))
-        J = coo_matrix(
-            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(len(res), nv),
-        ).tocsc()
+        J, res = _linearized(x, edges, priors, scale)
         H = (J.T @ J).tocsc()
-        g = J.T @ res
-        dx = spsolve(H, -g)
+        dx = spsolve(H, -(J.T @ res))
         x += dx[: 3 * n].reshape(-1, 3)
         x[:, 2] = np.angle(np.exp(1j * x[:, 2]))
         if scale is not None:
-            sv += float(dx[3 * n])
-            scale.value = sv
+            scale.value += float(dx[3 * n])
         if float(np.abs(dx).max()) < 1e-6:
             break
     return x
 
 
-def graph_poses(
+def _marginals(
+    x: NDArray[np.float64],
+    edges: Sequence[_Edge],
+    priors: Sequence[tuple[int, Pose, NDArray[np.float64]]],
+    scale: _Scale | None,
+) -> NDArray[np.float64]:
+    """Each node's marginal pose covariance (N, 3, 3) at the solution ``x``: the 3 x 3
+    blocks of the inverse of the Gauss-Newton information (the scale a variable with
+    the rest, so its uncertainty is in every pose's)."""
+    from scipy.sparse import identity
+    from scipy.sparse.linalg import splu
+
+    J, _ = _linearized(x, edges, priors, scale)
+    nv = J.shape[1]
+    lu = splu(((J.T @ J) + identity(nv) * 1e-12).tocsc())
+    n = len(x)
+    out = np.zeros((n, 3, 3))
+    chunk = 128  # nodes per solve: the inverse's columns a few at a time, never all
+    for a in range(0, n, chunk):
+        b = min(n, a + chunk)
+        rhs = np.zeros((nv, 3 * (b - a)))
+        rhs[np.arange(3 * a, 3 * b), np.arange(3 * (b - a))] = 1.0
+        cols = lu.solve(rhs)
+        for k in range(a, b):
+            out[k] = cols[3 * k : 3 * k + 3, 3 * (k - a) : 3 * (k - a) + 3]
+    return 0.5 * (out + out.transpose(0, 2, 1))
+
+
+def graph_poses(*args: Any, **kwargs: Any) -> NDArray[np.float64]:
+    """A stretch's poses from its pose graph (:func:`graph_solution`). Returns (N, 3)."""
+    return graph_solution(*args, **kwargs)[0]
+
+
+def graph_solution(
     start: Pose,
     scans: Sequence[NDArray[np.float64]],
     coasted: Sequence[Pose],
@@ -334,7 +406,7 @@ def graph_poses(
     *,
     anchor_sigma: tuple[float, float] = (0.03, 0.01),
     keep: int = 5,
-    keyframe_step: float = 0.25,
+    keyframe_step: float = KEYFRAME_STEP,
     loop_radius: float = 5.0,
     loop_gap: float = 0.4,
     nearest: int = 12,
@@ -344,13 +416,14 @@ def graph_poses(
     walls: MappedWalls | None = None,
     scale_sigma: float = 0.02,
     lead: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
-) -> NDArray[np.float64]:
+    marginals: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
     chain edges are the scan-matched odometry steps of :func:`refined_poses`; the
     re-entry ``lock`` (when there is one) is a second prior of ``anchor_sigma``. Solved
     once from the lock's correction spread along the chain (:func:`corrected_poses`),
-    then loop edges are added: each keyframe scan (``keyframe_step`` m / 0.3 rad apart)
+    then loop edges are added: each keyframe scan (``keyframe_step`` m / :data:`KEYFRAME_TURN` apart, :func:`_apart`)
     matched against its ``nearest`` earlier keyframes within ``loop_radius`` (at least
     ``loop_gap`` m of travel and two scans back: the robot came by again, in the wing or
     on the way back), drawn at that solution; a loop edge the solved graph disagrees with
@@ -360,12 +433,13 @@ def graph_poses(
     drifts away, 1 is best). ``lead``: scans after the lock and their poses by odometry
     from it (map frame): more nodes chained on from the lock, matched against the mapped
     walls with the rest (``walls``; the lock is one scan, they tie it to many), not
-    returned. Returns (N, 3)."""
+    returned. Returns the poses (N, 3) and, with ``marginals``, their marginal covariances
+    (N, 3, 3; :func:`_marginals`) at the solution, else None."""
     from icploc._core import IcpConfig
 
     n = len(coasted)
     if n == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), (np.zeros((0, 3, 3)) if marginals else None)
     lead_poses: list[Pose] = []
     if lead is not None and lock is not None and len(lead[0]):
         l0 = (float(lock[0]), float(lock[1]), float(lock[2]))
@@ -375,7 +449,7 @@ def graph_poses(
         scans = [*scans, *lead[0]]
     total = len(coasted)
     chain, _, covs = _chain(
-        start, scans, coasted, keep=keep, min_inliers=min_inliers, short_step=keyframe_step
+        start, scans, coasted, keep=keep, min_inliers=min_inliers, keyframe_step=keyframe_step
     )
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
@@ -405,10 +479,7 @@ def graph_poses(
     for k in range(1, total + 1):
         if scans[k - 1].shape[0] < 20:
             continue
-        if not keys or (
-            math.hypot(*(x[k, :2] - x[keys[-1], :2])) >= keyframe_step
-            or abs(wrap_angle(x[k, 2] - x[keys[-1], 2])) >= 0.3
-        ):
+        if not keys or _apart(between(tuple(x[keys[-1]]), tuple(x[k])), keyframe_step):
             keys.append(k)
     for _ in range(rounds):
         loop = _loop_edges(x, keys, scans, cfg, loop_radius, loop_gap, nearest, min_inliers)
@@ -432,7 +503,9 @@ def graph_poses(
                 x = _solve_graph(y, edges, [*priors, *keep_p], scale=sc)
             else:
                 x = y
-    return x[1 : n + 1]
+            priors = [*priors, *keep_p]
+    cov = _marginals(x, edges, priors, sc)[1 : n + 1] if marginals else None
+    return x[1 : n + 1], cov
 
 
 def _prior_chi2(x: NDArray[np.float64], q: tuple[int, Pose, NDArray[np.float64]]) -> float:
@@ -592,9 +665,19 @@ def _scan_normals(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
 def _stretch_poses(
     st: Stretch, refine: bool = True, walls: MappedWalls | None = None
 ) -> NDArray[np.float64]:
+    return _stretch_solution(st, refine, walls)[0]
+
+
+def _stretch_solution(
+    st: Stretch, refine: bool = True, walls: MappedWalls | None = None, marginals: bool = False
+) -> tuple[NDArray[np.float64], list[NDArray[np.float64] | None]]:
+    """A stretch's poses and, with ``marginals``, per scan its pose covariance: the pose
+    graph's marginal for a stretch back in the map, None for poses nothing checked at
+    their far end (a stretch not back, or not refined)."""
     coasted: list[Pose] = [p for _, _, p in st.scans]
+    none: list[NDArray[np.float64] | None] = [None] * len(coasted)
     if not coasted:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), []
     closed = st.lock_pose is not None and st.correction is not None
     if closed and st.lock_pose is not None and st.correction is not None:
         c, lock = st.correction, st.lock_pose
@@ -603,14 +686,68 @@ def _stretch_poses(
     scans = [pts for _, pts, _ in st.scans]
     if refine and closed and st.lock_pose is not None:
         lead = ([q for _, q, _ in st.lead_out], [p for _, _, p in st.lead_out])
-        return graph_poses(st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead)
+        x, cov = graph_solution(
+            st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead,
+            marginals=marginals,
+        )  # fmt: skip
+        return x, (none if cov is None else list(cov))
     if refine:
         # not back yet: no second anchor; the loop edges alone measured worse (belgioioso
         # 31 % -> 26 % of the patch's walls within 10 cm) than the re-chained odometry
         coasted, _ = refined_poses(st.exit_pose, scans, coasted)
     if not closed or st.lock_pose is None:
-        return np.asarray(coasted, dtype=np.float64).reshape(-1, 3)
-    return corrected_poses(st.exit_pose, coasted, coasted[-1], st.lock_pose)
+        return np.asarray(coasted, dtype=np.float64).reshape(-1, 3), none
+    return corrected_poses(st.exit_pose, coasted, coasted[-1], st.lock_pose), none
+
+
+def wall_sigmas(
+    pts: NDArray[np.float64], pose: Pose, cov: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Per beam end of a scan (robot frame ``pts``) drawn at ``pose`` with the pose
+    covariance ``cov`` (3 x 3, map frame), the sigma [m] of where it puts the wall, along
+    the wall's normal (from the beam ends beside it; along the beam where they do not
+    make one): ``n' A cov A' n`` with ``A`` the end's derivative by the pose."""
+    w = _to_world(pose, pts)
+    n, ok = _scan_normals(w)
+    rel = w - np.array([pose[0], pose[1]])
+    beam = rel / np.maximum(np.hypot(rel[:, 0], rel[:, 1]), 1e-9)[:, None]
+    n = np.where(ok[:, None], n, beam)
+    # d end / d (x, y, theta) projected on n: (n_x, n_y, n . (-rel_y, rel_x))
+    a = np.column_stack([n[:, 0], n[:, 1], -n[:, 0] * rel[:, 1] + n[:, 1] * rel[:, 0]])
+    var = np.einsum("ij,jk,ik->i", a, np.asarray(cov, dtype=np.float64), a)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def cell_sigmas(
+    grid: BuiltGrid,
+    scans: Sequence[NDArray[np.float64]],
+    poses: NDArray[np.float64] | Sequence[Any],
+    covs: Sequence[NDArray[np.float64] | None],
+) -> NDArray[np.float64]:
+    """Per cell of ``grid`` (drawn from ``scans`` at ``poses``) how surely its walls lie
+    where they are drawn: the root mean square of :func:`wall_sigmas` over the beam ends
+    in the cell [m]; inf for a beam end whose pose has no covariance (``covs[i]`` None:
+    dead reckoning nothing checked), NaN in a cell no beam ends in."""
+    res = float(grid.resolution)
+    ox, oy = float(grid.origin[0]), float(grid.origin[1])
+    rows, cols = grid.occupied.shape
+    s2 = np.zeros(rows * cols)
+    cnt = np.zeros(rows * cols)
+    for pts, pose, cov in zip(scans, poses, covs, strict=True):
+        pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        if pts.shape[0] == 0:
+            continue
+        p = (float(pose[0]), float(pose[1]), float(pose[2]))
+        w = _to_world(p, pts)
+        ij = np.floor((w - (ox, oy)) / res).astype(np.int64)
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < cols) & (ij[:, 1] >= 0) & (ij[:, 1] < rows)
+        sig = np.full(len(pts), np.inf) if cov is None else wall_sigmas(pts, p, cov)
+        flat = ij[inside, 1] * cols + ij[inside, 0]
+        s2 += np.bincount(flat, sig[inside] ** 2, minlength=rows * cols)
+        cnt += np.bincount(flat, minlength=rows * cols)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.sqrt(s2 / cnt)
+    return out.reshape(rows, cols)
 
 
 def grid_from_scans(
@@ -704,17 +841,91 @@ def patch_grid(
     stretch back in the map by :func:`graph_poses`, with ``walls``: its scans also matched
     against the mapped walls they see). A stretch not back in the map is left out unless
     ``include_open`` (:func:`in_patch`). None when no stretch put a scan in."""
+    return patch_solution(
+        stretches, resolution=resolution, align=align, mounting=mounting, refine=refine,
+        walls=walls, peak_share=peak_share, include_open=include_open, sigmas=False,
+    )[0]  # fmt: skip
+
+
+def patch_solution(
+    stretches: Sequence[Stretch],
+    *,
+    resolution: float = PATCH_RESOLUTION,
+    align: tuple[float, float] = (0.0, 0.0),
+    mounting: Pose = (0.0, 0.0, 0.0),
+    refine: bool = True,
+    walls: MappedWalls | None = None,
+    peak_share: float = PATCH_PEAK_SHARE,
+    include_open: bool = False,
+    sigmas: bool = True,
+) -> tuple[BuiltGrid | None, NDArray[np.float64] | None]:
+    """:func:`patch_grid` and, with ``sigmas``, per cell how surely its walls lie where
+    they are drawn (:func:`cell_sigmas` [m]; from the pose graph's marginal covariances,
+    inf where a scan's pose has none)."""
     scans: list[NDArray[np.float64]] = []
     poses: list[NDArray[np.float64]] = []
+    covs: list[NDArray[np.float64] | None] = []
     for st in stretches:
         if not in_patch(st, include_open):
             continue
         scans.extend(pts for _, pts, _ in st.scans)
-        poses.extend(_stretch_poses(st, refine, walls))
-    return grid_from_scans(
+        x, c = _stretch_solution(st, refine, walls, marginals=sigmas)
+        poses.extend(x)
+        covs.extend(c)
+    g = grid_from_scans(
         scans, poses, resolution=resolution, align=align, mounting=mounting,
         peak_share=peak_share,
     )  # fmt: skip
+    if g is None or not sigmas:
+        return g, None
+    return g, cell_sigmas(g, scans, poses, covs)
+
+
+def confidence_record(
+    grid: BuiltGrid, sigma: NDArray[np.float64], bound: float = PATCH_SIGMA_BOUND
+) -> dict[str, Any]:
+    """What the patch YAML says of its walls' confidence (``icploc_patch_confidence``):
+    the bound, its wall cells, how many of them are confident (sigma at most ``bound``:
+    :data:`PATCH_SIGMA_BOUND`) and the sigma image's encoding."""
+    sg = sigma[grid.occupied]
+    return {
+        "sigma_bound_m": float(bound),
+        "wall_cells": int(grid.occupied.sum()),
+        "confident_wall_cells": int(np.sum(sg <= bound)),
+        "sigma_unit_m": PATCH_SIGMA_UNIT,
+        "sigma_none": 255,
+    }
+
+
+def sigma_image(sigma: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """The cells' sigmas as grey levels (:data:`PATCH_SIGMA_UNIT` each, rounded up, so a
+    level within :data:`PATCH_SIGMA_BOUND` is a cell within it; 254 at most; 255 where
+    none), rows as the grid's (row 0 at the origin)."""
+    q = np.where(np.isfinite(sigma), np.ceil(sigma / PATCH_SIGMA_UNIT - 1e-6), 255.0)
+    return np.clip(q, 0, 255).astype(np.uint8)
+
+
+def read_sigma_image(path: str | os.PathLike[str]) -> NDArray[np.float64]:
+    """A patch's ``.sigma.pgm`` back as sigmas [m] (row 0 at the origin; NaN for 255)."""
+    data = Path(path).read_bytes()
+    parts: list[bytes] = []
+    pos = 0
+    while len(parts) < 4:
+        while data[pos : pos + 1].isspace():
+            pos += 1
+        if data[pos : pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end : end + 1].isspace():
+            end += 1
+        parts.append(data[pos:end])
+        pos = end
+    if parts[0] != b"P5":
+        raise ValueError(f"{path}: not a binary PGM (P5)")
+    w, h = int(parts[1]), int(parts[2])
+    img = np.frombuffer(data[pos + 1 : pos + 1 + w * h], dtype=np.uint8).reshape(h, w)[::-1]
+    return np.where(img == 255, np.nan, img.astype(np.float64) * PATCH_SIGMA_UNIT)
 
 
 def in_patch(st: Stretch, include_open: bool = False) -> bool:
@@ -765,7 +976,16 @@ def patch_outputs(path: str | os.PathLike[str]) -> dict[str, Path]:
     p = Path(path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise OutputError(f"--map-patch {p}: a map patch is a map_server .yaml file")
-    return {"--map-patch": p, "--map-patch image": p.with_suffix(".pgm")}
+    return {
+        "--map-patch": p,
+        "--map-patch image": p.with_suffix(".pgm"),
+        "--map-patch sigma image": sigma_path(p),
+    }
+
+
+def sigma_path(patch: str | os.PathLike[str]) -> Path:
+    """The sigma image written beside a patch's YAML (``patch.yaml`` -> ``patch.sigma.pgm``)."""
+    return Path(patch).with_suffix(".sigma.pgm")
 
 
 def write_patch(
@@ -776,26 +996,46 @@ def write_patch(
     mounting: Pose = (0.0, 0.0, 0.0),
     walls: MappedWalls | None = None,
     include_open: bool = False,
+    confident_only: bool = False,
 ) -> BuiltGrid | None:
     """Write the patch of ``stretches`` as a map_server YAML + PGM at ``path`` (a ``.yaml``)
     in ``map_``'s cell layout (``walls``, ``include_open``: see :func:`patch_grid`); the
     YAML also lists per stretch what the patch made of it (``icploc_patch_stretches``,
-    :func:`patch_record`). Returns the grid (None and nothing written without a scan to
-    draw)."""
+    :func:`patch_record`) and how sure its walls are (``icploc_patch_confidence``,
+    :func:`confidence_record`), and a grey image beside it (:func:`sigma_path`,
+    :func:`sigma_image`) says per cell the sigma of where its walls are drawn.
+    ``confident_only``: a wall cell less sure than :data:`PATCH_SIGMA_BOUND` is left
+    unknown (the merged map keeps what it knew there). Returns the grid written (None and
+    nothing written without a scan to draw)."""
     import yaml
 
     p = Path(path)
     if p.suffix.lower() not in (".yaml", ".yml"):
         raise ValueError(f"--map-patch {p}: a map patch is a map_server .yaml file")
     res, align = patch_layout(map_)
-    g = patch_grid(
+    g, sigma = patch_solution(
         stretches, resolution=res, align=align, mounting=mounting, walls=walls,
         include_open=include_open,
     )  # fmt: skip
-    if g is None:
+    if g is None or sigma is None:
         return None
+    conf = confidence_record(g, sigma)
+    if confident_only:
+        import dataclasses
+
+        unsure = g.occupied & ~(sigma <= PATCH_SIGMA_BOUND)
+        g = dataclasses.replace(g, occupied=g.occupied & ~unsure, free=g.free & ~unsure)
+        conf["uncertain_left_unknown"] = True
     g.save(p)
-    record = {"icploc_patch_stretches": patch_record(stretches, include_open)}
+    img = np.ascontiguousarray(sigma_image(sigma)[::-1])
+    with open(sigma_path(p), "wb") as fh:
+        fh.write(f"P5\n# icploc patch sigma, {PATCH_SIGMA_UNIT} m per level\n".encode("ascii"))
+        fh.write(f"{img.shape[1]} {img.shape[0]}\n255\n".encode("ascii"))
+        fh.write(img.tobytes())
+    record = {
+        "icploc_patch_stretches": patch_record(stretches, include_open),
+        "icploc_patch_confidence": conf,
+    }
     with open(p, "a", encoding="utf-8") as fh:
         fh.write(yaml.safe_dump(record, sort_keys=False))
     return g

@@ -701,6 +701,18 @@ class OutsideMonitor:
             f"{int(g.occupied.sum())} occupied; merge with: icploc map merge MAP {patch} --out OUT"
         )
         res.files["map_patch"] = Path(patch)
+        import yaml
+
+        from icploc.mappatch import sigma_path
+
+        conf = yaml.safe_load(Path(patch).read_text()).get("icploc_patch_confidence") or {}
+        if conf:
+            res.notes.append(
+                f"map patch: {conf['confident_wall_cells']} of {conf['wall_cells']} wall cells "
+                f"confident (sigma of their walls <= {conf['sigma_bound_m'] * 100:g} cm); "
+                f"the sigma per cell in {sigma_path(patch)}"
+            )
+        res.files["map_patch_sigma"] = sigma_path(patch)
 
 
 def _believed(cov: NDArray[np.float64], sigma: float) -> bool:
