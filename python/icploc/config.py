@@ -403,6 +403,14 @@ class LocalizerSection(Section):
         "beams",
         ge=0,
     )
+    min_axis_independent: float = _f(
+        1.0,
+        "... and so is a direction along which it gives fewer than this many independent "
+        "measurements (scan_independent_beams times that direction's share of the fit's "
+        "beams: a corridor's length); 0: off",
+        "measurements",
+        ge=0,
+    )
     verify_min_hit_ratio: float = _f(
         0.5, "verification: at least this share of beams end on walls", ge=0, le=1
     )

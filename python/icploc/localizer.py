@@ -692,6 +692,7 @@ class Localizer:
             self.quality.sigma,
             self._independent_beams,
             self.config.localizer.min_axis_beams,
+            self.config.localizer.min_axis_independent,
         )
         return (ix, iy, wrap_angle(ith)), R
 
