@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from icploc import _core
 from icploc.se2 import Pose, wrap_angle
 
-__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "fuse", "mahalanobis2", "scan_covariance"]
+__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "axis_measurements", "fuse", "mahalanobis2", "scan_covariance"]
 
 #: chi-square quantiles with 3 degrees of freedom (probability -> value): the gate's
 #: quantiles (the tables' values, 3 decimals; scipy is not imported for them)
@@ -71,6 +71,19 @@ def _may_be_below(Ha: NDArray[np.float64], bound: float) -> bool:
     a, b, c = float(Ha[0, 0]), 0.5 * (float(Ha[0, 1]) + float(Ha[1, 0])), float(Ha[1, 1])
     low = 0.5 * (a + c) - math.hypot(0.5 * (a - c), b)
     return not low - bound > 1e-9 * (abs(a) + abs(b) + abs(c) + abs(bound) + 1.0)
+
+
+def axis_measurements(information: NDArray[np.float64], inliers: int, independent_beams: float) -> float:
+    """How many independent measurements :func:`scan_covariance` gives the fit along its
+    weakest direction of position: ``lambda_min n_eff / n`` (``lambda_min`` the smallest
+    eigenvalue of the translational block of ``H``, unit normals: the beams along it)."""
+    Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    if not np.all(np.isfinite(Ha)):
+        return 0.0
+    a, b, c = float(Ha[0, 0]), 0.5 * (float(Ha[0, 1]) + float(Ha[1, 0])), float(Ha[1, 1])
+    low = max(0.5 * (a + c) - math.hypot(0.5 * (a - c), b), 0.0)
+    n = max(int(inliers), 1)
+    return low * min(float(independent_beams), float(n)) / n
 
 
 def scan_covariance(
