@@ -404,7 +404,7 @@ class LocalizerSection(Section):
         ge=0,
     )
     min_axis_independent: float = _f(
-        1.0,
+        0.5,
         "... and so is a direction along which it gives fewer than this many independent "
         "measurements (scan_independent_beams times that direction's share of the fit's "
         "beams: a corridor's length); 0: off",
@@ -462,6 +462,15 @@ class LocalizerSection(Section):
     )
     tracking_max_sigma_theta_deg: float = _f(
         3.0, "... and its heading sigma at most this", "deg", gt=0
+    )
+    tracking_min_axis_independent: float = _f(
+        1.0,
+        "... and once a fit left the pose to the odometry along a direction (fewer than this "
+        "many independent measurements along it, see min_axis_independent), a fit that "
+        "moves the pose along it farther than the map can tell apart is unsettled, and after "
+        "a stretch not tracking no fit weaker than this makes it tracking (unconstrained)",
+        "measurements",
+        ge=0,
     )
     lost_after_bad_scans: int = _f(
         5,
