@@ -49,13 +49,13 @@ def test_fewer_than_one_independent_measurement_along_a_direction_leaves_it_unco
     # 20 beams along (more than min_axis_beams), 320 in all: 20 * 6 / 320 = 0.375 measurements
     weak = _corridor_information(20.0)
     assert axis_measurements(weak, 320, n_eff) == 20.0 * n_eff / 320
-    R = scan_covariance(weak, 320, 1e-4, 0.02, n_eff, lc.min_axis_beams, lc.min_axis_independent)
+    R = scan_covariance(weak, 320, 1e-4, 0.02, n_eff, lc.min_axis_beams, 0.5)
     assert math.sqrt(R[0, 0]) > 100.0
     # the same fit without the bound claims centimetres along the corridor
     R0 = scan_covariance(weak, 320, 1e-4, 0.02, n_eff, lc.min_axis_beams, 0.0)
     assert math.sqrt(R0[0, 0]) < 0.1
     # 80 of 380 beams: 1.26 measurements, kept
-    R1 = scan_covariance(_corridor_information(80.0), 380, 1e-4, 0.02, n_eff, lc.min_axis_beams, lc.min_axis_independent)
+    R1 = scan_covariance(_corridor_information(80.0), 380, 1e-4, 0.02, n_eff, lc.min_axis_beams, 0.5)
     assert math.sqrt(R1[0, 0]) < 0.1
 
 

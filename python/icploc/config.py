@@ -403,11 +403,22 @@ class LocalizerSection(Section):
         "beams",
         ge=0,
     )
-    min_axis_independent: float = _f(
-        0.5,
+    covariance_min_axis_independent: float = _f(
+        0.0,
         "... and so is a direction along which it gives fewer than this many independent "
         "measurements (scan_independent_beams times that direction's share of the fit's "
-        "beams: a corridor's length); 0: off",
+        "beams: a corridor's length); 0: off (at 0.5 infinite-corridor 5 cm bad's max fell "
+        "55 m -> 1.0 m, but seattle bad's max rose 21 -> 38 and 20 -> 50 cm: such fits "
+        "usually do pin the pose)",
+        "measurements",
+        ge=0,
+    )
+    min_axis_independent: float = _f(
+        0.5,
+        "the promise (tracking): a direction a fit gives fewer than this many independent "
+        "measurements along (see covariance_min_axis_independent) counts as left to the "
+        "odometry: after a stretch not tracking such fits do not make the pose tracking, and "
+        "while dead-reckoned along it the odometry's scale error over the travel counts",
         "measurements",
         ge=0,
     )

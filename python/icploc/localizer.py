@@ -707,7 +707,7 @@ class Localizer:
             self.quality.sigma,
             self._independent_beams,
             self.config.localizer.min_axis_beams,
-            self.config.localizer.min_axis_independent,
+            self.config.localizer.covariance_min_axis_independent,
         )
         return (ix, iy, wrap_angle(ith)), R
 
@@ -939,10 +939,17 @@ class Localizer:
             else math.nan
         )
         strong = axis >= lc.tracking_min_axis_independent
+        # ... or that came after a dead reckoning along it longer than the promise allows:
+        # the fit finds the minimum next to the prediction, which along a corridor need not
+        # be the place
         weak_jump = (
             strong
             and self._loose
-            and math.hypot(pose[0] - pred[0], pose[1] - pred[1]) > lc.tracking_max_sigma
+            and max(
+                math.hypot(pose[0] - pred[0], pose[1] - pred[1]),
+                self.calibration.max_scale * self._coasted_m,
+            )
+            > lc.tracking_max_sigma
         )
         self._settle(accepted, verified, reason, check, pred, pose, weak_jump)
         self._grown = grown
