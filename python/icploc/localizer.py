@@ -363,7 +363,7 @@ class Localizer:
         #: ... or left it to the odometry (fewer than ``min_axis_independent``)
         self._unpinned = False
         #: the odometry's travel since then (m): the pose along that direction is
-        #: dead-reckoned over it, off by up to ``calibration_max_scale`` of it
+        #: dead-reckoned over it (:meth:`_drift`)
         self._coasted_m = 0.0
         #: the hit share an unsettled pose's fits must reach (the usual one before it)
         self._settle_hit = 0.0
@@ -747,6 +747,14 @@ class Localizer:
         at_pred = self.checker.check(pts, pred)
         return self._verified(at_pred) and at_pred.hit > self.checker.check(pts, z).hit
 
+    def _drift(self) -> float:
+        """The sigma (m) of a pose dead-reckoned along a direction the fits left to the
+        odometry since the last that measured it: the calibration's scale and skew sigma
+        not yet learned (:meth:`OdometryCalibration.uncertainty`) times the travel since.
+        The motion model adds that sigma step by step as if each step's error were its own;
+        a scale error adds up with the travel, and along a corridor no scan shows it."""
+        return math.sqrt(self.calibration.uncertainty((self._coasted_m, 0.0, 0.0))[0])
+
     def _confident(self, cov: NDArray[np.float64]) -> bool:
         """The covariance is tight enough to promise the pose (``tracking``)."""
         lc = self.config.localizer
@@ -945,10 +953,7 @@ class Localizer:
         weak_jump = (
             strong
             and self._loose
-            and max(
-                math.hypot(pose[0] - pred[0], pose[1] - pred[1]),
-                self.calibration.max_scale * self._coasted_m,
-            )
+            and max(math.hypot(pose[0] - pred[0], pose[1] - pred[1]), self._drift())
             > lc.tracking_max_sigma
         )
         self._settle(accepted, verified, reason, check, pred, pose, weak_jump)
@@ -979,11 +984,7 @@ class Localizer:
         elif not supported:
             cnt.bad_in_row += 1
         confident = self._confident(cov)
-        # along a direction the fits left to the odometry since the last that measured it,
-        # the pose is dead-reckoned: off by as much as the odometry's scale error may be
-        # (``calibration_max_scale``, one sigma) over the travel since, whatever the motion
-        # model's covariance says (a slip along a corridor shows in no scan)
-        drift = self.calibration.max_scale * self._coasted_m
+        drift = self._drift()
         coasted = math.sqrt(_largest_position_variance(cov) + drift * drift) > lc.tracking_max_sigma
         # a fit accepted against the odometry (``odometry_off``: the map preferred the scan
         # over a prediction it contradicts beyond the chi-square gate) is the map's word
