@@ -2,9 +2,10 @@
 the scan match carries next to no information. On the unseen infinite-corridor log (5 cm
 map, bad odometry base) the pose slid along a corridor 3-20 cm a scan while the fits
 followed the prediction and the covariance claimed 3-5 cm, and scans were `tracking` 0.6 m
-and 5 m off. A direction the fit gives less than an independent measurement is left to the
-odometry, and the pose dead-reckoned along it is not promised beyond what the odometry's
-scale error allows."""
+and 5 m off. Along a direction the fits give less than half an independent measurement the
+pose counts as dead-reckoned and is not promised beyond what the odometry's scale error not
+yet learned allows over the travel; the scan match's covariance may also leave such a
+direction unconstrained (``covariance_min_axis_independent``, off by default)."""
 
 from __future__ import annotations
 
