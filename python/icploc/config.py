@@ -403,6 +403,25 @@ class LocalizerSection(Section):
         "beams",
         ge=0,
     )
+    covariance_min_axis_independent: float = _f(
+        0.0,
+        "... and so is a direction along which it gives fewer than this many independent "
+        "measurements (scan_independent_beams times that direction's share of the fit's "
+        "beams: a corridor's length); 0: off (at 0.5 infinite-corridor 5 cm bad's max fell "
+        "55 m -> 1.0 m, but seattle bad's max rose 21 -> 38 and 20 -> 50 cm: such fits "
+        "usually do pin the pose)",
+        "measurements",
+        ge=0,
+    )
+    min_axis_independent: float = _f(
+        0.5,
+        "the promise (tracking): a direction a fit gives fewer than this many independent "
+        "measurements along (see covariance_min_axis_independent) counts as left to the "
+        "odometry: after a stretch not tracking such fits do not make the pose tracking, and "
+        "while dead-reckoned along it the odometry's scale error over the travel counts",
+        "measurements",
+        ge=0,
+    )
     verify_min_hit_ratio: float = _f(
         0.5, "verification: at least this share of beams end on walls", ge=0, le=1
     )
@@ -454,6 +473,15 @@ class LocalizerSection(Section):
     )
     tracking_max_sigma_theta_deg: float = _f(
         3.0, "... and its heading sigma at most this", "deg", gt=0
+    )
+    tracking_min_axis_independent: float = _f(
+        1.0,
+        "... and once a fit left the pose to the odometry along a direction (fewer than this "
+        "many independent measurements along it, see min_axis_independent), a fit that "
+        "moves the pose along it farther than the map can tell apart is unsettled, and after "
+        "a stretch not tracking no fit weaker than this makes it tracking (unconstrained)",
+        "measurements",
+        ge=0,
     )
     lost_after_bad_scans: int = _f(
         5,

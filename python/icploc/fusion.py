@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from icploc import _core
 from icploc.se2 import Pose, wrap_angle
 
-__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "fuse", "mahalanobis2", "scan_covariance"]
+__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "axis_measurements", "fuse", "mahalanobis2", "scan_covariance"]
 
 #: chi-square quantiles with 3 degrees of freedom (probability -> value): the gate's
 #: quantiles (the tables' values, 3 decimals; scipy is not imported for them)
@@ -73,6 +73,19 @@ def _may_be_below(Ha: NDArray[np.float64], bound: float) -> bool:
     return not low - bound > 1e-9 * (abs(a) + abs(b) + abs(c) + abs(bound) + 1.0)
 
 
+def axis_measurements(information: NDArray[np.float64], inliers: int, independent_beams: float) -> float:
+    """How many independent measurements :func:`scan_covariance` gives the fit along its
+    weakest direction of position: ``lambda_min n_eff / n`` (``lambda_min`` the smallest
+    eigenvalue of the translational block of ``H``, unit normals: the beams along it)."""
+    Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    if not np.all(np.isfinite(Ha)):
+        return 0.0
+    a, b, c = float(Ha[0, 0]), 0.5 * (float(Ha[0, 1]) + float(Ha[1, 0])), float(Ha[1, 1])
+    low = max(0.5 * (a + c) - math.hypot(0.5 * (a - c), b), 0.0)
+    n = max(int(inliers), 1)
+    return low * min(float(independent_beams), float(n)) / n
+
+
 def scan_covariance(
     information: NDArray[np.float64],
     inliers: int,
@@ -80,6 +93,7 @@ def scan_covariance(
     sigma_floor: float,
     independent_beams: float,
     min_axis_beams: float = 0.0,
+    min_axis_independent: float = 0.0,
 ) -> NDArray[np.float64]:
     """Covariance of an ICP pose (see the module docstring). ``information`` is the fit's
     ``H = sum J' J`` over its ``inliers`` pairs, ``mse`` their mean squared residual (m^2),
@@ -90,10 +104,24 @@ def scan_covariance(
     direction. Fewer than this (a corridor's or an aisle's length, held by the odd shelf
     end or door frame) is no measurement: one ambiguous pairing moves the fit along it by
     a gap while the covariance claims centimetres, and the prediction's own covariance
-    along it shrinks for nothing. That direction is then left unconstrained."""
+    along it shrinks for nothing. That direction is then left unconstrained.
+
+    ``min_axis_independent``: the covariance gives the fit ``n_eff`` independent
+    measurements spread by its mean geometry ``H / n``, so along the weakest direction it
+    counts ``lambda_min n_eff / n`` of them. Fewer than this (a corridor's length, held by
+    a door frame or two while hundreds of beams hold its width: translational degeneracy
+    under about 0.2 with ``n_eff`` 6) is no measurement either: the fit along it stays
+    wherever its prediction put it (real corridors: 3-20 cm a scan of slide, followed, with
+    a covariance of 3-5 cm while 0.6 m off), and fused it would shrink the pose's
+    covariance along it for nothing. The direction is left unconstrained, so the fused
+    pose takes the odometry's growing covariance along it."""
     Ha = information
     if not (isinstance(Ha, np.ndarray) and Ha.shape == (3, 3)):
         Ha = np.asarray(information, dtype=np.float64).reshape(3, 3)
+    if min_axis_independent > 0.0:
+        n_used = max(int(inliers), 1)
+        share = min(float(independent_beams), float(n_used)) / n_used
+        min_axis_beams = max(min_axis_beams, min_axis_independent / share)
     # the core computes it, to the bit as below, unless the weak axis may be dropped
     got = _core.scan_covariance(Ha, inliers, mse, sigma_floor, independent_beams, min_axis_beams)
     if got is not None:

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from icploc.calibration import OdometryCalibration
 from icploc.config import LocalizerConfig
 from icploc.fitcheck import FitCheck, FitChecker, MapQuality
-from icploc.fusion import CHI2_3, fuse, mahalanobis2, scan_covariance
+from icploc.fusion import CHI2_3, axis_measurements, fuse, mahalanobis2, scan_covariance
 from icploc.kidnap import CheckVerdict, KidnapTrigger
 from icploc.median import median
 from icploc.messages import Odometry, Scan
@@ -356,6 +356,15 @@ class Localizer:
         self._inflated = False
         #: the last scan's fit was rejected and grew the prediction's covariance
         self._grown = False
+        #: since the last fit that measured the position along every direction (at least
+        #: ``tracking_min_axis_independent`` independent measurements along its weakest),
+        #: an accepted fit measured one less (a corridor's length) ...
+        self._loose = False
+        #: ... or left it to the odometry (fewer than ``min_axis_independent``)
+        self._unpinned = False
+        #: the odometry's travel since then (m): the pose along that direction is
+        #: dead-reckoned over it (:meth:`_drift`)
+        self._coasted_m = 0.0
         #: the hit share an unsettled pose's fits must reach (the usual one before it)
         self._settle_hit = 0.0
         #: scans in a row without a verified fit
@@ -425,6 +434,9 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._loose = False
+        self._unpinned = False
+        self._coasted_m = 0.0
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -447,6 +459,9 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._loose = False
+        self._unpinned = False
+        self._coasted_m = 0.0
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
@@ -692,6 +707,7 @@ class Localizer:
             self.quality.sigma,
             self._independent_beams,
             self.config.localizer.min_axis_beams,
+            self.config.localizer.covariance_min_axis_independent,
         )
         return (ix, iy, wrap_angle(ith)), R
 
@@ -731,11 +747,18 @@ class Localizer:
         at_pred = self.checker.check(pts, pred)
         return self._verified(at_pred) and at_pred.hit > self.checker.check(pts, z).hit
 
+    def _drift(self) -> float:
+        """The sigma (m) of a pose dead-reckoned along a direction the fits left to the
+        odometry since the last that measured it: the calibration's scale and skew sigma
+        not yet learned (:meth:`OdometryCalibration.uncertainty`) times the travel since.
+        The motion model adds that sigma step by step as if each step's error were its own;
+        a scale error adds up with the travel, and along a corridor no scan shows it."""
+        return math.sqrt(self.calibration.uncertainty((self._coasted_m, 0.0, 0.0))[0])
+
     def _confident(self, cov: NDArray[np.float64]) -> bool:
         """The covariance is tight enough to promise the pose (``tracking``)."""
         lc = self.config.localizer
-        a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
-        lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+        lmax = _largest_position_variance(cov)
         return (
             math.sqrt(max(lmax, 0.0)) <= lc.tracking_max_sigma
             and math.sqrt(max(float(cov[2, 2]), 0.0)) <= math.radians(lc.tracking_max_sigma_theta_deg)
@@ -913,8 +936,37 @@ class Localizer:
         # them locked a bad base into its bias and the verification into its first bar:
         # the calibration's bias is what makes the odometry disagree with the fits; only
         # the calibration pair across a jump is dropped)
-        self._settle(accepted, verified, reason, check, pred, pose)
+        # a fit that measures the position along every direction (a full independent
+        # measurement along its weakest) after fits that measured one less, and moved the
+        # pose by more than the sigma a tracking pose promises, corrected a pose the weak
+        # fits held: a jump along a weak axis (on a real corridor the next fits slid on
+        # with it), not promised until it has settled
+        axis = (
+            axis_measurements(res.information, int(res.inliers), self._independent_beams)
+            if accepted and res is not None
+            else math.nan
+        )
+        strong = axis >= lc.tracking_min_axis_independent
+        # ... or that came after a dead reckoning along it longer than the promise allows:
+        # the fit finds the minimum next to the prediction, which along a corridor need not
+        # be the place
+        weak_jump = (
+            strong
+            and self._loose
+            and max(math.hypot(pose[0] - pred[0], pose[1] - pred[1]), self._drift())
+            > lc.tracking_max_sigma
+        )
+        self._settle(accepted, verified, reason, check, pred, pose, weak_jump)
         self._grown = grown
+        if strong:
+            self._loose = self._unpinned = False
+            self._coasted_m = 0.0
+        else:
+            if accepted:
+                self._loose = True
+                self._unpinned |= axis < lc.min_axis_independent
+            if self._unpinned and self._step is not None:
+                self._coasted_m += math.hypot(self._step[0], self._step[1])
         if verified:
             self.quality.observe(check)
             if z is not None and R is not None and odom is not None:
@@ -932,25 +984,33 @@ class Localizer:
         elif not supported:
             cnt.bad_in_row += 1
         confident = self._confident(cov)
+        drift = self._drift()
+        coasted = math.sqrt(_largest_position_variance(cov) + drift * drift) > lc.tracking_max_sigma
         # a fit accepted against the odometry (``odometry_off``: the map preferred the scan
         # over a prediction it contradicts beyond the chi-square gate) is the map's word
         # against the odometry's, not agreement: on repetitive structure (doubled walls, a
         # corridor's along axis) the neighbouring minimum also verifies. The correction is
         # kept, the promise is not: ``degraded`` until a scan agrees with its prediction.
-        if verified and confident and reason in (Reason.NONE, Reason.INFLATED):
+        if verified and confident and not coasted and reason in (Reason.NONE, Reason.INFLATED):
             status = Status.TRACKING
         else:
             status = Status.DEGRADED
             if verified and not confident and not reason:
                 reason = Reason.UNCERTAIN
+            elif verified and coasted and not reason:
+                reason = Reason.UNCONSTRAINED
         # a fit weakly constrained along one direction (a corridor) says little about the
         # pose along it: after a stretch not promised it does not make the pose a promise
         # until ``dispute_scans`` such fits in a row agreed with the predictions
+        # (never while the fits since have left a direction to the odometry: the pose along
+        # it is then the dead-reckoned one that was not promised)
         if (
             status is Status.TRACKING
             and self.status is not Status.TRACKING
-            and degeneracy < _SLIDE_DEGENERACY
-            and self._held < lc.dispute_scans
+            and (
+                self._unpinned
+                or (degeneracy < _SLIDE_DEGENERACY and self._held < lc.dispute_scans)
+            )
         ):
             status, reason = Status.DEGRADED, Reason.UNCONSTRAINED
         self._held = self._held + 1 if reason == Reason.UNCONSTRAINED else 0
@@ -1035,10 +1095,12 @@ class Localizer:
         check: FitCheck,
         pred: Pose,
         pose: Pose,
+        weak_jump: bool = False,
     ) -> None:
         """Count a pose taken against the odometry (``odometry_off``, or a fit beyond the
         accept quantile, ``inflated``, that moved it farther than the map can tell apart or
-        came right after another such fit), or the first verified fit after ``lost_after_bad_scans``
+        came right after another such fit, or a ``weak_jump``: a fit that moved it along a
+        direction the last fit left to the odometry), or the first verified fit after ``lost_after_bad_scans``
         scans without one, towards settling: ``settle_scans`` verified
         scans that explain the scan at least as well as this map's verified fits usually
         did before the pose was taken (the usual hit share then), not just as well as
@@ -1050,7 +1112,7 @@ class Localizer:
         and the usual share the map learns from such fits sinks towards theirs)."""
         lc = self.config.localizer
         inflated = accepted and reason == Reason.INFLATED
-        against = reason == Reason.ODOMETRY_OFF or (
+        against = weak_jump or reason == Reason.ODOMETRY_OFF or (
             # beyond the accept quantile, and moved the pose farther than the map can tell
             # or the fit before was beyond it too (the fits pull the pose away from the
             # odometry scan after scan, each within the gate)
@@ -1590,6 +1652,12 @@ def _growth_to_consistent(
         else:
             hi = mid
     return math.exp(hi)
+
+
+def _largest_position_variance(cov: NDArray[np.float64]) -> float:
+    """The position's variance along its worst direction (m^2)."""
+    a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+    return 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
 
 
 def _unknown_covariance() -> NDArray[np.float64]:
