@@ -2,7 +2,9 @@
 and without the outside-the-map state; prints the false-tracking count, the errors inside
 the map and the map patch's walls against the true ones: all its wall cells in the wing,
 and those it is sure of (the sigma of where their walls are drawn at most
-icploc.mappatch.PATCH_SIGMA_BOUND, from the pose graph's covariance).
+icploc.mappatch.PATCH_SIGMA_BOUND, from the pose graph's covariance); and per stretch the
+chain's heading against the true poses (its scan match's bias per match, the chain's and
+the graph's heading error).
 
     .venv/bin/python benches/partial_sim.py [--seed N]
 """
@@ -32,7 +34,11 @@ def main(argv: list[str] | None = None) -> int:
     for partial in (False, True):
         loc = Localizer(m, initial_pose=tuple(r.truth[0]))
         mon = attach(loc, record=True) if partial else None
-        ests = run(loc, r.items)
+        try:
+            ests = run(loc, r.items)
+        except Exception as exc:  # noqa: BLE001 - a bench line, not a crash: say it and go on
+            print(f"{'--partial-map' if partial else 'plain'}: the run died: {type(exc).__name__}: {exc}")
+            continue
         p = np.array([e.pose for e in ests])
         e = np.hypot(p[:, 0] - r.truth[:, 0], p[:, 1] - r.truth[:, 1])
         st = np.array([x.status.value for x in ests])
@@ -69,7 +75,42 @@ def main(argv: list[str] | None = None) -> int:
             + f"; cells more than 10 cm off: {int(np.sum(d > 0.1))}, "
             f"of them flagged unsure {int(np.sum((d > 0.1) & ~sure))}"
         )
+        _chain_lines(mon.stretches, r.truth, mon.walls)
     return 0
+
+
+def _chain_lines(stretches: list, truth: np.ndarray, walls: object) -> None:
+    """Per stretch back in the map, the chain's heading against the true poses: its scan
+    match's bias (each scan against its previous five drawn at their true poses,
+    icploc.mappatch.chain_heading_errors) and the heading error of the chain itself
+    (odometry fused with those matches, icploc.mappatch.refined_poses) and of the graph."""
+    import math
+
+    from icploc.mappatch import _stretch_poses, chain_heading_errors, refined_poses
+
+    for n, st in enumerate(stretches):
+        if st.lock_pose is None or st.correction is None or len(st.scans) < 10:
+            continue
+        k = np.array([i for i, _, _ in st.scans])
+        t = truth[k]  # a stretch's scan index is the run's frame index
+        scans = [p for _, p, _ in st.scans]
+        coasted = [p for _, _, p in st.scans]
+        c, lock = st.correction, st.lock_pose
+        coasted[-1] = (lock[0] - c[0], lock[1] - c[1], lock[2] - c[2])
+        e = np.degrees(chain_heading_errors(scans, t))
+        chain, _ = refined_poses(st.exit_pose, scans, coasted)
+        graph = _stretch_poses(st, True, walls)  # type: ignore[arg-type]
+
+        def head(p: np.ndarray, t: np.ndarray = t) -> np.ndarray:
+            return np.degrees(np.remainder(p[:, 2] - t[:, 2] + math.pi, 2 * math.pi) - math.pi)
+
+        hc, ho, hg = head(np.asarray(chain)), head(np.asarray(coasted)), head(np.asarray(graph))
+        print(
+            f"  stretch {n} chain: scan match's heading bias at the true poses "
+            f"{e.mean():+.4f} deg per match (+- {e.std() / math.sqrt(len(e)):.4f}, {len(e)} matches); "
+            f"heading error at the lock: odometry {ho[-1]:+.2f}, chain {hc[-1]:+.2f} deg "
+            f"(max {np.abs(hc).max():.2f}); graph max {np.abs(hg).max():.2f} deg"
+        )
 
 
 if __name__ == "__main__":

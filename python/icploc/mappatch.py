@@ -47,6 +47,7 @@ __all__ = [
     "PATCH_SIGMA_BOUND",
     "MappedWalls",
     "cell_sigmas",
+    "chain_heading_errors",
     "confidence_record",
     "corrected_poses",
     "graph_poses",
@@ -100,6 +101,33 @@ PATCH_SIGMA_UNIT = 0.002
 KEYFRAME_STEP = 0.25
 #: the turn that makes a keyframe by itself [rad] (see :data:`KEYFRAME_STEP`)
 KEYFRAME_TURN = 0.3
+
+
+#: the chain's reference scans are at least this far apart [m] (or
+#: :data:`CHAIN_REF_TURN` turned): a scan closer to the newest one is matched but not kept.
+#: 0: the previous ``keep`` scans. 0.2 m / 0.1 rad (the simulated scans 4 cm apart: the
+#: references reach about 1 m back, so a match's own heading error and the odometry's are
+#: spread over more steps) takes the chain's heading error at the lock from -1.8..-3.8 to
+#: -0.4..-2.3 deg (seeds 0-9), but moves which seeds' walls fail, not how many: seeds 0-9
+#: 100 / 100 / 100 / 100 / 100 / 99.9 / 94.9 / 96.9 / 92.9 / 76.2 % within 10 cm (now
+#: 100 / 95.3 / 100 / 100 / 100 / 99.3 / 92.1 / 100 / 100 / 99.3); the real logs' 0.5 m
+#: steps are not affected (aces, belgioioso, csail: the same patches)
+CHAIN_REF_STEP = 0.0
+#: (see :data:`CHAIN_REF_STEP`) [rad]
+CHAIN_REF_TURN = 0.0
+#: the independent beams a chain step's scan match counts as (its covariance:
+#: :func:`icploc.fusion.scan_covariance`). With the odometry's heading sigma
+#: (:data:`CHAIN_ODOM_HEADING`) it sets how much of the odometry's heading drift the chain
+#: keeps (simulated wing, seeds 0-9: the localizer's odometry -1.9..-11.5 deg at the lock,
+#: the chain +0.3..-3.8 deg). 50 instead: the chain +0.1..+1.9 deg (the matches' own
+#: +0.001..+0.008 deg per match then shows), seeds 0-9 100 / 100 / 100 / 94.5 / 99.4 /
+#: 99.4 / 97.2 / 99.2 / 99.8 / 80.1 % within 10 cm
+CHAIN_BEAMS = 5.0
+#: a chain step's odometry heading sigma (rad, plus rad per metre or radian of the step);
+#: 0.01 + 0.1 instead: seeds 0-9 100 / 100 / 100 / 100 / 100 / 99.3 / 95.3 / 86.5 / 99.4 /
+#: 89.8 %; with the references 0.2 m apart as well (:data:`CHAIN_REF_STEP`), the chain
+#: within 1.5 deg at the lock, seeds 0-5 100 / 87.3 / 87.2 / 100 / 100 / 100 %
+CHAIN_ODOM_HEADING = (0.003, 0.03)
 
 
 def _apart(u: Pose, step: float = KEYFRAME_STEP, turn: float = KEYFRAME_TURN) -> bool:
@@ -182,20 +210,17 @@ def _chain(
     keyframe spacing (:func:`_apart`: under ``keyframe_step`` m and :data:`KEYFRAME_TURN`)
     leaves a direction its match holds by fewer than ``weak_axis_beams`` beams to the
     odometry (:data:`WEAK_AXIS_BEAMS`)."""
-    from icploc._core import IcpConfig, IcpError, MapIndex, icp
+    from icploc._core import IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
-    cfg = IcpConfig(
-        window_search=False,
-        max_correspondence_distance=0.5,
-        min_correspondence_distance=0.1,
-    )
+    cfg = _chain_config()
     out: list[Pose] = []
     trust: list[float] = []
     covs: list[NDArray[np.float64]] = []
     prev: Pose = (float(start[0]), float(start[1]), float(start[2]))
     prev_c: Pose = prev
     world: list[NDArray[np.float64]] = []
+    kept: Pose | None = None  # the pose of the newest reference scan
     normals: list[NDArray[np.float64]] = []
     for pts, c in zip(scans, coasted, strict=True):
         c = (float(c[0]), float(c[1]), float(c[2]))
@@ -203,7 +228,8 @@ def _chain(
         guess = compose(prev, u)
         pose, t = guess, 0.0
         step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
-        sxy, sth = 0.01 + 0.02 * step, 0.003 + 0.03 * step
+        sxy = 0.01 + 0.02 * step
+        sth = CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
         if world and pts.shape[0] >= 20:
@@ -217,7 +243,7 @@ def _chain(
                 z = (float(res.pose[0]), float(res.pose[1]), float(res.pose[2]))
                 weak = 0.0 if _apart(u, keyframe_step) else weak_axis_beams
                 R = scan_covariance(
-                    res.information, int(res.inliers), float(res.mse), 0.02, 5.0, weak
+                    res.information, int(res.inliers), float(res.mse), 0.02, CHAIN_BEAMS, weak
                 )
                 if mahalanobis2(guess, P, z, R) <= gate:
                     pose, P2 = fuse(guess, P, z, R)
@@ -226,14 +252,73 @@ def _chain(
         out.append(pose)
         trust.append(t)
         covs.append(cov)
-        if pts.shape[0] >= 3:
-            w = _to_world(pose, pts)
-            n, ok = _scan_normals(w)
-            world.append(w[ok])
-            normals.append(n[ok])
+        spaced = kept is None or _apart(between(kept, pose), CHAIN_REF_STEP, CHAIN_REF_TURN)
+        if pts.shape[0] >= 3 and spaced:
+            kept = pose
+            w, n = _chain_reference(pose, pts)
+            world.append(w)
+            normals.append(n)
             del world[:-keep], normals[:-keep]
         prev, prev_c = pose, c
     return out, trust, covs
+
+
+def _chain_config() -> Any:
+    """The ICP settings of the chain's scan-to-scans matches (no window search: the
+    odometry's guess is close)."""
+    from icploc._core import IcpConfig
+
+    return IcpConfig(
+        window_search=False,
+        max_correspondence_distance=0.5,
+        min_correspondence_distance=0.1,
+    )
+
+
+def _chain_reference(
+    pose: Pose, pts: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A scan (robot frame ``pts``) drawn at ``pose`` as the chain's reference cloud: its
+    points that have a normal, and those normals."""
+    w = _to_world(pose, pts)
+    n, ok = _scan_normals(w)
+    return w[ok], n[ok]
+
+
+def chain_heading_errors(
+    scans: Sequence[NDArray[np.float64]],
+    truth: NDArray[np.float64] | Sequence[Any],
+    *,
+    keep: int = 5,
+    min_inliers: float = 0.6,
+) -> NDArray[np.float64]:
+    """How biased the chain's scan match is (a diagnostic against known poses): each scan
+    (robot frame) matched as :func:`refined_poses` matches it, against its previous
+    ``keep`` scans, but those drawn at their true poses ``truth`` and from its own true
+    pose; per converged match explaining ``min_inliers`` of the scan, its heading minus
+    the true one [rad]. The mean is the chain's heading bias per match."""
+    from icploc._core import IcpError, MapIndex, icp
+
+    t = np.asarray(truth, dtype=np.float64).reshape(-1, 3)
+    cfg = _chain_config()
+    refs: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+    out: list[float] = []
+    for i in range(keep, len(scans)):
+        for j in range(i - keep, i):
+            if j not in refs:
+                refs[j] = _chain_reference((t[j, 0], t[j, 1], t[j, 2]), scans[j])
+        refs.pop(i - keep - 1, None)
+        w = np.concatenate([refs[j][0] for j in range(i - keep, i)])
+        n = np.concatenate([refs[j][1] for j in range(i - keep, i)])
+        if len(w) < 20 or len(scans[i]) < 20:
+            continue
+        try:
+            res = icp(scans[i], MapIndex(w, n, None), (t[i, 0], t[i, 1], t[i, 2]), cfg)
+        except IcpError:
+            continue
+        if res.converged and res.inlier_ratio >= min_inliers:
+            out.append(wrap_angle(float(res.pose[2]) - float(t[i, 2])))
+    return np.asarray(out, dtype=np.float64)
 
 
 def _to_world(pose: Pose, pts: NDArray[np.float64]) -> NDArray[np.float64]:
