@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from icploc.status import LOCK_REASONS
 from numpy.typing import NDArray
 
 HERE = Path(__file__).resolve().parent
@@ -99,7 +100,7 @@ def describe(rows: list[dict], label: str) -> str:
     lines.append("status: " + ", ".join(f"{k} {v}" for k, v in sorted(st.items())))
     tail = [r for r in rows if r["err"] >= p95]
     lines.append("at or above p95: " + ", ".join(f"{k} {v}" for k, v in Counter(f"{r['status']}/{r['reason'] or '-'}" for r in tail).most_common()))
-    acc = [r for r in rows if r["accepted"] and "meas_nees" in r and r["reason"] not in ("relocalized", "lock_unverified")]
+    acc = [r for r in rows if r["accepted"] and "meas_nees" in r and r["reason"] not in LOCK_REASONS]
     if acc:
         mn = np.array([r["meas_nees"] for r in acc])
         lines.append(f"scan-match NEES (accepted, n={len(acc)}): median {np.median(mn):.2f}, mean {np.mean(np.minimum(mn, 1e3)):.2f}, share > chi2(0.99) {np.mean(mn > 11.345) * 100:.0f} %")

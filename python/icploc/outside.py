@@ -564,9 +564,10 @@ class OutsideMonitor:
     def after(self, loc: Localizer, est: Estimate, pts: NDArray[np.float64]) -> Estimate:
         """Called on every estimate: marks it, closes a stretch at the re-entry lock."""
         from icploc.localizer import Status
+        from icploc.status import LOCK_REASONS
 
         mapped = self.state != "outside"
-        if self.state == "reentering" and est.reason in ("relocalized", "lock_unverified"):
+        if self.state == "reentering" and est.reason in LOCK_REASONS:
             st = self.stretches[-1]
             k = loc.scans_processed
             st.end, st.end_stamp = k, float(est.stamp)

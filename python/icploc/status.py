@@ -9,7 +9,7 @@ from __future__ import annotations
 import sys
 from enum import Enum
 
-__all__ = ["Reason", "Status"]
+__all__ = ["LOCK_REASONS", "Reason", "Status"]
 
 if sys.version_info >= (3, 11):
     from enum import StrEnum as _StrEnum
@@ -84,3 +84,8 @@ class Reason(_StrEnum):
     REENTERING = "reentering"
     #: the start pose is being refined from stationary scans
     REFINING_START = "refining_start"
+
+
+#: the reasons of a scan the recovery locked on (the re-entry into the map: a stretch
+#: outside it ends there), as plain strings so a reason string or a :class:`Reason` matches
+LOCK_REASONS: frozenset[str] = frozenset({Reason.RELOCALIZED.value, Reason.LOCK_UNVERIFIED.value})
