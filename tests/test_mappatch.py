@@ -321,25 +321,29 @@ def test_a_cells_sigma_is_the_rms_of_its_beam_ends_and_inf_without_a_covariance(
     inner = g.occupied & (np.abs(cy) < 0.9)[:, None]
     assert int(inner.sum()) >= 30
     np.testing.assert_allclose(sig[inner], math.sqrt((1e-4 + 49e-4) / 2), rtol=0, atol=1e-9)
-    assert np.isinf(cell_sigmas(g, [pts, pts], [pose, pose], [ca, None])[g.occupied]).all()
+    assert np.isinf(cell_sigmas(g, [pts, pts], [pose, pose], [None, None])[g.occupied]).all()
 
 
 def test_the_sigma_image_reads_back_within_a_level_never_below() -> None:
     from icploc.mappatch import PATCH_SIGMA_UNIT, read_sigma_image, sigma_image
 
-    sigma = np.array([[0.0, 0.0131, 0.05], [np.nan, 0.4, 0.0501]])
+    # the last column: finite sigmas beyond the image's top level (0.508 m) read back as
+    # that level, at least as unsure as the image can say and never "none" (NaN)
+    sigma = np.array([[0.0, 0.0131, 0.05, 0.6], [np.nan, 0.4, 0.0501, 7.0]])
     import tempfile
 
     img = sigma_image(sigma)
     with tempfile.TemporaryDirectory() as t:
         p = Path(t) / "s.pgm"
         flipped = np.ascontiguousarray(img[::-1])
-        p.write_bytes(b"P5\n# test\n3 2\n255\n" + flipped.tobytes())
+        p.write_bytes(b"P5\n# test\n4 2\n255\n" + flipped.tobytes())
         back = read_sigma_image(p)
     ok = np.isfinite(sigma)
+    small = ok & (sigma < 254 * PATCH_SIGMA_UNIT)
     assert np.isnan(back[~ok]).all()
-    assert (back[ok] >= sigma[ok] - 1e-12).all()
-    assert (back[ok] - sigma[ok] < PATCH_SIGMA_UNIT + 1e-12).all()
+    assert (back[small] >= sigma[small] - 1e-12).all()
+    assert (back[small] - sigma[small] < PATCH_SIGMA_UNIT + 1e-12).all()
+    np.testing.assert_allclose(back[:, 3], 254 * PATCH_SIGMA_UNIT, rtol=0, atol=1e-12)
 
 
 @pytest.mark.slow

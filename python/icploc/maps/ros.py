@@ -274,9 +274,12 @@ def load_ros(path: str | Path) -> RosGrid:
     )
 
 
-def _read_grey_u8(yaml_path: Path, image_path: Path) -> NDArray[np.uint8] | None:
+def _read_grey_u8(
+    yaml_path: Path, image_path: Path, field: str | None = "image"
+) -> NDArray[np.uint8] | None:
     """The pixels of a binary PGM (P5, maxval 255) as uint8, read directly; None for any
-    other image (then PIL decodes it)."""
+    other image (then PIL decodes it). Errors are :class:`MapError` of ``yaml_path``'s
+    ``field`` (also :func:`icploc.mappatch.read_sigma_image`'s reader)."""
     try:
         with open(image_path, "rb") as fh:
             head = fh.read(512)
@@ -306,16 +309,16 @@ def _read_grey_u8(yaml_path: Path, image_path: Path) -> NDArray[np.uint8] | None
             if w * h > MAX_PIXELS:
                 raise MapError(
                     yaml_path,
-                    "image",
+                    field,
                     f"image {image_path} has {w} x {h} = {w * h:,} pixels (limit {MAX_PIXELS:,})",
                 )
             fh.seek(pos + 1)  # one whitespace byte ends the header
             data = np.fromfile(fh, dtype=np.uint8, count=w * h)
     except OSError as e:
-        raise MapError(yaml_path, "image", f"cannot read image {image_path}: {e.strerror or e}") from e
+        raise MapError(yaml_path, field, f"cannot read image {image_path}: {e.strerror or e}") from e
     if data.size != w * h:
         raise MapError(
-            yaml_path, "image", f"cannot decode image {image_path}: truncated, {data.size} of {w * h} pixels"
+            yaml_path, field, f"cannot decode image {image_path}: truncated, {data.size} of {w * h} pixels"
         )
     return data.reshape(h, w)
 
