@@ -477,7 +477,10 @@ def _marginals(
     Between them it may bend (a chain held at both ends peaks mid-way), so the stand-in
     can be a little surer than the node's own (a 600-step chain held at both ends, every
     11th node computed: sigma at most 0.7 % surer, 1.3 % less sure than the node's own;
-    tests/test_mappatch_sigma.py)."""
+    tests/test_mappatch_sigma.py). Where loop edges pin nodes between two computed ones it
+    bends more: a synthetic 5000-step chain with a loop edge every 10th node, every 25th
+    node computed: position sigma within 11 % (p99 6 %), heading sigma up to 2.3 x off
+    (p99 69 %, up to 49 % surer)."""
     from scipy.sparse import identity
     from scipy.sparse.linalg import splu
 
