@@ -379,14 +379,22 @@ impl GlobalLocalizer {
                         ),
                     });
                 }
-                let i0 = ((r[0] - self.field.x0) / self.field.res).ceil().max(0.0);
-                let j0 = ((r[1] - self.field.y0) / self.field.res).ceil().max(0.0);
-                let i1 = ((r[2] - self.field.x0) / self.field.res)
-                    .floor()
-                    .min(self.field.w as f64 - 1.0);
-                let j1 = ((r[3] - self.field.y0) / self.field.res)
-                    .floor()
-                    .min(self.field.h as f64 - 1.0);
+                let (fx0, fy0, res) = (self.field.x0, self.field.y0, self.field.res);
+                let (wmax, hmax) = (self.field.w as f64 - 1.0, self.field.h as f64 - 1.0);
+                let mut i0 = ((r[0] - fx0) / res).ceil().max(0.0);
+                let mut j0 = ((r[1] - fy0) / res).ceil().max(0.0);
+                let mut i1 = ((r[2] - fx0) / res).floor().min(wmax);
+                let mut j1 = ((r[3] - fy0) / res).floor().min(hmax);
+                // a region narrower than a cell, between two cell centres (a window clipped
+                // to a sliver at the map's edge): the cells whose footprint it overlaps
+                if i0 > i1 {
+                    i0 = ((r[0] - fx0) / res - 0.5).ceil().max(0.0);
+                    i1 = ((r[2] - fx0) / res + 0.5).floor().min(wmax);
+                }
+                if j0 > j1 {
+                    j0 = ((r[1] - fy0) / res - 0.5).ceil().max(0.0);
+                    j1 = ((r[3] - fy0) / res + 0.5).floor().min(hmax);
+                }
                 if i0 > i1 || j0 > j1 {
                     return Err(IcpError::InvalidInput {
                         what: "region".into(),
@@ -986,6 +994,37 @@ mod tests {
         assert!(g.search(&scan, None, Some((0.5, 0.5))).is_ok());
         let r = g.search(&scan, Some([6.0, 2.0, 6.0, 2.0]), None).unwrap();
         assert!(r.candidates.is_empty());
+    }
+
+    #[test]
+    fn a_region_narrower_than_a_cell_searches_the_cells_it_overlaps() {
+        // a window clipped to a sliver at the map's edge (partial_sim seed 2: 4 cm wide on a
+        // coarser grid, between two cell centres) is searched, not refused
+        let segs = office_segments();
+        let g = localizer(&segs, 0.1);
+        let mut rng = Rng::new(5);
+        let scan = make_scan(
+            &segs,
+            Pose2::new(3.0, 4.0, 0.0),
+            361,
+            30.0,
+            0.01,
+            0.0,
+            &mut rng,
+        );
+        let (x0, y0, res) = (g.field.x0, g.field.y0, g.field.res);
+        let (a, b) = (x0 + 20.3 * res, y0 + 20.3 * res);
+        for region in [
+            [a, y0 + 5.0 * res, a + 0.3 * res, y0 + 30.0 * res],
+            [x0 + 5.0 * res, b, x0 + 30.0 * res, b + 0.3 * res],
+            [a, b, a + 0.3 * res, b + 0.3 * res],
+        ] {
+            assert!(g.search(&scan, Some(region), None).is_ok(), "{region:?}");
+        }
+        // one wider than a cell is searched over the cell centres inside it, as before
+        assert!(g
+            .search(&scan, Some([a, b, a + 2.0 * res, b + 2.0 * res]), None)
+            .is_ok());
     }
 
     #[test]
