@@ -356,6 +356,9 @@ class Localizer:
         self._inflated = False
         #: the last scan's fit was rejected and grew the prediction's covariance
         self._grown = False
+        #: the growth the rejected fits since the last accepted one applied, multiplied
+        #: (at most ``noise_gain_max``: the cap holds over scans, not per scan)
+        self._growth = 1.0
         #: since the last fit that measured the position along every direction (at least
         #: ``tracking_min_axis_independent`` independent measurements along its weakest),
         #: an accepted fit measured one less (a corridor's length) ...
@@ -434,6 +437,7 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._growth = 1.0
         self._loose = False
         self._unpinned = False
         self._coasted_m = 0.0
@@ -459,6 +463,7 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._growth = 1.0
         self._loose = False
         self._unpinned = False
         self._coasted_m = 0.0
@@ -892,11 +897,15 @@ class Localizer:
                             # accept quantile and the next scan's fit can be weighed. Only by
                             # as much as the learned odometry noise may grow
                             # (``noise_gain_max``): a fit farther off than that is another
-                            # place, not odometry off beyond its model
+                            # place, not odometry off beyond its model. The cap holds over
+                            # the rejected scans in a row: ``pred_cov`` already carries the
+                            # growth of the earlier ones (the motion model's since only adds
+                            # to it), so their factors multiply and the product is capped
                             grow = _growth_to_consistent(pred, pred_cov, z, R, self._chi2_accept)
-                            if grow <= lc.noise_gain_max:
+                            if self._growth * grow <= lc.noise_gain_max:
                                 cov = pred_cov * grow
                                 grown = True
+                                self._growth *= grow
                 if accepted and self._grown and reason in (Reason.NONE, Reason.INFLATED) and self._apart(pred, z):
                     # the last scan's fit was rejected and grew the covariance: this fit,
                     # farther from the prediction than the map can tell apart, is taken
@@ -958,6 +967,8 @@ class Localizer:
         )
         self._settle(accepted, verified, reason, check, pred, pose, weak_jump)
         self._grown = grown
+        if accepted:
+            self._growth = 1.0  # the covariance is the fused one: no growth carried
         if strong:
             self._loose = self._unpinned = False
             self._coasted_m = 0.0
@@ -1639,8 +1650,12 @@ def _growth_to_consistent(
     pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64], target: float
 ) -> float:
     """The smallest factor f (at least 1) that brings ``v'(fP + R)^-1 v`` down to
-    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6)."""
-    if mahalanobis2(pred, P, z, R) <= target:
+    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6 or when
+    the statistic is not finite)."""
+    d2 = mahalanobis2(pred, P, z, R)
+    if not math.isfinite(d2):
+        return math.inf  # no statistic (a NaN pose or covariance): no growth
+    if d2 <= target:
         return 1.0
     if mahalanobis2(pred, P * 1e6, z, R) > target:
         return math.inf
