@@ -379,6 +379,32 @@ def test_the_growth_to_consistent_gives_no_growth_for_a_statistic_that_is_not_fi
     assert mahalanobis2((0.0, 0.0, 0.0), P * f, z, P) == pytest.approx(11.3, rel=1e-6)
 
 
+def test_a_scan_that_goes_back_to_the_rival_teaches_nothing_from_the_fit_it_abandons(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """Reviewer: on a ``reverted`` scan the map's quality, the calibration and the learned
+    odometry noise were fed the pose's own fit before the rival won. The revert is
+    decided first: the scan that goes back teaches them nothing."""
+    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0))
+    assert loc.config.localizer.learn_noise
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    taken = [loc.update(scan_at(lab, (0.4, 0.0, 0.0), 0.5 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(3)]
+    assert taken[-1].reason == "odometry_off"
+
+    def learned() -> tuple[object, ...]:
+        q = loc.quality
+        return (list(q._rms), list(q._hit), q._n, list(loc._noise._g), loc.calibration.factors)
+
+    before = learned()
+    e = loc.update(scan_at(lab, (0.0, 0.0, 0.0), 1.0), (0.0, 0.0, 0.0))
+    assert e.reason == "reverted"
+    assert learned() == before
+    # the scan after it learns again
+    loc.update(scan_at(lab, (0.0, 0.0, 0.0), 1.1), (0.0, 0.0, 0.0))
+    assert learned() != before
+
+
 def test_the_pose_goes_back_to_the_rival_once_the_rival_explains_the_scan_clearly_better(
     lab: worlds.World, lab_index: MapIndex
 ) -> None:

@@ -815,6 +815,9 @@ class Localizer:
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
         grown = False  # a rejected fit grew the prediction's covariance
+        #: the odometry noise to learn from this scan's fit (after the rival had its say:
+        #: a scan that goes back to the rival teaches nothing from the fit it abandons)
+        learn: tuple[Pose, NDArray[np.float64], Pose, NDArray[np.float64]] | None = None
         overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
@@ -888,7 +891,7 @@ class Localizer:
                         # minimum of repetitive structure): no evidence against the pose
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                         if self._verified(at_z) and at_z.hit >= at_pred.hit:
-                            self._learn_noise(pred, P0, z, m[1])  # the map backs the fit
+                            learn = (pred, P0, z, m[1])  # the map backs the fit
                         if not supported and at_z.hit >= at_pred.hit + lc.arbitration_margin:
                             # the prediction stands, but the fit explains clearly more of the
                             # scan than it: the chi-square test failed on a prediction whose
@@ -913,7 +916,7 @@ class Localizer:
                     reason = Reason.ODOMETRY_OFF
                 if accepted:
                     self._rejected = None
-                    self._learn_noise(pred, P0, z, m[1])
+                    learn = (pred, P0, z, m[1])
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self._check(pts, pose, z, res)
@@ -978,14 +981,7 @@ class Localizer:
                 self._unpinned |= axis < lc.min_axis_independent
             if self._unpinned and self._step is not None:
                 self._coasted_m += math.hypot(self._step[0], self._step[1])
-        if verified:
-            self.quality.observe(check)
-            if z is not None and R is not None and odom is not None:
-                self._calibrate(odom, z, R)
-        elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
-            self.quality.observe_consistent(check)
-            if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
-                self._calibrate(odom, z, R)
+        observed = reason  # the fit's own verdict (the map's quality learns by it below)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
@@ -1027,6 +1023,9 @@ class Localizer:
         self._held = self._held + 1 if reason == Reason.UNCONSTRAINED else 0
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
+        # (before the map's quality, the calibration and the odometry noise learn from this
+        # scan's fit: a scan that goes back to the rival abandons the fit, so it teaches none)
+        back = None
         if self._rival is not None:
             status, reason, back = self._dispute(pts, pose, check, status, reason)
             if back is not None:
@@ -1039,6 +1038,22 @@ class Localizer:
                     self._settle_hit = q.hit_reference if q.hit_measured else 0.0
                 self._unsettled = lc.settle_scans
                 self._anchor = None  # no calibration pair spans the jump back
+                self._growth = 1.0
+        if back is None:
+            if learn is not None:
+                self._learn_noise(*learn)
+            if verified:
+                self.quality.observe(check)
+                if z is not None and R is not None and odom is not None:
+                    self._calibrate(odom, z, R)
+            elif (
+                accepted
+                and observed in (Reason.NONE, Reason.UNVERIFIED)
+                and check.hit >= lc.verify_min_hit_ratio
+            ):
+                self.quality.observe_consistent(check)
+                if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
+                    self._calibrate(odom, z, R)
         if accepted and reason == Reason.ODOMETRY_OFF:
             # the latest prediction a fit overruled is the rival (an older one disputed a
             # pose the map has since left)
