@@ -477,13 +477,14 @@ def test_a_fit_beyond_the_accept_quantile_that_moved_the_pose_apart_must_settle_
 
 def test_fits_beyond_the_accept_quantile_in_a_row_are_not_promised_at_once() -> None:
     """Each fit pulling the pose against the odometry within the gate (``inflated`` in a
-    row: the robot pushed 5 cm while the odometry says it stood still) is no promise until
-    the pose settles."""
+    row: the robot pushed 5 cm while the odometry says it stood still, after one scan 0.4 m
+    off that is rejected) is no promise until the pose settles."""
     lab = worlds.lab(people=0)
     loc = Localizer(sample_lines(lab.lines), initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
-    ests = [loc.update(scan_at(lab, (0.045, 0.0, 0.01), 0.6 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(4)]
+    loc.update(scan_at(lab, (0.4, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))  # rejected: far off
+    ests = [loc.update(scan_at(lab, (0.05, 0.0, 0.01), 0.6 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(4)]
     first = next(k for k, e in enumerate(ests) if e.accepted)
     assert [(e.status, e.reason) for e in ests[first : first + 2]] == [
         (Status.TRACKING, "inflated"),
