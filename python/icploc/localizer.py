@@ -95,12 +95,15 @@ class Estimate:
     #: odometry_off fit overruled still explains the scans as well), unconstrained (a
     #: corridor fit right after a stretch not tracking), unsettled (a pose a fit took
     #: against the odometry, or the first after a stretch without a verified fit, not yet
-    #: confirmed at the map's usual hit share), relocalized, lock_unverified (a recovery's
+    #: confirmed at the map's usual hit share), reverted (the rival an odometry_off fit
+    #: overruled explained the scan clearly better: the pose went back to it),
+    #: relocalized, lock_unverified (a recovery's
     #: lock the localizer's verification refused: degraded), suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
-    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
-    #: while lost the recovery's state (searching, confirming, ambiguous)
+    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), lost
+    #: (declared lost), or while lost the recovery's state (searching, confirming,
+    #: ambiguous, locked)
     reason: str = Reason.NONE
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
