@@ -10,7 +10,14 @@ from icploc import MapIndex
 from icploc import sim as worlds
 from icploc.config import LocalizerConfig
 from icploc.fusion import mahalanobis2
-from icploc.localizer import Localizer, OdometryBuffer, Status, prepare_scan, run
+from icploc.localizer import (
+    Localizer,
+    OdometryBuffer,
+    Status,
+    _growth_to_consistent,
+    prepare_scan,
+    run,
+)
 from icploc.messages import BEAM_DAZZLE, BEAM_NO_RETURN, Odometry, Scan
 from icploc.se2 import compose, wrap_angle
 from sampled_walls import walls_index as sample_lines
@@ -297,6 +304,107 @@ def test_a_rejected_fit_beyond_what_the_odometry_noise_may_grow_to_leaves_the_co
     assert grown == pytest.approx(cfg.localizer.process_sigma_xy**2, rel=0.2)
 
 
+def test_rejected_fits_in_a_row_grow_the_covariance_and_the_next_fit_is_taken_against_the_odometry(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """The growth, then ``odometry_off``: the robot pushed 12 cm, then 20 cm, while the
+    odometry says it stood still. Both fits are rejected and each grows the prediction's
+    covariance (together by less than ``noise_gain_max``); the next fit is weighed against
+    that and taken against the odometry, and the accepted fit ends the growth."""
+    clutter = _cluttered_lab()
+    cfg = LocalizerConfig.from_dict(NOISY)
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    base = loc.covariance.copy()
+    ests = []
+    for k, x in enumerate((0.12, 0.2, 0.2)):
+        e = loc.update(scan_at(clutter, (x, 0.0, 0.0), 0.5 + 0.1 * k), (0.0, 0.0, 0.0))
+        base = loc.motion_model.predict(e.prediction, base, (0.0, 0.0, 0.0))[1]
+        ests.append((e, _growth_over(e.covariance, base)))
+    (r1, g1), (r2, g2), (taken, _) = ests
+    assert [(e.accepted, e.reason) for e in (r1, r2)] == [(False, "inconsistent")] * 2
+    assert math.hypot(r2.x, r2.y) < 0.01  # the prediction stood
+    assert 1.5 < g1 < g2 <= cfg.localizer.noise_gain_max
+    assert (taken.accepted, taken.reason, taken.status) == (True, "odometry_off", Status.DEGRADED)
+    assert math.hypot(taken.x - 0.2, taken.y) < 0.02
+    assert loc._growth == 1.0
+
+
+def _growth_over(cov: np.ndarray, base: np.ndarray) -> float:
+    """The most ``cov`` exceeds ``base`` by along any direction (largest generalized
+    eigenvalue)."""
+    return float(max(np.linalg.eigvals(np.linalg.solve(base, cov)).real))
+
+
+def test_the_growth_cap_holds_over_several_rejected_scans_in_a_row(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """Reviewer: the cap on the growth was per scan. With the robot pushed 0.1..0.5 m while
+    the odometry says it stood still, the fits at 0.2/0.3/0.4 m were rejected and grew the
+    covariance 2.4 x 2.6 x 1.9 = 12 > ``noise_gain_max`` over the motion model's own, and
+    the 0.5 m fit was then taken (``odometry_off``) 0.4 m from the pose. The growth of
+    rejected scans in a row is one factor, capped: the covariance never exceeds the motion
+    model's by more than the cap, and a fit that would need more is not taken."""
+    clutter = _cluttered_lab()
+    cfg = LocalizerConfig.from_dict(NOISY)
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    first = loc.update(scan_at(clutter, (0.1, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))
+    assert first.accepted  # within the gate: fused, no growth carried
+    base = first.covariance.copy()  # then grown by the motion model only
+    ests, growth = [], []
+    for k, x in enumerate((0.2, 0.3, 0.4, 0.5)):
+        e = loc.update(scan_at(clutter, (x, 0.0, 0.0), 0.6 + 0.1 * k), (0.0, 0.0, 0.0))
+        base = loc.motion_model.predict(e.prediction, base, (0.0, 0.0, 0.0))[1]
+        ests.append(e)
+        growth.append(_growth_over(e.covariance, base))
+    assert [(e.accepted, e.reason) for e in ests] == [(False, "inconsistent")] * 4
+    assert growth[1] > 1.5 * growth[0] > 1.5  # two rejected scans in a row both grew it
+    assert max(growth) <= cfg.localizer.noise_gain_max * 1.001
+    assert all(math.hypot(e.x - first.x, e.y - first.y) < 0.01 for e in ests)
+
+
+def test_the_growth_to_consistent_gives_no_growth_for_a_statistic_that_is_not_finite() -> None:
+    """A NaN statistic (a NaN fit) fails every comparison: it once came back as 1.0, and
+    the rejected scan counted as one that grew the covariance."""
+    P = np.diag([0.01, 0.01, 0.001])
+    assert _growth_to_consistent((0.0, 0.0, 0.0), P, (math.nan, 0.0, 0.0), P, 11.3) == math.inf
+    assert _growth_to_consistent((0.0, 0.0, 0.0), P, (0.0, 0.0, 0.0), P * math.nan, 11.3) == math.inf
+    # a finite statistic still gets its factor: at the target after growing P by it
+    z = (0.5, 0.0, 0.0)
+    f = _growth_to_consistent((0.0, 0.0, 0.0), P, z, P, 11.3)
+    assert 1.0 < f < math.inf
+    assert mahalanobis2((0.0, 0.0, 0.0), P * f, z, P) == pytest.approx(11.3, rel=1e-6)
+
+
+def test_a_scan_that_goes_back_to_the_rival_teaches_nothing_from_the_fit_it_abandons(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """Reviewer: on a ``reverted`` scan the map's quality, the calibration and the learned
+    odometry noise were fed the pose's own fit before the rival won. The revert is
+    decided first: the scan that goes back teaches them nothing."""
+    loc = Localizer(lab_index, initial_pose=(0.0, 0.0, 0.0))
+    assert loc.config.localizer.learn_noise
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    taken = [loc.update(scan_at(lab, (0.4, 0.0, 0.0), 0.5 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(3)]
+    assert taken[-1].reason == "odometry_off"
+
+    def learned() -> tuple[object, ...]:
+        q = loc.quality
+        return (list(q._rms), list(q._hit), q._n, list(loc._noise._g), loc.calibration.factors)
+
+    before = learned()
+    e = loc.update(scan_at(lab, (0.0, 0.0, 0.0), 1.0), (0.0, 0.0, 0.0))
+    assert e.reason == "reverted"
+    assert learned() == before
+    # the scan after it learns again
+    loc.update(scan_at(lab, (0.0, 0.0, 0.0), 1.1), (0.0, 0.0, 0.0))
+    assert learned() != before
+
+
 def test_the_pose_goes_back_to_the_rival_once_the_rival_explains_the_scan_clearly_better(
     lab: worlds.World, lab_index: MapIndex
 ) -> None:
@@ -369,13 +477,14 @@ def test_a_fit_beyond_the_accept_quantile_that_moved_the_pose_apart_must_settle_
 
 def test_fits_beyond_the_accept_quantile_in_a_row_are_not_promised_at_once() -> None:
     """Each fit pulling the pose against the odometry within the gate (``inflated`` in a
-    row: the robot pushed 5 cm while the odometry says it stood still) is no promise until
-    the pose settles."""
+    row: the robot pushed 5 cm while the odometry says it stood still, after one scan 0.4 m
+    off that is rejected) is no promise until the pose settles."""
     lab = worlds.lab(people=0)
     loc = Localizer(sample_lines(lab.lines), initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
-    ests = [loc.update(scan_at(lab, (0.045, 0.0, 0.01), 0.6 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(4)]
+    loc.update(scan_at(lab, (0.4, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))  # rejected: far off
+    ests = [loc.update(scan_at(lab, (0.05, 0.0, 0.01), 0.6 + 0.1 * k), (0.0, 0.0, 0.0)) for k in range(4)]
     first = next(k for k, e in enumerate(ests) if e.accepted)
     assert [(e.status, e.reason) for e in ests[first : first + 2]] == [
         (Status.TRACKING, "inflated"),

@@ -95,12 +95,15 @@ class Estimate:
     #: odometry_off fit overruled still explains the scans as well), unconstrained (a
     #: corridor fit right after a stretch not tracking), unsettled (a pose a fit took
     #: against the odometry, or the first after a stretch without a verified fit, not yet
-    #: confirmed at the map's usual hit share), relocalized, lock_unverified (a recovery's
+    #: confirmed at the map's usual hit share), reverted (the rival an odometry_off fit
+    #: overruled explained the scan clearly better: the pose went back to it),
+    #: relocalized, lock_unverified (a recovery's
     #: lock the localizer's verification refused: degraded), suspect (a kidnap
     #: check is out, or found a better pose elsewhere to re-check: :mod:`icploc.kidnap`),
     #: unconfirmed (a lock whose strict check is out), elsewhere (the check found the
-    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), or
-    #: while lost the recovery's state (searching, confirming, ambiguous)
+    #: better pose again: lost), refuted (a lock a distinct pose beats: still lost), lost
+    #: (declared lost), or while lost the recovery's state (searching, confirming,
+    #: ambiguous, locked)
     reason: str = Reason.NONE
     degeneracy: float = float("nan")  #: lambda_min / lambda_max of the fit (nan: no fit)
     prediction: Pose = (0.0, 0.0, 0.0)  #: the odometry prediction for this scan
@@ -356,6 +359,9 @@ class Localizer:
         self._inflated = False
         #: the last scan's fit was rejected and grew the prediction's covariance
         self._grown = False
+        #: the growth the rejected fits since the last accepted one applied, multiplied
+        #: (at most ``noise_gain_max``: the cap holds over scans, not per scan)
+        self._growth = 1.0
         #: since the last fit that measured the position along every direction (at least
         #: ``tracking_min_axis_independent`` independent measurements along its weakest),
         #: an accepted fit measured one less (a corridor's length) ...
@@ -434,6 +440,7 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._growth = 1.0
         self._loose = False
         self._unpinned = False
         self._coasted_m = 0.0
@@ -459,6 +466,7 @@ class Localizer:
         self._unsettled = 0
         self._inflated = False
         self._grown = False
+        self._growth = 1.0
         self._loose = False
         self._unpinned = False
         self._coasted_m = 0.0
@@ -810,6 +818,9 @@ class Localizer:
         nis = float("nan")
         supported = False  # a rejected fit, but the prediction explains the scan better
         grown = False  # a rejected fit grew the prediction's covariance
+        #: the odometry noise to learn from this scan's fit (after the rival had its say:
+        #: a scan that goes back to the rival teaches nothing from the fit it abandons)
+        learn: tuple[Pose, NDArray[np.float64], Pose, NDArray[np.float64]] | None = None
         overruled = (pred, pred_cov)  # the prediction before any inflation
         if res is None:
             reason = Reason.TOO_FEW_POINTS if n < self.config.scan.min_points else Reason.ICP_FAILED
@@ -883,7 +894,7 @@ class Localizer:
                         # minimum of repetitive structure): no evidence against the pose
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                         if self._verified(at_z) and at_z.hit >= at_pred.hit:
-                            self._learn_noise(pred, P0, z, m[1])  # the map backs the fit
+                            learn = (pred, P0, z, m[1])  # the map backs the fit
                         if not supported and at_z.hit >= at_pred.hit + lc.arbitration_margin:
                             # the prediction stands, but the fit explains clearly more of the
                             # scan than it: the chi-square test failed on a prediction whose
@@ -892,11 +903,15 @@ class Localizer:
                             # accept quantile and the next scan's fit can be weighed. Only by
                             # as much as the learned odometry noise may grow
                             # (``noise_gain_max``): a fit farther off than that is another
-                            # place, not odometry off beyond its model
+                            # place, not odometry off beyond its model. The cap holds over
+                            # the rejected scans in a row: ``pred_cov`` already carries the
+                            # growth of the earlier ones (the motion model's since only adds
+                            # to it), so their factors multiply and the product is capped
                             grow = _growth_to_consistent(pred, pred_cov, z, R, self._chi2_accept)
-                            if grow <= lc.noise_gain_max:
+                            if self._growth * grow <= lc.noise_gain_max:
                                 cov = pred_cov * grow
                                 grown = True
+                                self._growth *= grow
                 if accepted and self._grown and reason in (Reason.NONE, Reason.INFLATED) and self._apart(pred, z):
                     # the last scan's fit was rejected and grew the covariance: this fit,
                     # farther from the prediction than the map can tell apart, is taken
@@ -904,7 +919,7 @@ class Localizer:
                     reason = Reason.ODOMETRY_OFF
                 if accepted:
                     self._rejected = None
-                    self._learn_noise(pred, P0, z, m[1])
+                    learn = (pred, P0, z, m[1])
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self._check(pts, pose, z, res)
@@ -958,6 +973,8 @@ class Localizer:
         )
         self._settle(accepted, verified, reason, check, pred, pose, weak_jump)
         self._grown = grown
+        if accepted:
+            self._growth = 1.0  # the covariance is the fused one: no growth carried
         if strong:
             self._loose = self._unpinned = False
             self._coasted_m = 0.0
@@ -967,14 +984,7 @@ class Localizer:
                 self._unpinned |= axis < lc.min_axis_independent
             if self._unpinned and self._step is not None:
                 self._coasted_m += math.hypot(self._step[0], self._step[1])
-        if verified:
-            self.quality.observe(check)
-            if z is not None and R is not None and odom is not None:
-                self._calibrate(odom, z, R)
-        elif accepted and reason in (Reason.NONE, Reason.UNVERIFIED) and check.hit >= lc.verify_min_hit_ratio:
-            self.quality.observe_consistent(check)
-            if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
-                self._calibrate(odom, z, R)
+        observed = reason  # the fit's own verdict (the map's quality learns by it below)
         # the scan contradicts the pose: no usable fit, a rejected one, or one that explains
         # the scan no better than the prediction while far fewer beams than usual end on
         # walls (people hide walls and unmapped places show none: a consistent, improving
@@ -1016,6 +1026,9 @@ class Localizer:
         self._held = self._held + 1 if reason == Reason.UNCONSTRAINED else 0
         # the prediction such a fit overruled is followed too: while it still explains the
         # scans (a neighbouring minimum verifies as well as the other), neither is promised
+        # (before the map's quality, the calibration and the odometry noise learn from this
+        # scan's fit: a scan that goes back to the rival abandons the fit, so it teaches none)
+        back = None
         if self._rival is not None:
             status, reason, back = self._dispute(pts, pose, check, status, reason)
             if back is not None:
@@ -1028,6 +1041,22 @@ class Localizer:
                     self._settle_hit = q.hit_reference if q.hit_measured else 0.0
                 self._unsettled = lc.settle_scans
                 self._anchor = None  # no calibration pair spans the jump back
+                self._growth = 1.0
+        if back is None:
+            if learn is not None:
+                self._learn_noise(*learn)
+            if verified:
+                self.quality.observe(check)
+                if z is not None and R is not None and odom is not None:
+                    self._calibrate(odom, z, R)
+            elif (
+                accepted
+                and observed in (Reason.NONE, Reason.UNVERIFIED)
+                and check.hit >= lc.verify_min_hit_ratio
+            ):
+                self.quality.observe_consistent(check)
+                if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
+                    self._calibrate(odom, z, R)
         if accepted and reason == Reason.ODOMETRY_OFF:
             # the latest prediction a fit overruled is the rival (an older one disputed a
             # pose the map has since left)
@@ -1639,8 +1668,12 @@ def _growth_to_consistent(
     pred: Pose, P: NDArray[np.float64], z: Pose, R: NDArray[np.float64], target: float
 ) -> float:
     """The smallest factor f (at least 1) that brings ``v'(fP + R)^-1 v`` down to
-    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6)."""
-    if mahalanobis2(pred, P, z, R) <= target:
+    ``target`` (bisection in log f; the statistic falls as f grows; inf beyond 1e6 or when
+    the statistic is not finite)."""
+    d2 = mahalanobis2(pred, P, z, R)
+    if not math.isfinite(d2):
+        return math.inf  # no statistic (a NaN pose or covariance): no growth
+    if d2 <= target:
         return 1.0
     if mahalanobis2(pred, P * 1e6, z, R) > target:
         return math.inf
