@@ -252,6 +252,8 @@ def _cluttered_lab() -> worlds.World:
 #: odometry noisier than its model would say (2 cm a scan): the prediction's covariance is
 #: of the scan match's size, as on the real logs' bases
 NOISY = {"localizer": {"process_sigma_xy": 0.02, "learn_noise": False}}
+#: the covariance growth on a rejected fit (``localizer.grow_on_rejected_fit``, off by default)
+GROW = {"localizer": {**NOISY["localizer"], "grow_on_rejected_fit": True}}
 
 
 def test_a_rejected_fit_that_explains_clearly_more_grows_the_prediction_covariance(
@@ -265,7 +267,7 @@ def test_a_rejected_fit_that_explains_clearly_more_grows_the_prediction_covarian
     is at the accept quantile (the pose stays); the next fit is weighed against that and
     taken against the odometry (``odometry_off``)."""
     clutter = _cluttered_lab()
-    loc = Localizer(lab_index, LocalizerConfig.from_dict(NOISY), initial_pose=(0.0, 0.0, 0.0))
+    loc = Localizer(lab_index, LocalizerConfig.from_dict(GROW), initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
     truth = (0.15, 0.0, 0.0)  # the odometry says the robot stood still
@@ -280,6 +282,28 @@ def test_a_rejected_fit_that_explains_clearly_more_grows_the_prediction_covarian
     assert math.hypot(e.x - truth[0], e.y) < 0.01
 
 
+def test_by_default_a_rejected_fit_leaves_the_prediction_covariance(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """The growth is off by default (``localizer.grow_on_rejected_fit``): the same rejected
+    fit as above leaves the prediction's covariance as the motion model made it, so the
+    fit stays far beyond the accept quantile and the next one is not taken either."""
+    clutter = _cluttered_lab()
+    cfg = LocalizerConfig.from_dict(NOISY)
+    assert cfg.localizer.grow_on_rejected_fit is False
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    truth = (0.15, 0.0, 0.0)
+    e = loc.update(scan_at(clutter, truth, 0.5), (0.0, 0.0, 0.0))
+    assert (e.accepted, e.reason) == (False, "inconsistent")
+    assert e.measurement is not None and e.measurement_covariance is not None
+    d2 = mahalanobis2(e.pose, e.covariance, e.measurement, e.measurement_covariance)
+    assert d2 > 2.0 * loc._chi2_accept  # not grown to the accept quantile
+    e = loc.update(scan_at(clutter, truth, 0.6), (0.0, 0.0, 0.0))
+    assert e.accepted is False and math.hypot(e.x, e.y) < 0.01
+
+
 def test_a_rejected_fit_beyond_what_the_odometry_noise_may_grow_to_leaves_the_covariance(
     lab: worlds.World, lab_index: MapIndex
 ) -> None:
@@ -289,7 +313,7 @@ def test_a_rejected_fit_beyond_what_the_odometry_noise_may_grow_to_leaves_the_co
     by the learned odometry noise's cap (``noise_gain_max``): a fit that would need more is
     another place, and the prediction's covariance stays as the motion model grew it."""
     clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(NOISY)
+    cfg = LocalizerConfig.from_dict(GROW)
     loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
@@ -312,7 +336,7 @@ def test_rejected_fits_in_a_row_grow_the_covariance_and_the_next_fit_is_taken_ag
     covariance (together by less than ``noise_gain_max``); the next fit is weighed against
     that and taken against the odometry, and the accepted fit ends the growth."""
     clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(NOISY)
+    cfg = LocalizerConfig.from_dict(GROW)
     loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
@@ -347,7 +371,7 @@ def test_the_growth_cap_holds_over_several_rejected_scans_in_a_row(
     rejected scans in a row is one factor, capped: the covariance never exceeds the motion
     model's by more than the cap, and a fit that would need more is not taken."""
     clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(NOISY)
+    cfg = LocalizerConfig.from_dict(GROW)
     loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
     for k in range(5):
         loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))

@@ -895,7 +895,11 @@ class Localizer:
                         supported = self._verified(at_pred) and at_pred.hit >= at_z.hit
                         if self._verified(at_z) and at_z.hit >= at_pred.hit:
                             learn = (pred, P0, z, m[1])  # the map backs the fit
-                        if not supported and at_z.hit >= at_pred.hit + lc.arbitration_margin:
+                        if (
+                            lc.grow_on_rejected_fit
+                            and not supported
+                            and at_z.hit >= at_pred.hit + lc.arbitration_margin
+                        ):
                             # the prediction stands, but the fit explains clearly more of the
                             # scan than it: the chi-square test failed on a prediction whose
                             # covariance is too tight (odometry off beyond its model: a turn
