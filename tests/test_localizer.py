@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -256,6 +257,18 @@ NOISY = {"localizer": {"process_sigma_xy": 0.02, "learn_noise": False}}
 GROW = {"localizer": {**NOISY["localizer"], "grow_on_rejected_fit": True}}
 
 
+def _settled_in_lab(
+    lab: worlds.World, lab_index: MapIndex, config: dict[str, Any]
+) -> tuple[worlds.World, LocalizerConfig, Localizer]:
+    """The cluttered lab, the config and a localizer that has tracked five scans standing
+    still at the origin (the set-up of the growth tests)."""
+    cfg = LocalizerConfig.from_dict(config)
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    return _cluttered_lab(), cfg, loc
+
+
 def test_a_rejected_fit_that_explains_clearly_more_grows_the_prediction_covariance(
     lab: worlds.World, lab_index: MapIndex
 ) -> None:
@@ -288,12 +301,8 @@ def test_by_default_a_rejected_fit_leaves_the_prediction_covariance(
     """The growth is off by default (``localizer.grow_on_rejected_fit``): the same rejected
     fit as above leaves the prediction's covariance as the motion model made it, so the
     fit stays far beyond the accept quantile and the next one is not taken either."""
-    clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(NOISY)
+    clutter, cfg, loc = _settled_in_lab(lab, lab_index, NOISY)
     assert cfg.localizer.grow_on_rejected_fit is False
-    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
-    for k in range(5):
-        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
     truth = (0.15, 0.0, 0.0)
     e = loc.update(scan_at(clutter, truth, 0.5), (0.0, 0.0, 0.0))
     assert (e.accepted, e.reason) == (False, "inconsistent")
@@ -312,11 +321,7 @@ def test_a_rejected_fit_beyond_what_the_odometry_noise_may_grow_to_leaves_the_co
     jumped there; the pose then settled 1 m off and was ``tracking``. The growth is bounded
     by the learned odometry noise's cap (``noise_gain_max``): a fit that would need more is
     another place, and the prediction's covariance stays as the motion model grew it."""
-    clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(GROW)
-    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
-    for k in range(5):
-        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    clutter, cfg, loc = _settled_in_lab(lab, lab_index, GROW)
     before = loc.covariance.copy()
     e = loc.update(scan_at(clutter, (0.25, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))
     assert (e.accepted, e.reason) == (False, "inconsistent")
@@ -335,11 +340,7 @@ def test_rejected_fits_in_a_row_grow_the_covariance_and_the_next_fit_is_taken_ag
     odometry says it stood still. Both fits are rejected and each grows the prediction's
     covariance (together by less than ``noise_gain_max``); the next fit is weighed against
     that and taken against the odometry, and the accepted fit ends the growth."""
-    clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(GROW)
-    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
-    for k in range(5):
-        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    clutter, cfg, loc = _settled_in_lab(lab, lab_index, GROW)
     base = loc.covariance.copy()
     ests = []
     for k, x in enumerate((0.12, 0.2, 0.2)):
@@ -370,11 +371,7 @@ def test_the_growth_cap_holds_over_several_rejected_scans_in_a_row(
     the 0.5 m fit was then taken (``odometry_off``) 0.4 m from the pose. The growth of
     rejected scans in a row is one factor, capped: the covariance never exceeds the motion
     model's by more than the cap, and a fit that would need more is not taken."""
-    clutter = _cluttered_lab()
-    cfg = LocalizerConfig.from_dict(GROW)
-    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
-    for k in range(5):
-        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    clutter, cfg, loc = _settled_in_lab(lab, lab_index, GROW)
     first = loc.update(scan_at(clutter, (0.1, 0.0, 0.0), 0.5), (0.0, 0.0, 0.0))
     assert first.accepted  # within the gate: fused, no growth carried
     base = first.covariance.copy()  # then grown by the motion model only

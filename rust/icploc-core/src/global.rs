@@ -942,8 +942,8 @@ mod tests {
         assert!(!r.ambiguous);
     }
 
-    #[test]
-    fn bad_input_is_an_error() {
+    /// The office at 0.1 m and one scan in it from (3, 4, 0): the bad-input and region tests
+    fn office_localizer_and_scan() -> (GlobalLocalizer, Vec<[f64; 2]>) {
         let segs = office_segments();
         let g = localizer(&segs, 0.1);
         let mut rng = Rng::new(5);
@@ -956,6 +956,12 @@ mod tests {
             0.0,
             &mut rng,
         );
+        (g, scan)
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let (g, scan) = office_localizer_and_scan();
         assert!(matches!(
             g.search(&[], None, None),
             Err(IcpError::TooFewPoints { .. })
@@ -1000,18 +1006,7 @@ mod tests {
     fn a_region_narrower_than_a_cell_searches_the_cells_it_overlaps() {
         // a window clipped to a sliver at the map's edge (partial_sim seed 2: 4 cm wide on a
         // coarser grid, between two cell centres) is searched, not refused
-        let segs = office_segments();
-        let g = localizer(&segs, 0.1);
-        let mut rng = Rng::new(5);
-        let scan = make_scan(
-            &segs,
-            Pose2::new(3.0, 4.0, 0.0),
-            361,
-            30.0,
-            0.01,
-            0.0,
-            &mut rng,
-        );
+        let (g, scan) = office_localizer_and_scan();
         let (x0, y0, res) = (g.field.x0, g.field.y0, g.field.res);
         let (a, b) = (x0 + 20.3 * res, y0 + 20.3 * res);
         for region in [
