@@ -490,6 +490,8 @@ class GlobalRelocalization:
         #: odometry motion since the tracker's last update (robot frame)
         self._motion: Pose = (0.0, 0.0, 0.0)
         self._hyps: tuple[Candidate, ...] = ()
+        #: (map index, its checked bounds) of :meth:`map_bounds`
+        self._bounds: tuple[Any, tuple[float, float, float, float] | None] | None = None
 
     @classmethod
     def deferred(
@@ -562,6 +564,30 @@ class GlobalRelocalization:
             return False
         return True
 
+    def map_bounds(self, index: Any) -> tuple[float, float, float, float] | None:
+        """The map ``index``'s extent ``(xmin, ymin, xmax, ymax)``, checked the first time
+        this index is seen (the per-scan path then reuses it); None: the index has no
+        bounds. Bounds that are not four finite numbers with ``xmin <= xmax`` and
+        ``ymin <= ymax`` raise :class:`icploc.maps.MapError` naming the field."""
+        got = self._bounds
+        if got is not None and got[0] is index:
+            return got[1]
+        bounds = getattr(index, "bounds", None)
+        checked: tuple[float, float, float, float] | None = None
+        if bounds is not None:
+            from icploc.maps.errors import MapError
+
+            problem = f"map index bounds {bounds!r}: expected (xmin, ymin, xmax, ymax)"
+            try:
+                x0, y0, x1, y1 = (float(v) for v in bounds)
+            except (TypeError, ValueError):
+                raise MapError(None, "bounds", problem) from None
+            if not (all(map(math.isfinite, (x0, y0, x1, y1))) and x0 <= x1 and y0 <= y1):
+                raise MapError(None, "bounds", problem + " with finite xmin <= xmax, ymin <= ymax")
+            checked = (x0, y0, x1, y1)
+        self._bounds = (index, checked)
+        return checked
+
     def window(
         self, view: RecoveryView
     ) -> tuple[tuple[float, float, float, float], tuple[float, float] | None] | None:
@@ -577,23 +603,18 @@ class GlobalRelocalization:
         the map nor told from one covering most of it, so the whole map is searched, as
         for a pose that says nothing. Bounds that are not four finite numbers
         ``(xmin, ymin, xmax, ymax)`` with ``xmin <= xmax`` and ``ymin <= ymax`` are a
-        broken index, not a missing one: ``ValueError``."""
+        broken index, not a missing one: :class:`icploc.maps.MapError` (a ``ValueError``),
+        raised once per index (:meth:`map_bounds` checks an index's bounds the first time
+        it sees it, not on every scan)."""
         P = np.asarray(view.covariance, dtype=np.float64)
         x, y, th = view.pose
         if not (np.isfinite(P).all() and math.isfinite(x) and math.isfinite(y)):
             return None
         half, w = window_extent(P, self.settings)
-        bounds = getattr(view.index, "bounds", None)
-        if bounds is None:
+        b = self.map_bounds(view.index)
+        if b is None:
             return None  # no map extent: the whole map (see above)
-        try:
-            x0, y0, x1, y1 = (float(v) for v in bounds)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"map index bounds {bounds!r}: expected (xmin, ymin, xmax, ymax)"
-            ) from None
-        if not (all(map(math.isfinite, (x0, y0, x1, y1))) and x0 <= x1 and y0 <= y1):
-            raise ValueError(f"map index bounds {bounds!r}: expected (xmin, ymin, xmax, ymax)")
+        x0, y0, x1, y1 = b
         r = (max(x - half, x0), max(y - half, y0), min(x + half, x1), min(y + half, y1))
         if r[0] >= r[2] or r[1] >= r[3]:
             return None  # the dead reckoning left the map: search all of it
