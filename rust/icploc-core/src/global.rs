@@ -299,7 +299,8 @@ impl GlobalLocalizer {
         let (w, h) = field.shape();
         let free0: Vec<bool> = field
             .dist
-            .iter()
+            .par_iter()
+            .with_min_len(4096)
             .map(|&d| d as f64 >= cfg.min_clearance)
             .collect();
         let mut free = vec![free0];
