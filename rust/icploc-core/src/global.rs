@@ -299,7 +299,8 @@ impl GlobalLocalizer {
         let (w, h) = field.shape();
         let free0: Vec<bool> = field
             .dist
-            .iter()
+            .par_iter()
+            .with_min_len(4096)
             .map(|&d| d as f64 >= cfg.min_clearance)
             .collect();
         let mut free = vec![free0];
@@ -447,123 +448,8 @@ impl GlobalLocalizer {
                     .collect()
             })
             .collect();
-        let top = cfg.levels;
-        let stride = 1i32 << top;
-        let in_region = |lvl: usize, i: i32, j: i32| -> bool {
-            let e = (1i32 << lvl) - 1;
-            i <= ri1 && i + e >= ri0 && j <= rj1 && j + e >= rj0
-        };
-        // roots: the coarsest level, all headings
-        let mut roots: Vec<Node> = Vec::new();
-        let mut j = (rj0 / stride) * stride;
-        while j <= rj1 {
-            let mut i = (ri0 / stride) * stride;
-            while i <= ri1 {
-                if self.free[top][(j as usize) * self.field.w + i as usize] && in_region(top, i, j)
-                {
-                    for k in 0..headings.len() {
-                        roots.push(Node {
-                            bound: 0,
-                            level: top as u8,
-                            k: k as u32,
-                            i,
-                            j,
-                        });
-                    }
-                }
-                i += stride;
-            }
-            j += stride;
-        }
-        roots.par_iter_mut().for_each(|n| {
-            n.bound = self.field.sum(top, &offsets[n.k as usize], n.i, n.j);
-        });
-        roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
         let full = 255 * m as u32;
-        let floor = (cfg.min_score * full as f64).ceil() as u32;
-        let best = AtomicU32::new(floor);
-        let ratio = cfg.accept_ratio;
-        let threshold = |b: u32| -> u32 { ((b as f64) * ratio).ceil() as u32 };
-        let (leaves, nodes): (Vec<Leaf>, usize) = roots
-            .par_iter()
-            .with_max_len(1)
-            .fold(
-                || (Vec::new(), 0usize, Vec::<Node>::new()),
-                |(mut leaves, mut nodes, mut stack), root| {
-                    nodes += 1;
-                    stack.clear();
-                    stack.push(*root);
-                    while let Some(n) = stack.pop() {
-                        let thr = threshold(best.load(Ordering::Relaxed)).max(floor);
-                        if n.bound < thr {
-                            continue;
-                        }
-                        let offs = &offsets[n.k as usize];
-                        if n.level == 0 {
-                            // bound == exact score at level 0
-                            leaves.push(Leaf {
-                                score: n.bound,
-                                k: n.k,
-                                i: n.i,
-                                j: n.j,
-                            });
-                            best.fetch_max(n.bound, Ordering::Relaxed);
-                            continue;
-                        }
-                        let lvl = n.level as usize - 1;
-                        let s = 1i32 << lvl;
-                        let mut kids: [Node; 4] = [n; 4];
-                        let mut nk = 0;
-                        for (a, b) in [(0, 0), (s, 0), (0, s), (s, s)] {
-                            let (ci, cj) = (n.i + a, n.j + b);
-                            if ci >= self.field.w as i32 || cj >= self.field.h as i32 {
-                                continue;
-                            }
-                            let ok = if lvl == 0 {
-                                ci >= ri0
-                                    && ci <= ri1
-                                    && cj >= rj0
-                                    && cj <= rj1
-                                    && self.free[0][cj as usize * self.field.w + ci as usize]
-                            } else {
-                                in_region(lvl, ci, cj)
-                                    && self.free[lvl][cj as usize * self.field.w + ci as usize]
-                            };
-                            if !ok {
-                                continue;
-                            }
-                            nodes += 1;
-                            let bound = self.field.sum(lvl, offs, ci, cj);
-                            if bound < thr {
-                                continue;
-                            }
-                            kids[nk] = Node {
-                                bound,
-                                level: lvl as u8,
-                                k: n.k,
-                                i: ci,
-                                j: cj,
-                            };
-                            nk += 1;
-                        }
-                        let kids = &mut kids[..nk];
-                        kids.sort_unstable_by_key(|c| c.bound);
-                        stack.extend_from_slice(kids);
-                    }
-                    (leaves, nodes, stack)
-                },
-            )
-            .map(|(l, n, _)| (l, n))
-            .reduce(
-                || (Vec::new(), 0),
-                |(mut a, na), (b, nb)| {
-                    a.extend(b);
-                    (a, na + nb)
-                },
-            );
-        let best_score = best.load(Ordering::Relaxed);
-        let keep = threshold(best_score).max(floor);
-        let mut leaves: Vec<Leaf> = leaves.into_iter().filter(|l| l.score >= keep).collect();
+        let (mut leaves, nodes) = self.coarse_leaves(&offsets, [ri0, rj0, ri1, rj1], m);
         let n_leaves = leaves.len();
         // ties broken by position: the seeds (and the result) do not depend on thread timing
         leaves.sort_unstable_by_key(|l| (std::cmp::Reverse(l.score), l.k, l.j, l.i));
@@ -806,6 +692,183 @@ impl GlobalLocalizer {
         // point (measured from the crossing itself: the point nearest to `s` can be a
         // step away along the wall on a densely sampled map)
         self.index.nearest(c).0.sqrt() <= 0.75 * self.index.spacing() + 0.005
+    }
+}
+
+/// The bounds of the four children of a node at (`i`, `j`), at (i, j), (i + s, j),
+/// (i, j + s) and (i + s, j + s) with s = 2^`level`, in one pass over the points: each
+/// the value [`LikelihoodField::sum`] gives for it at `level` (where all four cells of a
+/// point are inside the grid they are read from one base index; elsewhere by its rule).
+#[inline]
+fn child_sums(f: &LikelihoodField, level: usize, offs: &[(i32, i32)], i: i32, j: i32) -> [u32; 4] {
+    let g = &f.pooled[level];
+    let (w, h) = (f.w as i32, f.h as i32);
+    let s = 1i32 << level;
+    let lo = 1 - s;
+    let sw = (s * w) as usize;
+    let su = s as usize;
+    let mut out = [0u32; 4];
+    let at = |x: i32, y: i32| -> u32 {
+        if x >= lo && y >= lo && x < w && y < h {
+            g[(y.max(0) * w + x.max(0)) as usize] as u32
+        } else {
+            0
+        }
+    };
+    for &(ox, oy) in offs {
+        let (x, y) = (i + ox, j + oy);
+        if x >= 0 && y >= 0 && x + s < w && y + s < h {
+            let c = (y * w + x) as usize;
+            out[0] += g[c] as u32;
+            out[1] += g[c + su] as u32;
+            out[2] += g[c + sw] as u32;
+            out[3] += g[c + sw + su] as u32;
+        } else {
+            out[0] += at(x, y);
+            out[1] += at(x + s, y);
+            out[2] += at(x, y + s);
+            out[3] += at(x + s, y + s);
+        }
+    }
+    out
+}
+
+impl GlobalLocalizer {
+    /// The coarse branch-and-bound of [`Self::search`]: every level-0 leaf (heading `k`,
+    /// cell (i, j)) in `region` (cells, inclusive) on a free cell whose score is at least
+    /// `accept_ratio` x the best leaf's (and at least `min_score` x perfect), with the
+    /// number of nodes evaluated. A node is dropped only when its bound (an upper bound of
+    /// all its leaves) is below `accept_ratio` x the best leaf found so far, so the leaves
+    /// are exactly those whatever the order of the search.
+    fn coarse_leaves(
+        &self,
+        offsets: &[Vec<(i32, i32)>],
+        region: [i32; 4],
+        m: usize,
+    ) -> (Vec<Leaf>, usize) {
+        let cfg = &self.cfg;
+        let [ri0, rj0, ri1, rj1] = region;
+        let top = cfg.levels;
+        let stride = 1i32 << top;
+        let in_region = |lvl: usize, i: i32, j: i32| -> bool {
+            let e = (1i32 << lvl) - 1;
+            i <= ri1 && i + e >= ri0 && j <= rj1 && j + e >= rj0
+        };
+        // roots: the coarsest level, all headings
+        let mut roots: Vec<Node> = Vec::new();
+        let mut j = (rj0 / stride) * stride;
+        while j <= rj1 {
+            let mut i = (ri0 / stride) * stride;
+            while i <= ri1 {
+                if self.free[top][(j as usize) * self.field.w + i as usize] && in_region(top, i, j)
+                {
+                    for k in 0..offsets.len() {
+                        roots.push(Node {
+                            bound: 0,
+                            level: top as u8,
+                            k: k as u32,
+                            i,
+                            j,
+                        });
+                    }
+                }
+                i += stride;
+            }
+            j += stride;
+        }
+        roots.par_iter_mut().for_each(|n| {
+            n.bound = self.field.sum(top, &offsets[n.k as usize], n.i, n.j);
+        });
+        roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
+        let full = 255 * m as u32;
+        let floor = (cfg.min_score * full as f64).ceil() as u32;
+        let best = AtomicU32::new(floor);
+        let ratio = cfg.accept_ratio;
+        let threshold = |b: u32| -> u32 { ((b as f64) * ratio).ceil() as u32 };
+        let (leaves, nodes): (Vec<Leaf>, usize) = roots
+            .par_iter()
+            .with_max_len(1)
+            .fold(
+                || (Vec::new(), 0usize, Vec::<Node>::new()),
+                |(mut leaves, mut nodes, mut stack), root| {
+                    nodes += 1;
+                    stack.clear();
+                    stack.push(*root);
+                    while let Some(n) = stack.pop() {
+                        let thr = threshold(best.load(Ordering::Relaxed)).max(floor);
+                        if n.bound < thr {
+                            continue;
+                        }
+                        let offs = &offsets[n.k as usize];
+                        let lvl = n.level as usize - 1;
+                        let s = 1i32 << lvl;
+                        let sums = child_sums(&self.field, lvl, offs, n.i, n.j);
+                        let mut kids: [Node; 4] = [n; 4];
+                        let mut nk = 0;
+                        for (c, (a, b)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate()
+                        {
+                            let (ci, cj) = (n.i + a, n.j + b);
+                            if ci >= self.field.w as i32 || cj >= self.field.h as i32 {
+                                continue;
+                            }
+                            let ok = if lvl == 0 {
+                                ci >= ri0
+                                    && ci <= ri1
+                                    && cj >= rj0
+                                    && cj <= rj1
+                                    && self.free[0][cj as usize * self.field.w + ci as usize]
+                            } else {
+                                in_region(lvl, ci, cj)
+                                    && self.free[lvl][cj as usize * self.field.w + ci as usize]
+                            };
+                            if !ok {
+                                continue;
+                            }
+                            nodes += 1;
+                            let bound = sums[c];
+                            if bound < thr {
+                                continue;
+                            }
+                            if lvl == 0 {
+                                // the bound is the exact score at level 0
+                                leaves.push(Leaf {
+                                    score: bound,
+                                    k: n.k,
+                                    i: ci,
+                                    j: cj,
+                                });
+                                best.fetch_max(bound, Ordering::Relaxed);
+                                continue;
+                            }
+                            kids[nk] = Node {
+                                bound,
+                                level: lvl as u8,
+                                k: n.k,
+                                i: ci,
+                                j: cj,
+                            };
+                            nk += 1;
+                        }
+                        let kids = &mut kids[..nk];
+                        kids.sort_unstable_by_key(|c| c.bound);
+                        stack.extend_from_slice(kids);
+                    }
+                    (leaves, nodes, stack)
+                },
+            )
+            .map(|(l, n, _)| (l, n))
+            .reduce(
+                || (Vec::new(), 0),
+                |(mut a, na), (b, nb)| {
+                    a.extend(b);
+                    (a, na + nb)
+                },
+            );
+        let keep = threshold(best.load(Ordering::Relaxed)).max(floor);
+        (
+            leaves.into_iter().filter(|l| l.score >= keep).collect(),
+            nodes,
+        )
     }
 }
 
@@ -1093,6 +1156,111 @@ mod tests {
                 })
                 .count();
             assert_eq!(crossed, 50, "{deg} deg: {crossed} of 50 crossings seen");
+        }
+    }
+
+    /// Every leaf of the exhaustive search within `accept_ratio` of the best: the
+    /// branch-and-bound must return exactly these.
+    fn exhaustive_leaves(
+        g: &GlobalLocalizer,
+        offsets: &[Vec<(i32, i32)>],
+        region: [i32; 4],
+        m: usize,
+    ) -> Vec<(u32, u32, i32, i32)> {
+        let [ri0, rj0, ri1, rj1] = region;
+        let mut all = Vec::new();
+        for (k, offs) in offsets.iter().enumerate() {
+            for j in rj0..=rj1 {
+                for i in ri0..=ri1 {
+                    if g.free[0][j as usize * g.field.w + i as usize] {
+                        all.push((g.field.sum(0, offs, i, j), k as u32, i, j));
+                    }
+                }
+            }
+        }
+        let floor = (g.cfg.min_score * (255 * m) as f64).ceil() as u32;
+        let best = all.iter().map(|l| l.0).max().unwrap_or(0).max(floor);
+        let keep = ((best as f64) * g.cfg.accept_ratio)
+            .ceil()
+            .max(floor as f64) as u32;
+        let mut kept: Vec<_> = all.into_iter().filter(|l| l.0 >= keep).collect();
+        kept.sort_unstable();
+        kept
+    }
+
+    #[test]
+    fn child_sums_are_the_field_sums_also_at_the_edges() {
+        let g = localizer(&office_segments(), 0.1);
+        let f = &g.field;
+        let (w, h) = (f.w as i32, f.h as i32);
+        let mut rng = Rng::new(3);
+        let offs: Vec<(i32, i32)> = (0..60)
+            .map(|_| (rng.range(-80.0, 80.0) as i32, rng.range(-80.0, 80.0) as i32))
+            .collect();
+        for level in 0..f.levels() {
+            let s = 1i32 << level;
+            for (i, j) in [
+                (0, 0),
+                (-s, -s),
+                (w - 1, h - 1),
+                (w - s, 3),
+                (17, h - s),
+                (40, 30),
+            ] {
+                let want = [
+                    f.sum(level, &offs, i, j),
+                    f.sum(level, &offs, i + s, j),
+                    f.sum(level, &offs, i, j + s),
+                    f.sum(level, &offs, i + s, j + s),
+                ];
+                assert_eq!(
+                    child_sums(f, level, &offs, i, j),
+                    want,
+                    "level {level} at ({i}, {j})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn branch_and_bound_keeps_exactly_the_exhaustive_leaves() {
+        let segs = office_segments();
+        let g = localizer(&segs, 0.1);
+        let mut rng = Rng::new(5);
+        let (w, h) = (g.field.w as i32, g.field.h as i32);
+        for (t, region) in [[0, 0, w - 1, h - 1], [37, 11, 151, 90], [0, 5, 64, 69]]
+            .into_iter()
+            .enumerate()
+        {
+            let truth = random_pose(&mut rng);
+            let scan = make_scan(&segs, truth, 181, 30.0, 0.01, 0.05, &mut rng);
+            let m = scan.len().min(g.cfg.max_points);
+            let sub: Vec<[f64; 2]> = (0..m).map(|k| scan[k * scan.len() / m]).collect();
+            let inv = 1.0 / g.field.res;
+            let offsets: Vec<Vec<(i32, i32)>> = (0..(36 + 12 * t))
+                .map(|k| {
+                    let (s, c) = (k as f64 * 0.17).sin_cos();
+                    sub.iter()
+                        .map(|p| {
+                            let x = c * p[0] - s * p[1];
+                            let y = s * p[0] + c * p[1];
+                            ((x * inv).floor() as i32, (y * inv).floor() as i32)
+                        })
+                        .collect()
+                })
+                .collect();
+            let region = [
+                region[0],
+                region[1],
+                region[2].min(w - 1),
+                region[3].min(h - 1),
+            ];
+            let (leaves, nodes) = g.coarse_leaves(&offsets, region, m);
+            let mut got: Vec<_> = leaves.iter().map(|l| (l.score, l.k, l.i, l.j)).collect();
+            got.sort_unstable();
+            let want = exhaustive_leaves(&g, &offsets, region, m);
+            assert!(!want.is_empty());
+            assert_eq!(got, want, "region {region:?}: {nodes} nodes");
         }
     }
 
