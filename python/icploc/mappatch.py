@@ -607,7 +607,7 @@ def graph_solution(
         chain_var = np.concatenate([[0.0], np.cumsum([float(c[2, 2]) for c in covs])])
         seq = _sequence_edges(
             xc, _keyframes(xc, scans, keyframe_step), scans, sequence_reach, min_inliers,
-            chain_var, outlier_chi2,
+            chain_var, outlier_chi2, keep,
         )  # fmt: skip
     else:
         seq = []
@@ -675,6 +675,7 @@ def _sequence_edges(
     min_inliers: float,
     chain_var: NDArray[np.float64],
     gate: float,
+    skip: int = 0,
 ) -> list[_Edge]:
     """Heading edges from matching each keyframe's scan against each earlier keyframe's
     scan on its way within ``reach`` (metres travelled plus 0.3 per radian turned, at the
@@ -687,7 +688,12 @@ def _sequence_edges(
     wing, seed 13, the full edges: the wing 7-10 cm off along the corridor, 91.5 % of its
     walls within 10 cm; the heading only: 100 %). A match whose heading disagrees with the
     chain's beyond the chi-square ``gate`` (the chain's heading variance between the two,
-    ``chain_var[k] - chain_var[j]``, plus the match's) is no edge."""
+    ``chain_var[k] - chain_var[j]``, plus the match's) is no edge; nor is a pair at most
+    ``skip`` scans apart: the chain matched those already (its ``keep`` previous scans), and
+    counted twice the same match would outweigh the rest of the graph. So on the real logs'
+    steps (0.5 m, every scan a keyframe, the previous five reach 2.5 m back) there is no
+    such edge: measured with them, aces 90 -> 85 %, freiburg-079 93 -> 88 % of the patch's
+    walls within 10 cm."""
     from icploc._core import IcpConfig, IcpError, MapIndex, icp
     from icploc.fusion import scan_covariance
 
@@ -704,6 +710,8 @@ def _sequence_edges(
         for j in keys[:a][::-1]:
             if travel[k] - travel[j] > reach:
                 break
+            if k - j <= skip:
+                continue  # the chain matched scan k against scan j already
             if j not in local:
                 w, nrm = _chain_reference((0.0, 0.0, 0.0), scans[j - 1])
                 local[j] = MapIndex(w, nrm, None) if len(w) >= 20 else None
