@@ -272,6 +272,9 @@ def replay(
     map_patch_open: Annotated[
         bool, Option("--map-patch-open", help="Also draw the stretches the run never brought back into the map (their poses are unchecked dead reckoning)")
     ] = False,
+    confident_only: Annotated[
+        bool, Option("--confident-only", help="In the --map-patch, leave unknown the wall cells whose walls are less sure than 5 cm (sigma from the pose graph), so a merged map keeps what it knew there")
+    ] = False,
 ) -> None:
     """Localize a recorded log against a map, deterministically and as fast as possible.
 
@@ -284,13 +287,15 @@ def replay(
 
     if odometry not in ("auto", "stream", "scan"):
         raise BadUsage(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
+    if confident_only and map_patch is None:
+        raise BadUsage("needs --map-patch", param_hint="--confident-only")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     kw: dict[str, Any] = dict(
         config=cfg, initial_pose=pose, out=out, truth=truth, plot=plot, odometry=odometry,
         estimates=estimates, strict=strict, inputs=[config] if config is not None else [],
         map_cache=False if no_cache else None, partial_map=partial_map, map_patch=map_patch,
-        map_patch_open=map_patch_open,
+        map_patch_open=map_patch_open, map_patch_confident_only=confident_only,
     )  # fmt: skip
     hooks = _run_hooks(mcap=mcap, inputs=(log, map_path), refine_start=refine_start,
                        tell=echo)  # --mcap, --refine-start (icploc.hooks)  # fmt: skip

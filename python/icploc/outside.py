@@ -666,19 +666,27 @@ class OutsideMonitor:
         return stretch_lines(self.stretches, scans)
 
     def finish(
-        self, res: Any, map_: Any, patch: str | os.PathLike[str] | None, include_open: bool = False
+        self,
+        res: Any,
+        map_: Any,
+        patch: str | os.PathLike[str] | None,
+        include_open: bool = False,
+        confident_only: bool = False,
     ) -> None:
         """At the end of a replay: the stretches into its summary, the map patch written
         (``icploc replay --map-patch``; ``include_open``: ``--map-patch-open``, also the
-        stretches that never came back into the map)."""
+        stretches that never came back into the map; ``confident_only``:
+        ``--confident-only``, the less sure wall cells left unknown:
+        :func:`icploc.mappatch.write_patch`)."""
         res.notes.extend(self.summary_lines(res.scans))
         if patch is None:
             return
         from icploc.mappatch import in_patch, write_patch
 
         g = write_patch(
-            patch, self.stretches, map_, mounting=self.mounting, walls=self.walls, include_open=include_open
-        )
+            patch, self.stretches, map_, mounting=self.mounting, walls=self.walls,
+            include_open=include_open, confident_only=confident_only,
+        )  # fmt: skip
         for i, s in enumerate(self.stretches, 1):
             if not s.scans or in_patch(s):
                 continue
@@ -712,6 +720,7 @@ class OutsideMonitor:
                 f"map patch: {conf['confident_wall_cells']} of {conf['wall_cells']} wall cells "
                 f"confident (sigma of their walls <= {conf['sigma_bound_m'] * 100:g} cm); "
                 f"the sigma per cell in {sigma_path(patch)}"
+                + ("; the others left unknown (--confident-only)" if confident_only else "")
             )
         res.files["map_patch_sigma"] = sigma_path(patch)
 

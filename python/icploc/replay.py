@@ -199,6 +199,7 @@ def replay(
     partial_map: bool = False,
     map_patch: str | Path | None = None,
     map_patch_open: bool = False,
+    map_patch_confident_only: bool = False,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -384,7 +385,9 @@ def replay(
         if res.evaluation is not None:
             res.metrics = res.evaluation.metrics()
     if outside is not None:
-        outside.finish(res, m, map_patch, include_open=map_patch_open)
+        outside.finish(
+            res, m, map_patch, include_open=map_patch_open, confident_only=map_patch_confident_only
+        )
     if plot is not None and got:
         from icploc.plotting import plot_run
 
