@@ -864,7 +864,17 @@ fn the_fit_from_the_icps_own_closest_points_is_the_fresh_fit() {
 #[test]
 fn the_garage_scans_see_through_cars_that_left_and_hit_cars_that_came() {
     let w = crate::testkit::garage_world();
-    assert!(!w.gone.is_empty() && !w.unmapped.is_empty() && !w.glass.is_empty());
+    // the layout of `benches/scenario.py`'s garage_world (the same SplitMix draws): 278
+    // opaque segments, one glass door, 9 cars gone, 7 come
+    assert_eq!(
+        (
+            w.opaque.len(),
+            w.glass.len(),
+            w.gone.len(),
+            w.unmapped.len()
+        ),
+        (278, 1, 36, 28)
+    );
     // every mapped segment is in the map; the unmapped ones are not
     let map = w.map_segments();
     assert!(w.gone.iter().all(|g| map.contains(g)));
