@@ -6,7 +6,10 @@
 //! * `align_<family>_<start>`: the scenario families of `testkit::all_worlds()` (the
 //!   office, 20 % clutter, 30 m; a clinic wing, people, glass, 8 m; a warehouse of racks,
 //!   10 % clutter, people, 20 m; and, held out from tuning, an apartment: open plan, a 45°
-//!   wall, round legs and pillar, a turned desk, glass, 12 m), maps sampled every 2.5 cm;
+//!   wall, round legs and pillar, a turned desk, glass, 12 m), and the unseen garage of
+//!   `testkit::unseen_worlds()` (pillars in a repeating grid, mapped cars that have left,
+//!   unmapped cars that have come, a ramp, glass, 25 m; never tuned on), maps sampled
+//!   every 2.5 cm;
 //! * `align_office_sizes_<start>_<metric>`: the office sampled to 1k / 10k / 100k / 1M
 //!   points, point-to-line and point-to-point.
 //!
@@ -24,7 +27,7 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use icploc_core::index::DEFAULT_CACHE_RESOLUTION;
 use icploc_core::se2::wrap_angle;
 use icploc_core::testkit::{
-    all_worlds, cases, office_segments, sample_segments, world_cases, Case,
+    all_worlds, cases, office_segments, sample_segments, unseen_worlds, world_cases, Case,
 };
 use icploc_core::{align, IcpConfig, MapIndex, Metric, StartPath};
 
@@ -205,7 +208,11 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
         }
     }
     for (t, k, _, d) in rows.iter().filter(|r| !r.2) {
-        eprintln!("  {family} {start} MISS case {k} {t:?}: {d}");
+        let at = icploc_core::icp::assess(&cs[*k].scan, idx, cs[*k].truth, cfg);
+        eprintln!(
+            "  {family} {start} MISS case {k} {t:?}: {d}; the truth's fit ({:.3}, {:.4}, {:.3}, {:.4})",
+            at.inlier_ratio, at.rms, at.see_through, at.score
+        );
     }
     rows.sort_by_key(|r| std::cmp::Reverse(r.0));
     for (t, k, ok, d) in rows.iter().take(cs.len().div_ceil(20)) {
@@ -220,7 +227,7 @@ const STARTS: [(&str, (f64, f64, f64)); 2] = [
 
 fn bench_families(c: &mut Criterion) {
     let cfg = IcpConfig::default();
-    for w in all_worlds() {
+    for w in all_worlds().into_iter().chain(unseen_worlds()) {
         let (p, nrm) = sample_segments(&w.map_segments(), 0.025);
         let idx = MapIndex::new(p, Some(nrm))
             .unwrap()

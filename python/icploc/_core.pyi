@@ -65,7 +65,10 @@ class IcpConfig:
     with the other places along the corridor (a 1-D look along its free axis, ICP from the
     ones that score about as well). When the fit does not explain the scan, the window is
     searched first at +-4 degrees around the heading at which the scan's wall directions
-    match the map's, and in full only when nothing there explains the scan."""
+    match the map's, and in full only when nothing there explains the scan. A fit from
+    that heading that explains the scan only by the looser rules is compared with the ICP
+    from the initial pose unless its RMS is within ``prior_sure_rms`` x ``expected_noise``
+    (0: always compared)."""
 
     metric: Metric
     max_iterations: int
@@ -90,6 +93,7 @@ class IcpConfig:
     expected_noise: float
     accept_inlier_ratio: float
     accept_see_through: float
+    prior_sure_rms: float
     def __new__(
         cls,
         *,
@@ -116,6 +120,7 @@ class IcpConfig:
         expected_noise: float = ...,
         accept_inlier_ratio: float = ...,
         accept_see_through: float = ...,
+        prior_sure_rms: float = ...,
     ) -> Self: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""

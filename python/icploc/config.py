@@ -194,6 +194,12 @@ class IcpSection(Section):
         _core_default("accept_see_through"),
         "... and at most this share of beams through mapped walls",
     )
+    prior_sure_rms: float = _f(
+        _core_default("prior_sure_rms"),
+        "a loosely accepted fit from the heading prior within this RMS (x expected_noise) "
+        "skips the comparison with the ICP from the initial pose (0: always compared)",
+        ge=0,
+    )
     adaptive_correspondence: bool = _f(
         True,
         "open the first correspondence threshold to cover the odometry prediction's "

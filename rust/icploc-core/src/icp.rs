@@ -20,6 +20,7 @@ use crate::se2::{wrap_angle, Pose2};
 mod local;
 mod window;
 pub(crate) use local::map_directions;
+use window::assess_with;
 pub use window::{assess, see_through, Fit};
 
 /// The error metric.
@@ -103,6 +104,12 @@ pub struct IcpConfig {
     /// A fit with a higher share of beams passing through mapped walls than this does not
     /// explain the scan.
     pub accept_see_through: f64,
+    /// A fit from the heading prior that explains the scan only by the looser rules (a
+    /// tight or occluded fit) and whose inliers' RMS is at most this many `expected_noise`
+    /// is taken without comparing it with the ICP from the initial pose; 0 always compares
+    /// (one more ICP on such starts). On the tuned families' small starts the turned fits
+    /// that the comparison corrected had an RMS of 0.58-0.74 σ, the right ones 0.35-0.47 σ.
+    pub prior_sure_rms: f64,
 }
 
 /// The iteration limit may not exceed this (a larger one is a typo, and could hang a call).
@@ -138,6 +145,7 @@ impl Default for IcpConfig {
             expected_noise: 0.02,
             accept_inlier_ratio: 0.75,
             accept_see_through: 0.05,
+            prior_sure_rms: 0.5,
         }
     }
 }
@@ -335,6 +343,13 @@ impl IcpConfig {
                 "must be in [0, 1]",
             ));
         }
+        if !nonneg(self.prior_sure_rms) {
+            return Err(bad(
+                "prior_sure_rms",
+                self.prior_sure_rms,
+                "must be non-negative and finite",
+            ));
+        }
         Ok(())
     }
 
@@ -475,6 +490,33 @@ struct Workspace {
     moved: Vec<[f64; 2]>,
     /// indices of the coarse stages' subsample of the scan
     coarse: Vec<u32>,
+    /// the closest map point of every scan point in the last ICP call's last pass over the
+    /// whole scan, and the pose of that pass (`None`: its last pass saw a subsample)
+    nn: Vec<u32>,
+    nn_pose: Option<Pose2>,
+    /// the scan's farthest range (m), for the shift of a step at its far end
+    reach: f64,
+}
+
+/// The fit of `r`, the result of the last [`align_plain`] call with `ws` on `scan`: from
+/// that call's closest points when its last pass over the whole scan was within
+/// [`window::REUSE_SHIFT`] of the final pose at every point (a converged ICP: its last
+/// step was below a millimetre), else by a fresh [`assess`].
+fn assessed(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    r: &IcpResult,
+    cfg: &IcpConfig,
+    ws: &Workspace,
+) -> Fit {
+    if let Some(p) = ws.nn_pose {
+        let shift = (r.pose.x - p.x).hypot(r.pose.y - p.y)
+            + wrap_angle(r.pose.theta - p.theta).abs() * ws.reach;
+        if shift <= window::REUSE_SHIFT && ws.nn.len() == scan.len() {
+            return assess_with(scan, index, r.pose, cfg, &ws.nn);
+        }
+    }
+    assess(scan, index, r.pose, cfg)
 }
 
 /// Validate the scan and the pose.
@@ -623,7 +665,7 @@ fn align_unchecked(
         };
         let start = Pose2::new(center.x, center.y, th);
         let mut turned = align_plain(scan, index, start, &turned_cfg, ws);
-        let f = assess(scan, index, turned.pose, cfg);
+        let f = assessed(scan, index, &turned, cfg, ws);
         turned.fit = Some(f);
         let near = (turned.pose.x - center.x).hypot(turned.pose.y - center.y)
             <= PRIOR_NEAR * cfg.window_position;
@@ -631,9 +673,9 @@ fn align_unchecked(
             && acceptable(&turned, &f, center, cfg)
             && (explains(&f, cfg) || (near && f.see_through <= cfg.accept_see_through));
         let wins = candidate
-            && (explains(&f, cfg) || f.rms <= PRIOR_SURE_RMS * cfg.expected_noise || {
+            && (explains(&f, cfg) || f.rms <= cfg.prior_sure_rms * cfg.expected_noise || {
                 let mut p = align_plain(scan, index, initial, cfg, ws);
-                let pf = assess(scan, index, p.pose, cfg);
+                let pf = assessed(scan, index, &p, cfg, ws);
                 p.fit = Some(pf);
                 let better = p.termination != Termination::TooFewInliers
                     && acceptable(&p, &pf, center, cfg)
@@ -659,7 +701,7 @@ fn align_unchecked(
     }
     let plain = plain_first.unwrap_or_else(|| {
         let mut p = align_plain(scan, index, initial, cfg, ws);
-        p.fit = Some(assess(scan, index, p.pose, cfg));
+        p.fit = Some(assessed(scan, index, &p, cfg, ws));
         p
     });
     let fit = plain.fit.expect("assessed above");
@@ -781,12 +823,6 @@ const PRIOR_JUMP: f64 = 0.05;
 /// is 6, p95 13), and one that needs more is left to the ICP from the initial pose and the
 /// window (from a large start it would mostly cost).
 const PRIOR_ITERATIONS: usize = 15;
-/// A fit from the heading prior acceptable by the looser rules whose inliers' RMS is at
-/// most this many `expected_noise` (the knee of [`rank`]) needs no comparison with the ICP
-/// from the initial pose: on the tuned families (clinic, warehouse; small starts) the
-/// turned fits that the comparison corrected had an RMS of 0.58-0.74 σ, the right ones
-/// 0.35-0.47 σ.
-const PRIOR_SURE_RMS: f64 = 0.5;
 /// See [`align_unchecked`]: a fit from the heading prior that moved at most this fraction
 /// of `window_position` from the initial position is accepted by the looser rules.
 const PRIOR_NEAR: f64 = 0.5;
@@ -890,7 +926,7 @@ fn slide_or_polish(
         if rr.termination == Termination::TooFewInliers {
             continue;
         }
-        let ff = assess(scan, index, rr.pose, cfg);
+        let ff = assessed(scan, index, &rr, cfg, ws);
         rr.fit = Some(ff);
         if rank(&ff, cfg) > rank(&best_fit, cfg) + SLIDE_MARGIN {
             (best, best_fit, moved) = (rr, ff, true);
@@ -1008,7 +1044,7 @@ fn polish(
     if r.termination == Termination::TooFewInliers {
         return None;
     }
-    let f = assess(scan, index, r.pose, cfg);
+    let f = assessed(scan, index, &r, cfg, ws);
     (f.score > score).then_some((r, f))
 }
 
@@ -1130,7 +1166,7 @@ fn refine_seeds(
         if r.termination == Termination::TooFewInliers {
             continue;
         }
-        let mut f = assess(scan, index, r.pose, cfg);
+        let mut f = assessed(scan, index, &r, cfg, ws);
         if f.rms > POLISH_RMS * cfg.expected_noise {
             if let Some((p, pf)) = polish(scan, index, r.pose, f.score, cfg, ws) {
                 (r, f) = (p, pf);
@@ -1290,6 +1326,13 @@ fn align_plain(
     let mut iterations = 0;
     let mut termination = Termination::MaxIterations;
     ws.moved.resize(n, [0.0; 2]);
+    ws.nn.resize(n, 0);
+    ws.nn_pose = None;
+    ws.reach = scan
+        .iter()
+        .map(|p| p[0] * p[0] + p[1] * p[1])
+        .fold(0.0, f64::max)
+        .sqrt();
 
     // The coarse stages (threshold above its final value) see an even subsample of the
     // scan (about `COARSE_POINTS`, chosen by the points themselves, so not by their order):
@@ -1329,12 +1372,16 @@ fn align_plain(
             pairs,
             moved,
             coarse: sub,
+            nn,
+            nn_pose,
+            ..
         } = &mut *ws;
         pairs.clear();
         last_coarse = coarse && !at_final;
         if last_coarse {
             let ids = sub.iter().map(|&i| i as usize);
-            gather(scan, index, pose, thr2, ids, pairs, moved);
+            gather(scan, index, pose, thr2, ids, pairs, moved, nn);
+            *nn_pose = None;
             if pairs.len() < coarse_min {
                 coarse = false;
                 last_coarse = false;
@@ -1342,7 +1389,8 @@ fn align_plain(
         }
         if !last_coarse {
             pairs.clear();
-            gather(scan, index, pose, thr2, 0..n, pairs, moved);
+            gather(scan, index, pose, thr2, 0..n, pairs, moved, nn);
+            *nn_pose = Some(pose);
         }
         trim(&mut ws.pairs, cfg.trim_fraction);
         // a coarse stage's subsample needs its share of the inliers, not the whole scan's
@@ -1453,6 +1501,7 @@ fn align_plain(
         for (i, p) in scan.iter().enumerate() {
             let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
             let (d2, j) = index.correspondence(q);
+            ws.nn[i] = j as u32;
             if d2 <= thr * thr {
                 ws.pairs.push(Pair {
                     i: i as u32,
@@ -1461,6 +1510,7 @@ fn align_plain(
                 });
             }
         }
+        ws.nn_pose = Some(pose);
         trim(&mut ws.pairs, cfg.trim_fraction);
         let sum: f64 = ws
             .pairs
@@ -1523,8 +1573,9 @@ const COARSE_POINTS: usize = 96;
 const COARSE_MIN_PAIRS: usize = 12;
 
 /// The pairs of the scan points `ids` moved to `pose` within `sqrt(thr2)` of their closest
-/// map points (`moved`: the moved points, by scan index).
+/// map points (`moved`: the moved points, `nn`: their closest map points, by scan index).
 #[inline]
+#[allow(clippy::too_many_arguments)]
 fn gather(
     scan: &[[f64; 2]],
     index: &MapIndex,
@@ -1533,6 +1584,7 @@ fn gather(
     ids: impl Iterator<Item = usize>,
     pairs: &mut Vec<Pair>,
     moved: &mut [[f64; 2]],
+    nn: &mut [u32],
 ) {
     let (s, c) = pose.theta.sin_cos();
     for i in ids {
@@ -1540,6 +1592,7 @@ fn gather(
         let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
         moved[i] = q;
         let (d2, j) = index.correspondence(q);
+        nn[i] = j as u32;
         if d2 <= thr2 {
             pairs.push(Pair {
                 i: i as u32,

@@ -482,7 +482,7 @@ pub(crate) struct PyIcpConfig {
 }
 
 /// The field names, in order (constructor keywords, attributes, `to_dict` keys).
-const ICP_FIELDS: [&str; 23] = [
+const ICP_FIELDS: [&str; 24] = [
     "metric",
     "max_iterations",
     "max_correspondence_distance",
@@ -506,6 +506,7 @@ const ICP_FIELDS: [&str; 23] = [
     "expected_noise",
     "accept_inlier_ratio",
     "accept_see_through",
+    "prior_sure_rms",
 ];
 
 fn config_err(
@@ -630,6 +631,7 @@ fn set_icp_field(
                 "expected_noise" => c.expected_noise = x,
                 "accept_inlier_ratio" => c.accept_inlier_ratio = x,
                 "accept_see_through" => c.accept_see_through = x,
+                "prior_sure_rms" => c.prior_sure_rms = x,
                 _ => unreachable!("every field is handled"),
             }
         }
@@ -684,6 +686,7 @@ fn get_icp_field<'py>(
         "expected_noise" => c.expected_noise.into_pyobject(py)?.into_any(),
         "accept_inlier_ratio" => c.accept_inlier_ratio.into_pyobject(py)?.into_any(),
         "accept_see_through" => c.accept_see_through.into_pyobject(py)?.into_any(),
+        "prior_sure_rms" => c.prior_sure_rms.into_pyobject(py)?.into_any(),
         _ => {
             return Err(pyo3::exceptions::PyAttributeError::new_err(format!(
                 "IcpConfig has no field {name:?}"
@@ -795,6 +798,7 @@ icp_pymethods!(
     expected_noise => set_expected_noise,
     accept_inlier_ratio => set_accept_inlier_ratio,
     accept_see_through => set_accept_see_through,
+    prior_sure_rms => set_prior_sure_rms,
 );
 
 // ---------------------------------------------------------------- IcpResult

@@ -293,6 +293,20 @@ fn config_validation_names_the_field() {
     let cases: Vec<(IcpConfig, &str)> = vec![
         (
             IcpConfig {
+                prior_sure_rms: -0.5,
+                ..Default::default()
+            },
+            "prior_sure_rms",
+        ),
+        (
+            IcpConfig {
+                prior_sure_rms: f64::NAN,
+                ..Default::default()
+            },
+            "prior_sure_rms",
+        ),
+        (
+            IcpConfig {
                 max_iterations: 0,
                 ..Default::default()
             },
@@ -778,4 +792,120 @@ fn point_to_line_step_tolerance_caps_at_a_millimetre() {
     assert_eq!(a, b);
     let its = |v: &[IcpResult]| v.iter().map(|r| r.iterations).sum::<usize>();
     assert!(its(&tight) > its(&a), "{} vs {}", its(&tight), its(&a));
+}
+
+#[test]
+fn the_fit_from_the_icps_own_closest_points_is_the_fresh_fit() {
+    // the verified start scores a converged ICP from the closest points of its last pass
+    // (no look-up per point): on every family the same fit as a fresh `assess` at the
+    // final pose (the same inliers but for a point, RMS and score to a hair)
+    let cfg = IcpConfig::default();
+    let mut total = 0usize;
+    for w in crate::testkit::all_worlds()
+        .into_iter()
+        .chain(crate::testkit::unseen_worlds())
+    {
+        let (p, n) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let cs = crate::testkit::world_cases(&w, 15, (0.3, 0.3, 10f64.to_radians()), 3);
+        for c in &cs {
+            let mut ws = Workspace::default();
+            let r = align_plain(&c.scan, &idx, c.initial, &cfg, &mut ws);
+            let fresh = assess(&c.scan, &idx, r.pose, &cfg);
+            let got = assessed(&c.scan, &idx, &r, &cfg, &ws);
+            total += 1;
+            let one = 1.0 / c.scan.len() as f64 + 1e-12;
+            assert!(
+                (got.inlier_ratio - fresh.inlier_ratio).abs() <= one
+                    && (got.rms - fresh.rms).abs() <= 2e-4
+                    && (got.score - fresh.score).abs() <= 2e-3
+                    && got.see_through == fresh.see_through,
+                "{}: {got:?} vs {fresh:?}",
+                w.name
+            );
+            // and exactly the stored pass's answer at that pass's pose
+            if let Some(p) = ws.nn_pose {
+                let at = window::assess_with(&c.scan, &idx, p, &cfg, &ws.nn);
+                let exact = assess(&c.scan, &idx, p, &cfg);
+                assert!(
+                    (at.inlier_ratio - exact.inlier_ratio).abs() < 1e-12
+                        && (at.score - exact.score).abs() < 1e-9,
+                    "{}: {at:?} vs {exact:?}",
+                    w.name
+                );
+            }
+        }
+    }
+    // the reuse is what most calls take
+    let taken = {
+        let w = crate::testkit::office_world();
+        let (p, n) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(n)).unwrap();
+        let cs = crate::testkit::world_cases(&w, 20, (0.3, 0.3, 10f64.to_radians()), 5);
+        cs.iter()
+            .filter(|c| {
+                let mut ws = Workspace::default();
+                let r = align_plain(&c.scan, &idx, c.initial, &cfg, &mut ws);
+                ws.nn_pose.is_some_and(|p| {
+                    (r.pose.x - p.x).hypot(r.pose.y - p.y)
+                        + wrap_angle(r.pose.theta - p.theta).abs() * ws.reach
+                        <= window::REUSE_SHIFT
+                })
+            })
+            .count()
+    };
+    assert!(taken >= 15, "the reuse ran on {taken} of 20 office calls");
+    assert!(total >= 75);
+}
+
+#[test]
+fn the_garage_scans_see_through_cars_that_left_and_hit_cars_that_came() {
+    let w = crate::testkit::garage_world();
+    // the layout of `benches/scenario.py`'s garage_world (the same SplitMix draws): 278
+    // opaque segments, one glass door, 9 cars gone, 7 come
+    assert_eq!(
+        (
+            w.opaque.len(),
+            w.glass.len(),
+            w.gone.len(),
+            w.unmapped.len()
+        ),
+        (278, 1, 36, 28)
+    );
+    // every mapped segment is in the map; the unmapped ones are not
+    let map = w.map_segments();
+    assert!(w.gone.iter().all(|g| map.contains(g)));
+    assert!(w.unmapped.iter().all(|u| !map.contains(u)));
+    // a scan from an aisle facing the south row: some beams end where only the world has
+    // a car (shorter than the map says) or pass where only the map has one (longer)
+    let mut rng = Rng::new(3);
+    let (mut shorter, mut longer) = (0usize, 0usize);
+    for k in 0..20 {
+        let pose = Pose2::new(3.0 + 2.5 * k as f64, 8.0, -std::f64::consts::FRAC_PI_2);
+        let scan = crate::testkit::world_scan(&w, pose, 0.0, &mut rng);
+        for p in &scan {
+            let a = p[1].atan2(p[0]);
+            let r = p[0].hypot(p[1]);
+            let m = crate::raycast::raycast(&map, pose, &[a], w.max_range).unwrap()[0];
+            if r < m - 0.3 {
+                shorter += 1;
+            } else if r > m + 0.3 {
+                longer += 1;
+            }
+        }
+    }
+    assert!(
+        shorter > 50 && longer > 50,
+        "{shorter} shorter, {longer} longer"
+    );
+    // poses are drawn clear of the unmapped cars too
+    let mut segs = map.clone();
+    segs.extend_from_slice(&w.unmapped);
+    for _ in 0..200 {
+        let p = crate::testkit::world_pose(&w, &mut rng);
+        assert!(crate::testkit::distance_to_segments(&segs, [p.x, p.y]) >= 0.35);
+    }
 }

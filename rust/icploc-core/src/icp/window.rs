@@ -111,6 +111,66 @@ pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig)
     }
 }
 
+/// [`assess`] of the pose an ICP call ended at, with the closest map points `nn` (by
+/// scan index) that its last correspondence pass found (a step of at most
+/// [`REUSE_SHIFT`] before `pose`): the same fit without a look-up per point. Near a wall
+/// the distance is to the line through the map point found, which a shift of a few
+/// millimetres leaves on the same wall (its neighbouring sample has the same line); off
+/// the map (farther than the inlier band plus two spacings) the point is an outlier
+/// either way and its distance to that map point stands.
+pub(crate) fn assess_with(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    pose: Pose2,
+    cfg: &IcpConfig,
+    nn: &[u32],
+) -> Fit {
+    debug_assert_eq!(nn.len(), scan.len());
+    let normals = index.normals();
+    let points = index.points();
+    let sigma = cfg.expected_noise;
+    let band = 3.0 * sigma;
+    let near = 2.0 * index.spacing() + band;
+    let near2 = near * near;
+    let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+    let (s, c) = pose.theta.sin_cos();
+    let (mut inl, mut sq, mut lik) = (0usize, 0.0, 0.0);
+    for (p, &j) in scan.iter().zip(nn) {
+        let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+        let (x, n) = (points[j as usize], normals[j as usize]);
+        let d = [q[0] - x[0], q[1] - x[1]];
+        let d2 = d[0] * d[0] + d[1] * d[1];
+        let e = if d2 <= near2 {
+            (n[0] * d[0] + n[1] * d[1]).abs()
+        } else {
+            d2.sqrt()
+        };
+        lik += (-e * e * inv2s2).exp();
+        if e <= band {
+            inl += 1;
+            sq += e * e;
+        }
+    }
+    let nf = scan.len().max(1) as f64;
+    let rms = if inl > 0 {
+        (sq / inl as f64).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    let st = see_through(scan, index, pose);
+    Fit {
+        inlier_ratio: inl as f64 / nf,
+        rms,
+        see_through: st,
+        score: lik / nf * (1.0 - st).powi(2),
+    }
+}
+
+/// [`assess_with`] reuses the closest points of a pass at most this far (m) from the
+/// final pose at every scan point (the step's translation plus its rotation times the
+/// farthest point's range).
+pub(crate) const REUSE_SHIFT: f64 = 0.005;
+
 /// The point-distance part of [`assess`]: (inlier ratio, RMS of the inliers, mean
 /// Gaussian likelihood) — the last an upper bound of the score (the see-through factor is
 /// at most 1).
