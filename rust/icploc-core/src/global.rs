@@ -434,20 +434,7 @@ impl GlobalLocalizer {
         // subsample the scan evenly
         let m = usable.len().min(cfg.max_points);
         let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
-        let inv = 1.0 / self.field.res;
-        let offsets: Vec<Vec<(i32, i32)>> = headings
-            .iter()
-            .map(|&th| {
-                let (s, c) = th.sin_cos();
-                sub.iter()
-                    .map(|p| {
-                        let x = c * p[0] - s * p[1];
-                        let y = s * p[0] + c * p[1];
-                        ((x * inv).floor() as i32, (y * inv).floor() as i32)
-                    })
-                    .collect()
-            })
-            .collect();
+        let offsets = cell_offsets(&sub, headings.iter().copied(), self.field.res);
         let full = 255 * m as u32;
         let (mut leaves, nodes) = self.coarse_leaves(&offsets, [ri0, rj0, ri1, rj1], m);
         let n_leaves = leaves.len();
@@ -693,6 +680,28 @@ impl GlobalLocalizer {
         // step away along the wall on a densely sampled map)
         self.index.nearest(c).0.sqrt() <= 0.75 * self.index.spacing() + 0.005
     }
+}
+
+/// The scan's points `sub` rotated by each heading and floored to cells of size `res`:
+/// one offset list per heading, as the coarse search slides them over the pyramid.
+fn cell_offsets(
+    sub: &[[f64; 2]],
+    headings: impl Iterator<Item = f64>,
+    res: f64,
+) -> Vec<Vec<(i32, i32)>> {
+    let inv = 1.0 / res;
+    headings
+        .map(|th| {
+            let (s, c) = th.sin_cos();
+            sub.iter()
+                .map(|p| {
+                    let x = c * p[0] - s * p[1];
+                    let y = s * p[0] + c * p[1];
+                    ((x * inv).floor() as i32, (y * inv).floor() as i32)
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// The bounds of the four children of a node at (`i`, `j`), at (i, j), (i + s, j),
@@ -1236,19 +1245,11 @@ mod tests {
             let scan = make_scan(&segs, truth, 181, 30.0, 0.01, 0.05, &mut rng);
             let m = scan.len().min(g.cfg.max_points);
             let sub: Vec<[f64; 2]> = (0..m).map(|k| scan[k * scan.len() / m]).collect();
-            let inv = 1.0 / g.field.res;
-            let offsets: Vec<Vec<(i32, i32)>> = (0..(36 + 12 * t))
-                .map(|k| {
-                    let (s, c) = (k as f64 * 0.17).sin_cos();
-                    sub.iter()
-                        .map(|p| {
-                            let x = c * p[0] - s * p[1];
-                            let y = s * p[0] + c * p[1];
-                            ((x * inv).floor() as i32, (y * inv).floor() as i32)
-                        })
-                        .collect()
-                })
-                .collect();
+            let offsets = cell_offsets(
+                &sub,
+                (0..(36 + 12 * t)).map(|k| k as f64 * 0.17),
+                g.field.res,
+            );
             let region = [
                 region[0],
                 region[1],
