@@ -375,7 +375,18 @@ def test_silent_laser_is_reconnected() -> None:
     ev = _outage("laser", silent=True)
     res = ev["res"]
     after = [e for e in res.estimates if e.stamp > ev["up"]]
-    assert (res.reconnects["laser"], res.error, after[-1].status) == (1, None, Status.TRACKING)
+    tracked = [e for e in after if e.status is Status.TRACKING]
+    T = truth_at(ev["scan_truth"], [e.stamp for e in tracked])
+    err = np.hypot(*(np.array([e.pose for e in tracked])[:, :2] - T[:, :2]).T) if tracked else [1.0]
+    # tracking resumes on the re-handshaken laser, and what it promises is right. (Not
+    # "the last scan is tracking": on a starved host the odometry is stamped late, fits are
+    # taken against it (odometry_off) and the pose is rightly unsettled for a while.)
+    assert (res.reconnects["laser"], res.error, len(tracked) >= 10, float(np.max(err)) < 0.02) == (
+        1,
+        None,
+        True,
+        True,
+    )
 
 
 @pytest.mark.slow
