@@ -147,6 +147,12 @@ CHAIN_ODOM_HEADING = (0.003, 0.03)
 #: Simulated wing (seeds 6 / 13, the tuned set): 1 m 95.5 / 100 %, 2 m 100 / 100 %, 4 m
 #: 100 / 100 % of the walls within 10 cm (without: 92.1 / 90.1 %)
 SEQUENCE_REACH = 2.0
+#: a mapped wall's prior on a stretch's pose (:class:`MappedWalls`) that the solved graph
+#: disagrees with by a chi-square above this (but within the outlier gate) has its
+#: information scaled by this over its chi-square and the graph is solved once more
+#: (:func:`_wall_prior_solve`): a prior off by a few sigma (a wall matched a few
+#: centimetres beside itself, seen from far or along it) pulls its stretch less. 0: none
+WALL_PRIOR_CHI2 = 3.0
 
 
 def _apart(u: Pose, step: float = KEYFRAME_STEP, turn: float = KEYFRAME_TURN) -> bool:
@@ -644,12 +650,7 @@ def graph_solution(
     if walls is not None:
         mp = walls.priors(x, scans)
         if mp:
-            y = _solve_graph(x, edges, [*priors, *mp], scale=sc)
-            keep_p = [q for q in mp if _prior_chi2(y, q) <= outlier_chi2]
-            if len(keep_p) < len(mp):
-                x = _solve_graph(y, edges, [*priors, *keep_p], scale=sc)
-            else:
-                x = y
+            x, keep_p = _wall_prior_solve(x, edges, priors, mp, sc, outlier_chi2)
             priors = [*priors, *keep_p]
     cov = _marginals(x, edges, priors, sc)[1 : n + 1] if marginals else None
     return x[1 : n + 1], cov
@@ -740,6 +741,35 @@ def _sequence_edges(
             # the heading only: the match's marginal heading variance
             out.append(_Edge(j, k, z, np.diag([0.0, 0.0, 1.0 / var])))
     return out
+
+
+def _wall_prior_solve(
+    x: NDArray[np.float64],
+    edges: Sequence[_Edge],
+    priors: Sequence[tuple[int, Pose, NDArray[np.float64]]],
+    mp: Sequence[tuple[int, Pose, NDArray[np.float64]]],
+    scale: _Scale | None,
+    gate: float,
+    reweight: float | None = None,
+) -> tuple[NDArray[np.float64], list[tuple[int, Pose, NDArray[np.float64]]]]:
+    """The graph solved from ``x`` with the mapped walls' priors ``mp`` (:class:`MappedWalls`)
+    added to ``priors``: a wall prior the solved graph disagrees with beyond the
+    chi-square ``gate`` is dropped and the graph solved again; then each kept wall prior's
+    information is scaled by ``min(1, reweight / chi2)`` (``chi2`` its residual at that
+    solution; default :data:`WALL_PRIOR_CHI2`; 0 or less: no scaling) and the graph solved
+    once more. Returns the poses and the wall priors as used."""
+    if reweight is None:
+        reweight = WALL_PRIOR_CHI2
+    y = _solve_graph(x, edges, [*priors, *mp], scale=scale)
+    keep = [q for q in mp if _prior_chi2(y, q) <= gate]
+    if len(keep) < len(mp):
+        y = _solve_graph(y, edges, [*priors, *keep], scale=scale)
+    if reweight > 0.0 and keep:
+        f = [min(1.0, reweight / max(_prior_chi2(y, q), 1e-12)) for q in keep]
+        if min(f) < 1.0:
+            keep = [(k, z, w * s) for (k, z, w), s in zip(keep, f, strict=True)]
+            y = _solve_graph(y, edges, [*priors, *keep], scale=scale)
+    return y, keep
 
 
 def _prior_chi2(x: NDArray[np.float64], q: tuple[int, Pose, NDArray[np.float64]]) -> float:
