@@ -671,7 +671,7 @@ fn align_unchecked(
             <= PRIOR_NEAR * cfg.window_position;
         let candidate = turned.termination != Termination::TooFewInliers
             && acceptable(&turned, &f, center, cfg)
-            && (explains(&f, cfg) || (near && f.see_through <= cfg.accept_see_through));
+            && (explains(&f, cfg) || (near && through_walls(&f) <= cfg.accept_see_through));
         let wins = candidate
             && (explains(&f, cfg) || f.rms <= cfg.prior_sure_rms * cfg.expected_noise || {
                 let mut p = align_plain(scan, index, initial, cfg, ws);
@@ -1251,9 +1251,12 @@ fn acceptable(r: &IcpResult, fit: &Fit, center: Pose2, cfg: &IcpConfig) -> bool 
     } else {
         cfg.accept_see_through
     };
+    // beams through small mapped objects that the scan does not see at all (cars that
+    // have left) do not count against a tight fit: its RMS and inliers already say the
+    // pose is right, and a misaligned pose's beams cross the walls
     let tight = fit.rms <= TIGHT_RMS * cfg.expected_noise
         && fit.inlier_ratio >= TIGHT_INLIER_RATIO
-        && fit.see_through <= see_limit;
+        && through_walls(fit) <= see_limit;
     let occl = fit.inlier_ratio >= OCCLUDED_INLIER_RATIO
         && fit.see_through <= cfg.accept_see_through
         && fit.rms <= OCCLUDED_RMS * cfg.expected_noise;
@@ -1288,6 +1291,13 @@ fn inside(r: &IcpResult, center: Pose2, cfg: &IcpConfig) -> bool {
         && (r.pose.y - center.y).abs() <= reach
         && wrap_angle(r.pose.theta - center.theta).abs()
             <= cfg.window_heading + cfg.window_angle_step
+}
+
+/// The share of `fit`'s checked beams through mapped walls, not counting those through
+/// small mapped objects the scan does not see at all ([`Fit::vanished`]: objects that left
+/// since mapping).
+fn through_walls(fit: &Fit) -> f64 {
+    fit.see_through - fit.vanished
 }
 
 /// Does `fit` explain the scan, by the acceptance settings of `cfg`?

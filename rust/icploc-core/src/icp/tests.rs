@@ -608,6 +608,7 @@ fn fit(inlier_ratio: f64, rms: f64, score: f64) -> Fit {
         inlier_ratio,
         rms,
         see_through: 0.0,
+        vanished: 0.0,
         score,
     }
 }
@@ -908,4 +909,94 @@ fn the_garage_scans_see_through_cars_that_left_and_hit_cars_that_came() {
         let p = crate::testkit::world_pose(&w, &mut rng);
         assert!(crate::testkit::distance_to_segments(&segs, [p.x, p.y]) >= 0.35);
     }
+}
+
+/// A 12 × 8 m room, and a car (1.8 × 4.6 m) in it that the map has.
+fn room_with_car() -> (Vec<[f64; 4]>, Vec<[f64; 4]>) {
+    let room = vec![
+        [0.0, 0.0, 12.0, 0.0],
+        [12.0, 0.0, 12.0, 8.0],
+        [12.0, 8.0, 0.0, 8.0],
+        [0.0, 8.0, 0.0, 0.0],
+    ];
+    let car = vec![
+        [7.0, 1.5, 8.8, 1.5],
+        [8.8, 1.5, 8.8, 6.1],
+        [8.8, 6.1, 7.0, 6.1],
+        [7.0, 6.1, 7.0, 1.5],
+    ];
+    (room, car)
+}
+
+fn scan_of(world: &[[f64; 4]], pose: Pose2) -> Vec<[f64; 2]> {
+    let angles: Vec<f64> = (0..361)
+        .map(|i| -std::f64::consts::FRAC_PI_2 + std::f64::consts::PI * i as f64 / 360.0)
+        .collect();
+    let r = crate::raycast::raycast(world, pose, &angles, 30.0).unwrap();
+    angles
+        .iter()
+        .zip(r)
+        .filter(|(_, r)| r.is_finite())
+        .map(|(a, r)| [r * a.cos(), r * a.sin()])
+        .collect()
+}
+
+fn index_of(segs: &[[f64; 4]]) -> MapIndex {
+    let (p, n) = sample_segments(segs, 0.025);
+    MapIndex::new(p, Some(n))
+        .unwrap()
+        .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+        .unwrap()
+}
+
+#[test]
+fn beams_through_a_mapped_car_that_left_are_not_beams_through_walls() {
+    let (room, car) = room_with_car();
+    let mut map = room.clone();
+    map.extend_from_slice(&car);
+    let idx = index_of(&map);
+    let cfg = IcpConfig::default();
+    // the car has left: from the truth, facing it, a third of the beams pass through it
+    let truth = Pose2::new(3.0, 4.0, 0.0);
+    let scan = scan_of(&room, truth);
+    let f = window::assess(&scan, &idx, truth, &cfg);
+    assert!(f.see_through > 0.2, "{f:?}");
+    assert_eq!(f.vanished, f.see_through, "{f:?}");
+    // a tight fit: accepted as it is (before, its see-through failed every rule)
+    let r = align(&scan, &idx, truth, &cfg).unwrap();
+    assert!(
+        (r.pose.x - truth.x).hypot(r.pose.y - truth.y) < 0.01,
+        "{r:?}"
+    );
+    assert_eq!(r.start, StartPath::Plain, "{r:?}");
+    // the car is there: the same beams end on it, and nothing is through anything
+    let mut world = room.clone();
+    world.extend_from_slice(&car);
+    let seen = window::assess(&scan_of(&world, truth), &idx, truth, &cfg);
+    assert_eq!((seen.see_through, seen.vanished), (0.0, 0.0), "{seen:?}");
+}
+
+#[test]
+fn beams_through_a_wall_still_count_past_a_car_that_left() {
+    let (room, car) = room_with_car();
+    let mut map = room.clone();
+    map.extend_from_slice(&car);
+    let idx = index_of(&map);
+    let cfg = IcpConfig::default();
+    // the scan from (3, 4) facing east, read at a pose 0.7 m farther east: the east wall's
+    // returns lie behind the wall, past the car that left
+    let scan = scan_of(&room, Pose2::new(3.0, 4.0, 0.0));
+    let wrong = Pose2::new(3.7, 4.0, 0.0);
+    let f = window::assess(&scan, &idx, wrong, &cfg);
+    assert!(f.see_through - f.vanished > 0.2, "{f:?}");
+    // ... and so do beams through the wall when the car is there and seen
+    let mut world = room.clone();
+    world.extend_from_slice(&car);
+    let f = window::assess(
+        &scan_of(&world, Pose2::new(3.0, 2.0, 0.3)),
+        &idx,
+        Pose2::new(3.0, 2.0, 0.3 + 0.2),
+        &cfg,
+    );
+    assert!(f.see_through - f.vanished > 0.0, "{f:?}");
 }
