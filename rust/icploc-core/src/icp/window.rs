@@ -274,6 +274,8 @@ pub(crate) fn see_through_parts(
         let u = [(q[0] - pose.x) / r, (q[1] - pose.y) / r];
         let end = r - margin;
         let mut t = margin;
+        // crossings up to here are of a small object already passed
+        let mut passed = margin;
         let mut steps = 0;
         while t < end && steps < 1024 {
             steps += 1;
@@ -296,7 +298,7 @@ pub(crate) fn see_through_parts(
                 // where the beam meets the line of that wall
                 let sd = (s[0] - x[0]) * n[0] + (s[1] - x[1]) * n[1];
                 let tc = t - sd / cos;
-                if tc > margin && tc < end {
+                if tc > passed && tc < end {
                     let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
                     // exact (k-d tree) here: a beam through a doorway passes centimetres
                     // from the jamb, and the cached answer may be a cell off — unless the
@@ -323,6 +325,9 @@ pub(crate) fn see_through_parts(
                                 if through_small[first_small..].iter().all(|e| e.1 != l) {
                                     through_small.push((beam, l));
                                 }
+                                // on past this face of it (a wall behind may be near)
+                                passed = tc + 0.5 * thr;
+                                t = t.max(passed);
                             }
                             None => {
                                 // a wall: the beam counts as through a wall, whatever
