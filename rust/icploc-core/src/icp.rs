@@ -796,7 +796,7 @@ fn align_unchecked(
     // may have scored well below the first pass's seeds on the pyramid (which cannot see
     // through-wall beams), so search the window again, wider, skipping the seeds tried
     let best_fit = pick.best.fit.unwrap_or(fit);
-    if best_fit.see_through > cfg.accept_see_through
+    if through_walls(&best_fit) > cfg.accept_see_through
         && !(pick.path == StartPath::Window && searched_tight(&pick.best, &best_fit, center, cfg))
     {
         if let Some(wide) = window::search(
@@ -1284,7 +1284,7 @@ fn acceptable(r: &IcpResult, fit: &Fit, center: Pose2, cfg: &IcpConfig) -> bool 
 fn searched_tight(r: &IcpResult, fit: &Fit, center: Pose2, cfg: &IcpConfig) -> bool {
     fit.rms <= TIGHT_REF * cfg.expected_noise
         && fit.inlier_ratio >= TIGHT_INLIER_RATIO
-        && fit.see_through <= SEARCHED_SEE_THROUGH
+        && through_walls(fit) <= SEARCHED_SEE_THROUGH
         && r.converged
         && inside(r, center, cfg)
 }
