@@ -134,6 +134,7 @@ fn detail(idx: &MapIndex, cs: &[Case], cfg: &IcpConfig, family: &str, start: &st
                     (f.inlier_ratio * 1e3).round() / 1e3,
                     (f.rms * 1e4).round() / 1e4,
                     (f.see_through * 1e3).round() / 1e3,
+                    (f.vanished * 1e3).round() / 1e3,
                     (f.score * 1e4).round() / 1e4
                 )),
                 r.window_score.map(|s| (s * 1e3).round() / 1e3),
@@ -235,6 +236,7 @@ fn bench_families(c: &mut Criterion) {
             .unwrap();
         idx.likelihood_field()
             .expect("the map fits the window grid"); // built on first use: not part of an alignment
+        idx.objects(); // likewise
         for (name, err) in STARTS {
             if let Ok(only) = std::env::var("ICPLOC_ALIGN_ONLY") {
                 if !only.split(',').any(|o| o == format!("{}_{name}", w.name)) {
@@ -242,6 +244,12 @@ fn bench_families(c: &mut Criterion) {
                 }
             }
             let cs = world_cases(&w, 200, err, 7);
+            if let Ok(k) = std::env::var("ICPLOC_ASSESS_CASE") {
+                let k: usize = k.parse().expect("a case number");
+                let f = icploc_core::icp::assess(&cs[k].scan, &idx, cs[k].truth, &cfg);
+                eprintln!("case {k} truth {:?} fit {f:?}", cs[k].truth);
+                continue;
+            }
             let (ok, med, p95, win, loc) = success(&idx, &cs, &cfg);
             if std::env::var_os("ICPLOC_ALIGN_DETAIL").is_some() {
                 detail(&idx, &cs, &cfg, w.name, name);
@@ -334,6 +342,7 @@ fn bench_align(c: &mut Criterion) {
                 let idx = cached_index(n);
                 idx.likelihood_field()
                     .expect("the map fits the window grid");
+                idx.objects();
                 let (ok, med, p95, win, loc) = success(&idx, &cs, &cfg);
                 eprintln!(
                     "align office {name} start error, {metric:?}, {n} map points: {ok}/{} within 2 cm and 0.5° ({:.1}%), median {med:?}, p95 {p95:?}, window search in {win}, local in {loc}",

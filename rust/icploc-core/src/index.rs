@@ -8,6 +8,7 @@ use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
 mod closest_grid;
+pub mod objects;
 pub mod runs;
 
 use closest_grid::ClosestGrid;
@@ -47,6 +48,9 @@ pub const MAX_CACHE_CELLS: usize = 1 << 23;
 /// map point is within this distance (m) of the query: grid tiles exist within this distance
 /// (plus two cells) of every map point, and only there.
 pub const CACHE_REACH: f64 = 2.0;
+/// The least link distance (m) of the map's pieces ([`MapIndex::objects`]).
+pub const OBJECT_LINK: f64 = 0.05;
+
 /// Map coordinates must lie within ±this (m): beyond it squared distances and centimetre
 /// cells stop being representable.
 pub const MAX_MAP_COORDINATE: f64 = 1e9;
@@ -73,6 +77,9 @@ pub struct MapIndex {
     /// hook (core4): the histogram of the map's line directions (`icp()`'s heading prior),
     /// built on first use.
     directions: OnceLock<Vec<f32>>,
+    /// the map's connected pieces (see-through of small objects that left), built on
+    /// first use.
+    objects: OnceLock<objects::Objects>,
 }
 
 impl std::fmt::Debug for MapIndex {
@@ -163,6 +170,7 @@ impl MapIndex {
             bounds,
             likelihood: OnceLock::new(),
             directions: OnceLock::new(),
+            objects: OnceLock::new(),
         })
     }
 
@@ -374,6 +382,14 @@ impl MapIndex {
     pub fn line_directions(&self) -> &[f32] {
         self.directions
             .get_or_init(|| crate::icp::map_directions(self.normals()))
+    }
+
+    /// The map's connected pieces ([`objects::Objects`]: points linked within
+    /// max(5 cm, 1.5 sample spacings)), built on first use and kept.
+    pub fn objects(&self) -> &objects::Objects {
+        self.objects.get_or_init(|| {
+            objects::Objects::build(&self.points, (1.5 * self.spacing()).max(OBJECT_LINK))
+        })
     }
 
     /// The max-pooled likelihood pyramid of the window search of `icp()`

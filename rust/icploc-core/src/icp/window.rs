@@ -77,6 +77,10 @@ pub struct Fit {
     pub rms: f64,
     /// Share of the checked beams that pass through a mapped wall.
     pub see_through: f64,
+    /// Share of the checked beams (counted in `see_through` too) whose crossings are all
+    /// through small mapped objects that no scan point lies on: objects that have left
+    /// since mapping (parked cars, moved furniture), not a misalignment.
+    pub vanished: f64,
     /// Mean Gaussian likelihood (σ = expected noise) of the point distances, times
     /// (1 − `see_through`)², in [0, 1]: the ranking score of candidate poses. Squared: a
     /// beam through a wall is stronger evidence against a pose than a point the map does
@@ -102,11 +106,12 @@ pub(crate) fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], 
 /// How well `pose` explains `scan` (sensor-frame points, sensor at the origin).
 pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig) -> Fit {
     let (inlier_ratio, rms, lik) = distances(scan, index, pose, cfg);
-    let st = see_through(scan, index, pose);
+    let (st, vanished) = see_through_parts(scan, index, pose, None, true);
     Fit {
         inlier_ratio,
         rms,
         see_through: st,
+        vanished,
         score: lik * (1.0 - st).powi(2),
     }
 }
@@ -157,11 +162,12 @@ pub(crate) fn assess_with(
     } else {
         f64::INFINITY
     };
-    let st = see_through(scan, index, pose);
+    let (st, vanished) = see_through_parts(scan, index, pose, Some(nn), true);
     Fit {
         inlier_ratio: inl as f64 / nf,
         rms,
         see_through: st,
+        vanished,
         score: lik / nf * (1.0 - st).powi(2),
     }
 }
@@ -211,6 +217,30 @@ pub(crate) fn distances(
 /// steeply (not grazing) at a point on the wall — within half a sample spacing (+ 5 mm) of a
 /// map point, by the exact k-d tree answer — not through a gap beside it.
 pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
+    see_through_parts(scan, index, pose, None, false).0
+}
+
+/// A scan point is on a small object when within this distance (m) of one of its map
+/// points; the object is seen by the scan when points are on it ...
+const OBSERVED: f64 = 0.1;
+/// ... by at least this many points ...
+const SEEN_POINTS: usize = 3;
+/// ... and this share of the beams that cross it.
+const SEEN_SHARE: f64 = 0.2;
+
+/// [`see_through`], and (`vanished`) the share of the checked beams whose crossings are
+/// all through small mapped objects ([`crate::index::objects`]: cars, furniture, pillars)
+/// that no point of the scan lies on — objects the world no longer has (a parked car that
+/// left since mapping): the beam keeps going past such an object, and a wall it crosses
+/// after it counts as a wall. `nn`: the closest map point of every scan point at `pose`
+/// (from an ICP's last pass), else looked up when needed.
+pub(crate) fn see_through_parts(
+    scan: &[[f64; 2]],
+    index: &MapIndex,
+    pose: Pose2,
+    nn: Option<&[u32]>,
+    vanished: bool,
+) -> (f64, f64) {
     let normals = index.normals();
     let spacing = index.spacing();
     let thr = 0.5 * spacing + 0.04;
@@ -230,16 +260,22 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
         f.resolution() * std::f64::consts::FRAC_1_SQRT_2 + 1e-4
     });
     let (mut checked, mut bad) = (0usize, 0usize);
+    // (beam, small object) of the beams through small objects only
+    let mut through_small: Vec<(u32, u32)> = Vec::new();
     for p in scan.iter().filter(|p| picked(p, stride)) {
         let r = p[0].hypot(p[1]);
         if !(r > 2.0 * margin) || !r.is_finite() {
             continue;
         }
         checked += 1;
+        let beam = checked as u32;
+        let first_small = through_small.len();
         let q = pose.transform(*p);
         let u = [(q[0] - pose.x) / r, (q[1] - pose.y) / r];
         let end = r - margin;
         let mut t = margin;
+        // crossings up to here are of a small object already passed
+        let mut passed = margin;
         let mut steps = 0;
         while t < end && steps < 1024 {
             steps += 1;
@@ -262,23 +298,45 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
                 // where the beam meets the line of that wall
                 let sd = (s[0] - x[0]) * n[0] + (s[1] - x[1]) * n[1];
                 let tc = t - sd / cos;
-                if tc > margin && tc < end {
+                if tc > passed && tc < end {
                     let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
                     // exact (k-d tree) here: a beam through a doorway passes centimetres
                     // from the jamb, and the cached answer may be a cell off — unless the
                     // cached answer already decides it (its distance is at least the
                     // exact one's, and at most `tol` more, when it is this near)
-                    let (c2, _) = index.correspondence(cp);
+                    let (c2, cj) = index.correspondence(cp);
                     let hit = if c2 <= on_wall2 {
-                        true
+                        Some(cj)
                     } else if c2.sqrt() - tol > on_wall {
-                        false
+                        None
                     } else {
-                        index.nearest(cp).0 <= on_wall2
+                        let (e2, ej) = index.nearest(cp);
+                        (e2 <= on_wall2).then_some(ej)
                     };
-                    if hit {
-                        bad += 1;
-                        break;
+                    if let Some(hj) = hit {
+                        let objects = if vanished {
+                            Some(index.objects())
+                        } else {
+                            None
+                        };
+                        match objects.filter(|o| o.is_small(hj)) {
+                            Some(o) => {
+                                let l = o.label(hj);
+                                if through_small[first_small..].iter().all(|e| e.1 != l) {
+                                    through_small.push((beam, l));
+                                }
+                                // on past this face of it (a wall behind may be near)
+                                passed = tc + 0.5 * thr;
+                                t = t.max(passed);
+                            }
+                            None => {
+                                // a wall: the beam counts as through a wall, whatever
+                                // small objects it passed first
+                                through_small.truncate(first_small);
+                                bad += 1;
+                                break;
+                            }
+                        }
                     }
                 }
             }
@@ -286,12 +344,72 @@ pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
             // long within `thr` of the wall
             t += 1.8 * thr;
         }
+        if through_small.len() > first_small {
+            bad += 1;
+        }
     }
     if checked == 0 {
-        0.0
-    } else {
-        bad as f64 / checked as f64
+        return (0.0, 0.0);
     }
+    if through_small.is_empty() {
+        return (bad as f64 / checked as f64, 0.0);
+    }
+    // which of those objects the scan sees: points on it for at least [`SEEN_SHARE`] of
+    // the beams through it (the checked ones times the stride), and at least
+    // [`SEEN_POINTS`] (a few clutter returns or a person beside a car that left do not
+    // make it seen; a car that is there gets a return on nearly every beam it spans)
+    let objects = index.objects();
+    let mut labels: Vec<u32> = through_small.iter().map(|e| e.1).collect();
+    labels.sort_unstable();
+    let mut crossing: Vec<usize> = Vec::new();
+    {
+        let mut k = 0;
+        let mut uniq = Vec::new();
+        while k < labels.len() {
+            let l = labels[k];
+            let from = k;
+            while k < labels.len() && labels[k] == l {
+                k += 1;
+            }
+            uniq.push(l);
+            crossing.push(k - from);
+        }
+        labels = uniq;
+    }
+    let mut on = vec![0usize; labels.len()];
+    let points = index.points();
+    for (i, p) in scan.iter().enumerate() {
+        let q = pose.transform(*p);
+        let j = match nn {
+            Some(nn) => nn[i] as usize,
+            None => index.correspondence(q).1,
+        };
+        let x = points[j];
+        if (q[0] - x[0]).powi(2) + (q[1] - x[1]).powi(2) <= OBSERVED * OBSERVED {
+            if let Ok(k) = labels.binary_search(&objects.label(j)) {
+                on[k] += 1;
+            }
+        }
+    }
+    let seen: Vec<bool> = on
+        .iter()
+        .zip(&crossing)
+        .map(|(&n, &c)| n >= SEEN_POINTS && n as f64 >= SEEN_SHARE * (c * stride) as f64)
+        .collect();
+    // a beam is through vanished objects only when none of the objects it crossed is seen
+    let mut gone = 0usize;
+    let mut k = 0;
+    while k < through_small.len() {
+        let beam = through_small[k].0;
+        let mut all_unseen = true;
+        while k < through_small.len() && through_small[k].0 == beam {
+            let at = labels.binary_search(&through_small[k].1).expect("listed");
+            all_unseen &= !seen[at];
+            k += 1;
+        }
+        gone += all_unseen as usize;
+    }
+    (bad as f64 / checked as f64, gone as f64 / checked as f64)
 }
 
 /// Are two window poses distinct hypotheses?
