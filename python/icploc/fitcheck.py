@@ -2,7 +2,8 @@
 
 :class:`MapQuality` holds what the localizer's thresholds follow from: the map's resolution
 (a grid's cell size; for other maps the spacing of its samples) and the residual its scan
-fits really show (a running median over the verified fits). :attr:`MapQuality.sigma` is the
+fits really show (a running median of the ICP's RMS over the verified fits and those the
+odometry agrees with, see :class:`MapQuality`). :attr:`MapQuality.sigma` is the
 per-beam residual to expect; the ICP's correspondence distance and robust scale, the scan
 covariance's noise floor and the verification's hit distance are all multiples of it.
 
