@@ -39,13 +39,20 @@ def test_the_learned_residual_stops_at_the_cap() -> None:
     assert p.sigma == pytest.approx(2.0 * p.prior)
 
 
-def test_the_residual_counts_as_measured_only_after_learn_after_fits() -> None:
-    q = MapQuality(0.05, sigma_cap=0.05, learn_after=10)
-    for _ in range(9):
-        q.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
-    assert (q.measured, q.sigma) == (False, pytest.approx(q.prior))
-    q.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
-    assert (q.measured, q.sigma) == (True, pytest.approx(0.04))
+def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_after_learn_after() -> None:
+    loose = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    tight = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    for _ in range(2):
+        loose.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
+        tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [loose.measured, loose.sigma] == [False, pytest.approx(loose.prior)]
+    loose.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))  # the third: walls elsewhere
+    assert [loose.measured, loose.sigma] == [True, pytest.approx(0.04)]
+    for _ in range(7):  # a tighter residual than the prior waits for ten fits
+        tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [tight.measured, tight.sigma] == [False, pytest.approx(tight.prior)]
+    tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [tight.measured, tight.sigma] == [True, pytest.approx(0.5 * tight.prior)]
 
 
 def test_consistent_fits_below_the_floor_do_not_lower_the_usual_hit_share() -> None:

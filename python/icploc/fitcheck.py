@@ -66,7 +66,12 @@ class MapQuality:
     follow it, and a wrong fit hitting as little would verify (csail 5 cm, biased odometry:
     a fit 24 cm off at a hit share of 0.28 was fused).
 
-    ``learn_after``: fits before the residual counts as measured (the prior until then).
+    ``learn_after``: fits before the residual counts as measured (the prior until then);
+    ``loosen_after``: fits before a median above the prior counts already. A map whose fits
+    show more than the prior (walls from another pass) is found out within a few fits,
+    before the prior's hit distance leaves every right pose unverified and the pose is lost
+    with nothing learned (acapulco 5 cm, biased odometry: lost on its 14th scan); a residual
+    below the prior tightens every threshold and waits for ``learn_after`` fits.
     """
 
     def __init__(
@@ -76,6 +81,7 @@ class MapQuality:
         sigma_cap: float = 0.0,
         hit_floor: float = 0.0,
         learn_after: int = 10,
+        loosen_after: int = 3,
     ) -> None:
         if not (resolution > 0 and math.isfinite(resolution)):
             raise ValueError(f"MapQuality: resolution must be positive, got {resolution!r}")
@@ -83,8 +89,10 @@ class MapQuality:
             raise ValueError(f"MapQuality: sigma_cap must be >= 0, got {sigma_cap!r}")
         if not 0.0 <= hit_floor <= 1.0:
             raise ValueError(f"MapQuality: hit_floor must be in [0, 1], got {hit_floor!r}")
-        if learn_after < 1:
-            raise ValueError(f"MapQuality: learn_after must be >= 1, got {learn_after!r}")
+        if not 1 <= loosen_after <= learn_after:
+            raise ValueError(
+                f"MapQuality: need 1 <= loosen_after <= learn_after, got {loosen_after!r}, {learn_after!r}"
+            )
         self.resolution = float(resolution)
         #: a prior for the per-beam residual: a cell's quantisation (res / sqrt 12) and a
         #: scanner's centimetre, together
@@ -93,6 +101,8 @@ class MapQuality:
         self.sigma_max = max(2.0 * self.prior, float(sigma_cap))
         self.hit_floor = float(hit_floor)
         self.learn_after = int(learn_after)
+        self.loosen_after = int(loosen_after)
+        self._measured = False
         self._rms: deque[float] = deque(maxlen=window)
         self._hit: deque[float] = deque(maxlen=window)
         self._see: deque[float] = deque(maxlen=window)
@@ -132,18 +142,18 @@ class MapQuality:
             self._refresh()
 
     def _refresh(self) -> None:
-        if len(self._rms) >= self.learn_after:
-            m = median(self._rms)
-            self._sigma = min(max(m, 0.5 * self.prior), self.sigma_max)
-        else:
-            self._sigma = self.prior
+        n = len(self._rms)
+        m = median(self._rms) if n >= self.loosen_after else self.prior
+        self._measured = n >= self.learn_after or (n >= self.loosen_after and m > self.prior)
+        self._sigma = min(max(m, 0.5 * self.prior), self.sigma_max) if self._measured else self.prior
         self._hit_ref = median(self._hit) if len(self._hit) >= 5 else 1.0
         self._see_ref = median(self._see) if len(self._see) >= 5 else 0.0
         self._vhit_ref = median(self._vhit) if len(self._vhit) >= 5 else 1.0
 
     @property
     def measured(self) -> bool:
-        return len(self._rms) >= self.learn_after
+        """The residual is the fits' (see ``learn_after``, ``loosen_after``), not the prior."""
+        return self._measured
 
     @property
     def sigma(self) -> float:
