@@ -11,7 +11,12 @@ from icploc.fitcheck import FitCheck, MapQuality
 from icploc.localizer import Localizer
 from sampled_walls import walls_index
 
-BOX = [(-3.0, -2.0, 3.0, -2.0), (3.0, -2.0, 3.0, 2.0), (3.0, 2.0, -3.0, 2.0), (-3.0, 2.0, -3.0, -2.0)]
+BOX = [
+    (-3.0, -2.0, 3.0, -2.0),
+    (3.0, -2.0, 3.0, 2.0),
+    (3.0, 2.0, -3.0, 2.0),
+    (-3.0, 2.0, -3.0, -2.0),
+]
 
 
 def test_the_residual_of_consistent_fits_is_learned_beyond_twice_the_prior() -> None:
@@ -39,7 +44,9 @@ def test_the_learned_residual_stops_at_the_cap() -> None:
     assert p.sigma == pytest.approx(2.0 * p.prior)
 
 
-def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_after_learn_after() -> None:
+def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_after_learn_after() -> (
+    None
+):
     loose = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
     tight = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
     for _ in range(2):

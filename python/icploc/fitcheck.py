@@ -46,6 +46,10 @@ class FitCheck:
     beams: int  #: beams checked
 
 
+#: a median residual this many priors or more counts after ``loosen_after`` fits
+_LOOSEN_EARLY = 2.0
+
+
 class MapQuality:
     """The map's resolution and the residual its fits show (see the module docstring).
 
@@ -67,11 +71,13 @@ class MapQuality:
     a fit 24 cm off at a hit share of 0.28 was fused).
 
     ``learn_after``: fits before the residual counts as measured (the prior until then);
-    ``loosen_after``: fits before a median above the prior counts already. A map whose fits
-    show more than the prior (walls from another pass) is found out within a few fits,
-    before the prior's hit distance leaves every right pose unverified and the pose is lost
-    with nothing learned (acapulco 5 cm, biased odometry: lost on its 14th scan); a residual
-    below the prior tightens every threshold and waits for ``learn_after`` fits.
+    ``loosen_after``: fits before a median above twice the prior (the old cap) counts
+    already. A map whose fits show that much more than the prior (walls from another pass)
+    is found out within a few fits, before the prior's hit distance leaves every right pose
+    unverified and the pose is lost with nothing learned (acapulco 5 cm, biased odometry:
+    lost on its 14th scan); a residual nearer the prior, or below it, waits for
+    ``learn_after`` fits (aces 10 cm: a median 1.2-1.5 x the prior taken after 3 fits
+    widened the ICP's correspondences early and a fit 41 cm off followed).
     """
 
     def __init__(
@@ -144,8 +150,12 @@ class MapQuality:
     def _refresh(self) -> None:
         n = len(self._rms)
         m = median(self._rms) if n >= self.loosen_after else self.prior
-        self._measured = n >= self.learn_after or (n >= self.loosen_after and m > self.prior)
-        self._sigma = min(max(m, 0.5 * self.prior), self.sigma_max) if self._measured else self.prior
+        # early only when the prior is clearly too tight (beyond the old cap of twice it)
+        early = n >= self.loosen_after and m > _LOOSEN_EARLY * self.prior
+        self._measured = n >= self.learn_after or early
+        self._sigma = (
+            min(max(m, 0.5 * self.prior), self.sigma_max) if self._measured else self.prior
+        )
         self._hit_ref = median(self._hit) if len(self._hit) >= 5 else 1.0
         self._see_ref = median(self._see) if len(self._see) >= 5 else 0.0
         self._vhit_ref = median(self._vhit) if len(self._vhit) >= 5 else 1.0
