@@ -97,3 +97,14 @@ def test_before_the_usual_hit_share_is_measured_only_the_floor_holds() -> None:
         loc.quality.observe(FitCheck(1.0, 0.0, tight, 300))
     assert loc.quality.hit_measured
     assert not loc._verified(FitCheck(hit, 0.0, tight, 300))
+
+
+def test_a_residual_within_twice_the_prior_waits_for_learn_after_fits() -> None:
+    # a 10 cm grid whose fits show 1.5 x the prior: no early loosening of every threshold
+    q = MapQuality(0.10, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    rms = 1.5 * q.prior
+    for _ in range(9):
+        q.observe(FitCheck(0.9, 0.0, rms, 300))
+    assert [q.measured, q.sigma] == [False, pytest.approx(q.prior)]
+    q.observe(FitCheck(0.9, 0.0, rms, 300))
+    assert [q.measured, q.sigma] == [True, pytest.approx(rms)]
