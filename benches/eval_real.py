@@ -538,7 +538,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--merge-only", action="store_true", help="run nothing: write the --merge rows as one table")
     ap.add_argument("--keep-work", action="store_true", help="keep the per-run work folder (peer inputs, logs)")
     ap.add_argument("--merge", nargs="+", default=[], metavar="JSON",
-                    help="include the rows of earlier real.json files (this run's rows win for the same log, map, base, method)")  # fmt: skip
+                    help="include the rows of earlier real.json files (this run's rows win for the same log, map, base, method; "
+                         "then the later file's)")  # fmt: skip
     args = ap.parse_args(argv)
     bad = [m for m in args.methods if m not in METHODS]
     if bad:
@@ -581,11 +582,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge:
         # rows of earlier runs, replaced by this run's rows for the same cell and method
         key = lambda r: (r.get("log"), r.get("map_res_m"), r.get("base"), r.get("method"))  # noqa: E731
+        # (and a later --merge file's rows replace an earlier one's: with --merge-only,
+        # ``--merge results.json new.json`` puts new.json's cells into the table)
         mine = {key(r) for r in rows}
         old: list[dict] = []
-        for f in args.merge:
+        for f in reversed(args.merge):
             got = json.loads(Path(f).read_text())
             old.extend(r for r in got["rows"] if key(r) not in mine)
+            mine |= {key(r) for r in got["rows"]}
             commands[:0] = [got["meta"]["command"]]
             wall += float(got["meta"].get("wall_s", 0.0))
         order = {m: i for i, m in enumerate(METHODS)}

@@ -60,14 +60,18 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
         sub = rl.read_flaser(log_path)
         loc = np.searchsorted(stamps, sub.stamps - 1e-4)
         ref = log.poses[loc]
-        out = replay(log_path, map_path, config=config, initial_pose=tuple(float(v) for v in ref[0]))
+        quality = _record_quality()
+        try:
+            out = replay(log_path, map_path, config=config, initial_pose=tuple(float(v) for v in ref[0]))
+        finally:
+            quality.stop()
         for k, e in enumerate(out.estimates):
             r = ref[k]
             err = np.array([e.pose[0] - r[0], e.pose[1] - r[1], wrap_angle(e.pose[2] - r[2])])
             row: dict[str, Any] = {
                 "fold": f, "k": k, "err": float(math.hypot(err[0], err[1])), "err_th": float(err[2]),
                 "status": e.status.value, "reason": str(e.reason), "accepted": bool(e.accepted),
-                "nis": float(e.nis), "hit": float(e.hit_ratio), "inlier_ratio": float(e.inlier_ratio),
+                "nis": float(e.nis), "hit": float(e.hit_ratio), "residual": float(e.residual), "inlier_ratio": float(e.inlier_ratio),
                 "degeneracy": float(e.degeneracy), "nees": _nees(err, e.covariance),
             }  # fmt: skip
             p = e.prediction
@@ -88,8 +92,35 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
                 row["meas_sig_th"] = float(math.sqrt(max(R[2, 2], 0.0)))
                 row["meas_nees_xy"] = _nees(ze[:2], R[:2, :2])
                 row["meas_nees_th"] = float(ze[2] ** 2 / R[2, 2]) if R[2, 2] > 0 else math.inf
+            if k < len(quality.seen):
+                # the map quality after the scan (what the next scan is checked against)
+                row["sigma"], row["hit_ref"], row["hit_measured"] = quality.seen[k]
             rows.append(row)
     return rows
+
+
+class _record_quality:
+    """Records ``Localizer.quality`` (sigma, usual hit share, measured) after each update
+    while active (the replay builds its own Localizer)."""
+
+    def __init__(self) -> None:
+        from icploc.localizer import Localizer
+
+        self.seen: list[tuple[float, float, bool]] = []
+        self._cls = Localizer
+        self._orig = Localizer.update
+        orig, seen = self._orig, self.seen
+
+        def update(loc: Any, *a: Any, **kw: Any) -> Any:
+            out = orig(loc, *a, **kw)
+            q = loc.quality
+            seen.append((float(q.sigma), float(q.hit_reference), bool(q.hit_measured)))
+            return out
+
+        Localizer.update = update  # type: ignore[method-assign]
+
+    def stop(self) -> None:
+        self._cls.update = self._orig  # type: ignore[method-assign]
 
 
 def describe(rows: list[dict], label: str) -> str:

@@ -2,7 +2,8 @@
 
 :class:`MapQuality` holds what the localizer's thresholds follow from: the map's resolution
 (a grid's cell size; for other maps the spacing of its samples) and the residual its scan
-fits really show (a running median over the verified fits). :attr:`MapQuality.sigma` is the
+fits really show (a running median of the ICP's RMS over the verified fits and those the
+odometry agrees with, see :class:`MapQuality`). :attr:`MapQuality.sigma` is the
 per-beam residual to expect; the ICP's correspondence distance and robust scale, the scan
 covariance's noise floor and the verification's hit distance are all multiples of it.
 
@@ -45,67 +46,130 @@ class FitCheck:
     beams: int  #: beams checked
 
 
-class MapQuality:
-    """The map's resolution and the residual its fits show (see the module docstring)."""
+#: a median residual this many priors or more counts after ``loosen_after`` fits
+_LOOSEN_EARLY = 2.0
 
-    def __init__(self, resolution: float, window: int = 51) -> None:
+
+class MapQuality:
+    """The map's resolution and the residual its fits show (see the module docstring).
+
+    What it learns from (the localizer feeds it):
+
+    * :meth:`observe`: a verified fit; its residual, hit share and see-through share;
+    * :meth:`observe_consistent`: a fit the odometry agrees with (chi-square accepted) that
+      verification turned down; its residual always, its hit share only when at least
+      ``hit_floor`` of the beams end on walls (the verification's absolute floor).
+
+    The residual of consistent fits counts because on a grid from another, sparse pass
+    the scan's walls sit 4-6 cm from the map's and the right pose's fits do not verify
+    while the expected residual is the prior's: learning it from verified fits alone (whose
+    beams are within the hit distance already) never finds out. It is capped at
+    ``max(2 x prior, sigma_cap)`` (the localizer passes half the ICP's final correspondence
+    distance floor). The hit share of consistent fits below the floor does not count: right
+    fits that half verify would teach the usual share downwards, the relative bar would
+    follow it, and a wrong fit hitting as little would verify (csail 5 cm, biased odometry:
+    a fit 24 cm off at a hit share of 0.28 was fused).
+
+    ``learn_after``: fits before the residual counts as measured (the prior until then);
+    ``loosen_after``: fits before a median above twice the prior (the old cap) counts
+    already. A map whose fits show that much more than the prior (walls from another pass)
+    is found out within a few fits, before the prior's hit distance leaves every right pose
+    unverified and the pose is lost with nothing learned (acapulco 5 cm, biased odometry:
+    lost on its 14th scan); a residual nearer the prior, or below it, waits for
+    ``learn_after`` fits (aces 10 cm: a median 1.2-1.5 x the prior taken after 3 fits
+    widened the ICP's correspondences early and a fit 41 cm off followed).
+    """
+
+    def __init__(
+        self,
+        resolution: float,
+        window: int = 51,
+        sigma_cap: float = 0.0,
+        hit_floor: float = 0.0,
+        learn_after: int = 10,
+        loosen_after: int = 3,
+    ) -> None:
         if not (resolution > 0 and math.isfinite(resolution)):
             raise ValueError(f"MapQuality: resolution must be positive, got {resolution!r}")
+        if not (sigma_cap >= 0 and math.isfinite(sigma_cap)):
+            raise ValueError(f"MapQuality: sigma_cap must be >= 0, got {sigma_cap!r}")
+        if not 0.0 <= hit_floor <= 1.0:
+            raise ValueError(f"MapQuality: hit_floor must be in [0, 1], got {hit_floor!r}")
+        if not 1 <= loosen_after <= learn_after:
+            raise ValueError(
+                f"MapQuality: need 1 <= loosen_after <= learn_after, got {loosen_after!r}, {learn_after!r}"
+            )
         self.resolution = float(resolution)
         #: a prior for the per-beam residual: a cell's quantisation (res / sqrt 12) and a
         #: scanner's centimetre, together
         self.prior = math.hypot(self.resolution / math.sqrt(12.0), 0.01)
+        #: the learned residual's ceiling
+        self.sigma_max = max(2.0 * self.prior, float(sigma_cap))
+        self.hit_floor = float(hit_floor)
+        self.learn_after = int(learn_after)
+        self.loosen_after = int(loosen_after)
+        self._measured = False
         self._rms: deque[float] = deque(maxlen=window)
         self._hit: deque[float] = deque(maxlen=window)
         self._see: deque[float] = deque(maxlen=window)
+        self._vhit: deque[float] = deque(maxlen=window)
         self._n = 0
         self._sigma = self.prior
         self._hit_ref = 1.0
+        self._vhit_ref = 1.0
         self._see_ref = 0.0
 
-    def observe(self, check: FitCheck) -> None:
-        """Learn from a verified fit."""
-        if math.isfinite(check.rms):
-            self._rms.append(check.rms)
-        self._observe_hit(check.hit)
+    def observe(self, check: FitCheck, rms: float | None = None) -> None:
+        """Learn from a verified fit; ``rms``: the ICP's own residual (else ``check.rms``)."""
+        self._observe_rms(check.rms if rms is None else rms)
+        self._hit.append(check.hit)
+        self._vhit.append(check.hit)
         self._see.append(check.see_through)
-        self._n += 1
-        if self._n % 5 == 0 or len(self._rms) < 10:  # medians refreshed every 5 fits
-            self._refresh()
+        self._count()
 
-    def observe_consistent(self, check: FitCheck) -> None:
-        """Learn the usual hit share from a fit the odometry agrees with (chi-square
-        accepted) that verification turned down. Learning it from verified fits alone
-        ratchets: only shares above the threshold are ever seen, so one well-mapped start
-        (a reference near 1) would keep every later fit unverified. The residual is
-        learned from verified fits only: it loosens the verification (a looser residual
-        let a wrong place 2 m off verify on a 10 cm grid)."""
-        self._observe_hit(check.hit)
-        self._n += 1
-        if self._n % 5 == 0 or len(self._rms) < 10:
-            self._refresh()
+    def observe_consistent(self, check: FitCheck, rms: float | None = None) -> None:
+        """Learn from a fit the odometry agrees with (chi-square accepted) that verification
+        turned down: its residual (``rms``, the ICP's own, else ``check.rms``), and its hit
+        share when it is at least ``hit_floor``. Learning the share from verified fits
+        alone ratchets: only shares above the threshold are ever seen, so one well-mapped
+        start (a reference near 1) would keep every later fit unverified."""
+        self._observe_rms(check.rms if rms is None else rms)
+        if check.hit >= self.hit_floor:
+            self._hit.append(check.hit)
+        self._count()
 
-    def _observe_hit(self, hit: float) -> None:
-        self._hit.append(hit)
+    def _observe_rms(self, rms: float) -> None:
+        if math.isfinite(rms):
+            self._rms.append(rms)
+
+    def _count(self) -> None:
+        self._n += 1
+        if self._n % 5 == 0 or len(self._rms) < self.learn_after:  # medians every 5 fits
+            self._refresh()
 
     def _refresh(self) -> None:
-        if len(self._rms) >= 10:
-            m = median(self._rms)
-            self._sigma = min(max(m, 0.5 * self.prior), 2.0 * self.prior)
-        else:
-            self._sigma = self.prior
+        n = len(self._rms)
+        m = median(self._rms) if n >= self.loosen_after else self.prior
+        # early only when the prior is clearly too tight (beyond the old cap of twice it)
+        early = n >= self.loosen_after and m > _LOOSEN_EARLY * self.prior
+        self._measured = n >= self.learn_after or early
+        self._sigma = (
+            min(max(m, 0.5 * self.prior), self.sigma_max) if self._measured else self.prior
+        )
         self._hit_ref = median(self._hit) if len(self._hit) >= 5 else 1.0
         self._see_ref = median(self._see) if len(self._see) >= 5 else 0.0
+        self._vhit_ref = median(self._vhit) if len(self._vhit) >= 5 else 1.0
 
     @property
     def measured(self) -> bool:
-        return len(self._rms) >= 10
+        """The residual is the fits' (see ``learn_after``, ``loosen_after``), not the prior."""
+        return self._measured
 
     @property
     def sigma(self) -> float:
-        """The per-beam residual to expect (m): measured once there are enough verified
-        fits (their median), never below half the prior nor above twice it (one bad
-        stretch must not loosen every threshold)."""
+        """The per-beam residual to expect (m): measured once there are enough fits (their
+        median), never below half the prior nor above :attr:`sigma_max` (one bad stretch
+        must not loosen every threshold)."""
         return self._sigma
 
     @property
@@ -117,6 +181,13 @@ class MapQuality:
     def hit_reference(self) -> float:
         """The typical hit share of verified fits here (1 before any)."""
         return self._hit_ref
+
+    @property
+    def verified_hit_reference(self) -> float:
+        """The typical hit share of verified fits alone (1 before five): what "far fewer
+        beams than usual" is read against (consistent fits that did not verify do not
+        lower it)."""
+        return self._vhit_ref
 
     @property
     def see_through_reference(self) -> float:

@@ -316,7 +316,14 @@ class Localizer:
                 recovery = LocalRecovery.from_config(self.config)
         #: the strategy used while lost (see :mod:`icploc.recovery`)
         self.recovery: Recovery = recovery
-        self.quality = MapQuality(_map_resolution(map, self.index, self.config.map.resolution))
+        # the residual may be learned up to half the ICP's final correspondence distance
+        # floor (a 5 cm grid from another pass: walls 4-6 cm from the scan's); the usual hit
+        # share only from fits with at least the verification's floor of beams on walls
+        self.quality = MapQuality(
+            _map_resolution(map, self.index, self.config.map.resolution),
+            sigma_cap=0.5 * self.config.icp.min_correspondence_distance,
+            hit_floor=lc.verify_min_hit_ratio,
+        )
         self.checker = FitChecker(self.index, self.quality, see_through=lc.verify_see_through)
         #: independent beams of a scan: the beams on one wall share its error (its shape,
         #: another pass's wall, the grid's quantisation), whatever the map's resolution
@@ -723,10 +730,13 @@ class Localizer:
         """The pose's evidence is as good as this map's verified fits usually are. For a
         recovery's lock (``lock``) on a map whose usual hit share is not measured yet (lost
         before five fits were seen) the share is held to the absolute floor only: the
-        assumed share of 1 would refuse every lock on a map from another pass."""
+        assumed share of 1 would refuse every lock on a map from another pass. The same holds
+        for tracking: the relative bar applies once the share is measured (``lock`` is
+        kept for the callers; before, the first fits on a map from another pass were held
+        to 0.8 x an assumed 1 and none verified)."""
         lc = self.config.localizer
         q = self.quality
-        relative = not lock or q.hit_measured
+        relative = q.hit_measured
         return (
             check.beams >= self.config.scan.min_points // 2
             and check.hit >= lc.verify_min_hit_ratio
@@ -738,6 +748,16 @@ class Localizer:
                 <= q.see_through_reference + lc.verify_max_see_through
             )
         )
+
+    def _contradiction_bar(self) -> float:
+        """The hit share under which an accepted fit must show more (beats the prediction,
+        or fits tightly) to be kept: ``lost_hit_fraction`` x the usual share of verified
+        fits (:attr:`MapQuality.verified_hit_reference`). Not the share the verification's
+        bar follows, which consistent fits that did not verify teach too (else it
+        ratchets): right fits half hitting in a place the map covers poorly would lower
+        this bar with it, and a wrong fit hitting less still would be fused (csail 5 cm,
+        biased odometry: a fit 24 cm off at a hit share of 0.28)."""
+        return self.config.localizer.lost_hit_fraction * self.quality.verified_hit_reference
 
     def _slid(self, res: Any, pred: Pose, z: Pose) -> bool:
         """The fit is weakly constrained along one direction (translational degeneracy
@@ -927,7 +947,7 @@ class Localizer:
                 if accepted and R is not None:
                     pose, cov = fuse(pred, pred_cov, z, R)
         check = self._check(pts, pose, z, res)
-        if accepted and check.hit < lc.lost_hit_fraction * self.quality.hit_reference:
+        if accepted and check.hit < self._contradiction_bar():
             # the fused pose explains far less of the scan than poses here usually do: a
             # place the map barely covers, or a fit that found something else (a local
             # minimum, a crowd). Keep the correction only if it explains more of the scan
@@ -1049,17 +1069,21 @@ class Localizer:
         if back is None:
             if learn is not None:
                 self._learn_noise(*learn)
+            # the residual learned is the ICP's own (at the fit, over its inliers)
+            fit_rms = _fit_rms(res)
             if verified:
-                self.quality.observe(check)
+                self.quality.observe(check, fit_rms)
                 if z is not None and R is not None and odom is not None:
                     self._calibrate(odom, z, R)
-            elif (
-                accepted
-                and observed in (Reason.NONE, Reason.UNVERIFIED)
-                and check.hit >= lc.verify_min_hit_ratio
-            ):
-                self.quality.observe_consistent(check)
-                if lc.calibrate_from_consistent and z is not None and R is not None and odom is not None:
+            elif accepted and observed in (Reason.NONE, Reason.UNVERIFIED):
+                self.quality.observe_consistent(check, fit_rms)
+                if (
+                    lc.calibrate_from_consistent
+                    and check.hit >= lc.verify_min_hit_ratio
+                    and z is not None
+                    and R is not None
+                    and odom is not None
+                ):
                     self._calibrate(odom, z, R)
         if accepted and reason == Reason.ODOMETRY_OFF:
             # the latest prediction a fit overruled is the rival (an older one disputed a
@@ -1689,6 +1713,14 @@ def _growth_to_consistent(
         else:
             hi = mid
     return math.exp(hi)
+
+
+def _fit_rms(res: Any) -> float | None:
+    """The ICP's own RMS residual over its inliers, or None (no fit, no inliers)."""
+    if res is None or not int(res.inliers):
+        return None
+    mse = float(res.mse)
+    return math.sqrt(mse) if math.isfinite(mse) and mse >= 0 else None
 
 
 def _largest_position_variance(cov: NDArray[np.float64]) -> float:

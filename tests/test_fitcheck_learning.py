@@ -1,0 +1,110 @@
+"""What the map's quality (icploc.fitcheck.MapQuality) learns from: the residual from the
+ICP's RMS of verified and chi-square-consistent fits, up to a cap beyond twice the prior; the
+usual hit share from consistent fits only at or above the verification's floor; and how the
+localizer wires it (the relative hit bar only once the share is measured)."""
+
+from __future__ import annotations
+
+import pytest
+from icploc.config import LocalizerConfig
+from icploc.fitcheck import FitCheck, MapQuality
+from icploc.localizer import Localizer
+from sampled_walls import walls_index
+
+BOX = [
+    (-3.0, -2.0, 3.0, -2.0),
+    (3.0, -2.0, 3.0, 2.0),
+    (3.0, 2.0, -3.0, 2.0),
+    (-3.0, 2.0, -3.0, -2.0),
+]
+
+
+def test_the_residual_of_consistent_fits_is_learned_beyond_twice_the_prior() -> None:
+    # a 5 cm grid from another pass: the scan's walls 4-6 cm from the map's, the right
+    # pose's fits do not verify, only the odometry agrees with them
+    q = MapQuality(0.05, sigma_cap=0.05)
+    for _ in range(12):
+        q.observe_consistent(FitCheck(0.45, 0.0, 0.02, 300), rms=0.045)  # the ICP's own RMS
+    assert q.measured
+    assert q.sigma == pytest.approx(0.045)
+    assert q.sigma > 2.0 * q.prior
+    assert q.hit_distance() == pytest.approx(3 * 0.045 + 0.025)
+
+
+def test_the_learned_residual_stops_at_the_cap() -> None:
+    q = MapQuality(0.05, sigma_cap=0.05)
+    for _ in range(12):
+        q.observe(FitCheck(0.9, 0.0, 0.02, 300), rms=0.2)
+    assert q.sigma == pytest.approx(0.05)
+    # without a cap beyond it, twice the prior bounds it (one bad stretch must not loosen
+    # every threshold)
+    p = MapQuality(0.05)
+    for _ in range(12):
+        p.observe_consistent(FitCheck(0.7, 0.0, 0.2, 300))
+    assert p.sigma == pytest.approx(2.0 * p.prior)
+
+
+def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_after_learn_after() -> (
+    None
+):
+    loose = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    tight = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    for _ in range(2):
+        loose.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
+        tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [loose.measured, loose.sigma] == [False, pytest.approx(loose.prior)]
+    loose.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))  # the third: walls elsewhere
+    assert [loose.measured, loose.sigma] == [True, pytest.approx(0.04)]
+    for _ in range(7):  # a tighter residual than the prior waits for ten fits
+        tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [tight.measured, tight.sigma] == [False, pytest.approx(tight.prior)]
+    tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
+    assert [tight.measured, tight.sigma] == [True, pytest.approx(0.5 * tight.prior)]
+
+
+def test_consistent_fits_below_the_floor_do_not_lower_the_usual_hit_share() -> None:
+    q = MapQuality(0.05, hit_floor=0.5)
+    for _ in range(10):
+        q.observe(FitCheck(0.85, 0.0, 0.02, 300))
+    for _ in range(40):  # right fits that half verify in a place the map covers poorly
+        q.observe_consistent(FitCheck(0.36, 0.0, 0.02, 300))
+    assert q.hit_reference == pytest.approx(0.85)
+    for _ in range(45):  # at the floor or above they count
+        q.observe_consistent(FitCheck(0.6, 0.0, 0.02, 300))
+    assert q.hit_reference == pytest.approx(0.6)
+    # the verified fits' own share is what "far fewer beams than usual" is read against
+    assert q.verified_hit_reference == pytest.approx(0.85)
+
+
+def test_the_localizer_learns_up_to_half_the_final_correspondence_floor_at_the_floor() -> None:
+    cfg = LocalizerConfig()
+    loc = Localizer(walls_index(BOX), cfg, initial_pose=(0.0, 0.0, 0.0))
+    q = loc.quality
+    assert q.sigma_max == pytest.approx(
+        max(2.0 * q.prior, 0.5 * cfg.icp.min_correspondence_distance)
+    )
+    assert q.hit_floor == pytest.approx(cfg.localizer.verify_min_hit_ratio)
+
+
+def test_before_the_usual_hit_share_is_measured_only_the_floor_holds() -> None:
+    loc = Localizer(walls_index(BOX), initial_pose=(0.0, 0.0, 0.0))
+    lc = loc.config.localizer
+    hit = 0.5 * (lc.verify_min_hit_ratio + lc.verify_hit_fraction)  # between floor and bar
+    tight = 0.5 * loc.quality.sigma
+    # nothing measured: an assumed share of 1 would ask for verify_hit_fraction of the beams
+    assert loc._verified(FitCheck(hit, 0.0, tight, 300))
+    for _ in range(5):
+        loc.quality.observe(FitCheck(1.0, 0.0, tight, 300))
+    assert loc.quality.hit_measured
+    assert not loc._verified(FitCheck(hit, 0.0, tight, 300))
+
+
+def test_a_residual_within_twice_the_prior_waits_for_learn_after_fits() -> None:
+    # a 10 cm grid whose fits show 1.5 x the prior: no early loosening of every threshold
+    q = MapQuality(0.10, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    rms = 1.5 * q.prior
+    for _ in range(9):
+        q.observe(FitCheck(0.9, 0.0, rms, 300))
+    assert [q.measured, q.sigma] == [False, pytest.approx(q.prior)]
+    q.observe(FitCheck(0.9, 0.0, rms, 300))
+    assert [q.measured, q.sigma] == [True, pytest.approx(rms)]
