@@ -5,6 +5,8 @@ localizer wires it (the relative hit bar only once the share is measured)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 from icploc.config import LocalizerConfig
 from icploc.fitcheck import FitCheck, MapQuality
@@ -19,10 +21,16 @@ BOX = [
 ]
 
 
+def _quality(resolution: float = 0.05, **settings: Any) -> MapQuality:
+    """The localizer's map quality, the default config with some ``localizer`` settings."""
+    return MapQuality.from_config(resolution, LocalizerConfig().replace(localizer=settings))
+
+
 def test_the_residual_of_consistent_fits_is_learned_beyond_twice_the_prior() -> None:
     # a 5 cm grid from another pass: the scan's walls 4-6 cm from the map's, the right
     # pose's fits do not verify, only the odometry agrees with them
-    q = MapQuality(0.05, sigma_cap=0.05)
+    q = _quality()
+    assert q.sigma_max == pytest.approx(0.05)  # half the final correspondence floor
     for _ in range(12):
         q.observe_consistent(FitCheck(0.45, 0.0, 0.02, 300), rms=0.045)  # the ICP's own RMS
     assert q.measured
@@ -32,13 +40,13 @@ def test_the_residual_of_consistent_fits_is_learned_beyond_twice_the_prior() -> 
 
 
 def test_the_learned_residual_stops_at_the_cap() -> None:
-    q = MapQuality(0.05, sigma_cap=0.05)
+    q = _quality()
     for _ in range(12):
         q.observe(FitCheck(0.9, 0.0, 0.02, 300), rms=0.2)
     assert q.sigma == pytest.approx(0.05)
     # without a cap beyond it, twice the prior bounds it (one bad stretch must not loosen
     # every threshold)
-    p = MapQuality(0.05)
+    p = _quality(quality_sigma_cap=0.1)
     for _ in range(12):
         p.observe_consistent(FitCheck(0.7, 0.0, 0.2, 300))
     assert p.sigma == pytest.approx(2.0 * p.prior)
@@ -47,8 +55,8 @@ def test_the_learned_residual_stops_at_the_cap() -> None:
 def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_after_learn_after() -> (
     None
 ):
-    loose = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
-    tight = MapQuality(0.05, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    loose = _quality(quality_learn_after=10, quality_loosen_after=3)
+    tight = _quality(quality_learn_after=10, quality_loosen_after=3)
     for _ in range(2):
         loose.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
         tight.observe(FitCheck(0.95, 0.0, 0.001, 300))
@@ -63,7 +71,7 @@ def test_a_residual_above_the_prior_counts_after_loosen_after_fits_one_below_aft
 
 
 def test_consistent_fits_below_the_floor_do_not_lower_the_usual_hit_share() -> None:
-    q = MapQuality(0.05, hit_floor=0.5)
+    q = _quality(verify_min_hit_ratio=0.5)
     for _ in range(10):
         q.observe(FitCheck(0.85, 0.0, 0.02, 300))
     for _ in range(40):  # right fits that half verify in a place the map covers poorly
@@ -101,10 +109,41 @@ def test_before_the_usual_hit_share_is_measured_only_the_floor_holds() -> None:
 
 def test_a_residual_within_twice_the_prior_waits_for_learn_after_fits() -> None:
     # a 10 cm grid whose fits show 1.5 x the prior: no early loosening of every threshold
-    q = MapQuality(0.10, sigma_cap=0.05, learn_after=10, loosen_after=3)
+    q = _quality(0.10, quality_learn_after=10, quality_loosen_after=3)
     rms = 1.5 * q.prior
     for _ in range(9):
         q.observe(FitCheck(0.9, 0.0, rms, 300))
     assert [q.measured, q.sigma] == [False, pytest.approx(q.prior)]
     q.observe(FitCheck(0.9, 0.0, rms, 300))
     assert [q.measured, q.sigma] == [True, pytest.approx(rms)]
+
+
+def test_a_measured_residual_stays_measured_when_tighter_fits_follow() -> None:
+    # walls from another pass found out after three fits; tighter fits after them lower the
+    # median but must not send the expected residual back to the prior (the right poses
+    # would stop verifying again)
+    q = _quality(quality_learn_after=10, quality_loosen_after=3)
+    for _ in range(3):
+        q.observe_consistent(FitCheck(0.45, 0.0, 0.04, 300))
+    assert q.measured
+    for _ in range(3):
+        q.observe(FitCheck(0.9, 0.0, 0.005, 300))
+    assert q.measured
+    assert q.sigma == pytest.approx(0.5 * (0.04 + 0.005))  # the median of the six
+
+
+def test_consistent_fits_that_explain_little_of_the_scan_teach_no_residual() -> None:
+    # a wrong place the odometry happens to agree with: a tenth of the beams on walls and a
+    # loose residual; it must not loosen every later verification
+    q = _quality()
+    for _ in range(12):
+        q.observe_consistent(FitCheck(0.1, 0.0, 0.048, 300), rms=0.048)
+    assert (q.measured, q.sigma) == (False, pytest.approx(q.prior))
+    for _ in range(12):  # at the residual's floor of beams on walls they count
+        q.observe_consistent(FitCheck(q.rms_min_hit, 0.0, 0.048, 300), rms=0.048)
+    assert q.sigma == pytest.approx(0.048)
+
+
+def test_the_quality_settings_are_checked() -> None:
+    with pytest.raises(ValueError, match="learn_after <= window"):
+        _quality(quality_window=5, quality_learn_after=10)

@@ -12,7 +12,7 @@ from icploc.status import Reason, Status
 
 
 def test_hit_reference_follows_consistent_fits_not_only_verified_ones() -> None:
-    q = MapQuality(0.05)
+    q = MapQuality.from_config(0.05)
     for _ in range(5):
         q.observe(FitCheck(1.0, 0.0, 0.02, 300))  # a well-mapped start
     assert q.hit_reference == pytest.approx(1.0)
@@ -24,10 +24,12 @@ def test_hit_reference_follows_consistent_fits_not_only_verified_ones() -> None:
 
 
 def test_unverified_fits_loosen_the_residual_at_most_to_its_cap() -> None:
-    q = MapQuality(0.05)
+    q = MapQuality.from_config(0.05)
     for _ in range(40):
         q.observe_consistent(FitCheck(0.7, 0.0, 0.06, 300))  # beyond twice the prior
-    assert q.sigma == pytest.approx(2.0 * q.prior)
+    # the default cap: half the ICP's final correspondence floor (5 cm), above 2 x prior
+    assert (q.sigma, q.sigma_max) == (pytest.approx(0.05), pytest.approx(0.05))
+    assert q.sigma_max > 2.0 * q.prior
 
 
 def test_calibration_reads_the_drift_from_turning_pairs() -> None:

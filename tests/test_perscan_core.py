@@ -88,7 +88,7 @@ def test_fit_score_with_no_hit_and_through_the_checker() -> None:
     hit, rms, beams = _core.fit_score(index, pts, (50.0, 50.0, 0.0), 120, 0.1)
     assert (hit, beams) == (0.0, 120)
     assert rms == math.inf
-    q = MapQuality(0.05)
+    q = MapQuality.from_config(0.05)
     chk = FitChecker(index, q).check(pts, (3.0, 6.0, 0.3))
     assert (chk.hit, chk.rms, chk.beams) == _reference_check(index, pts, (3.0, 6.0, 0.3), 120, q.hit_distance())
     assert chk.hit == 1.0 and chk.see_through == 0.0

@@ -441,6 +441,42 @@ class LocalizerSection(Section):
     verify_hit_fraction: float = _f(
         0.8, "... and at least this fraction of the share this map's verified fits show", ge=0, le=1
     )
+    quality_window: int = _f(
+        51,
+        "the map's learned residual and usual hit share are medians over this many recent fits",
+        "fits",
+        gt=0,
+    )
+    quality_learn_after: int = _f(
+        10,
+        "the residual counts as measured (the expected residual becomes the fits' median, "
+        "not the map resolution's prior) after this many fits ...",
+        "fits",
+        gt=0,
+    )
+    quality_loosen_after: int = _f(
+        3,
+        "... and already after this many when their median is above twice the prior (walls "
+        "from another pass: acapulco 5 cm was lost on its 14th scan with the prior's hit "
+        "distance; a median nearer the prior taken this early widened aces 10 cm's fits)",
+        "fits",
+        gt=0,
+    )
+    quality_sigma_cap: float = _f(
+        0.5,
+        "the learned residual may grow up to this fraction of icp.min_correspondence_distance "
+        "(at least twice the prior)",
+        gt=0,
+        le=1,
+    )
+    quality_rms_min_hit: float = _f(
+        0.5,
+        "a fit the odometry agrees with that did not verify teaches the residual only when "
+        "at least this fraction of verify_min_hit_ratio of its beams end on walls (a looser "
+        "residual learned from a wrong place loosens every later verification)",
+        ge=0,
+        le=1,
+    )
     verify_max_residual: float = _f(
         2.0,
         "... their RMS residual at most this many expected residuals",

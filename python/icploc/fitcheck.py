@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +33,9 @@ from numpy.typing import NDArray
 from icploc import _core
 from icploc.median import median
 from icploc.se2 import Pose
+
+if TYPE_CHECKING:
+    from icploc.config import LocalizerConfig
 
 __all__ = ["FitCheck", "FitChecker", "MapQuality"]
 
@@ -57,8 +61,9 @@ class MapQuality:
 
     * :meth:`observe`: a verified fit; its residual, hit share and see-through share;
     * :meth:`observe_consistent`: a fit the odometry agrees with (chi-square accepted) that
-      verification turned down; its residual always, its hit share only when at least
-      ``hit_floor`` of the beams end on walls (the verification's absolute floor).
+      verification turned down; its residual when at least ``rms_min_hit`` of the beams end
+      on walls (a wrong place's fits must not loosen the verification), its hit share only
+      when at least ``hit_floor`` do (the verification's absolute floor).
 
     The residual of consistent fits counts because on a grid from another, sparse pass
     the scan's walls sit 4-6 cm from the map's and the right pose's fits do not verify
@@ -83,11 +88,13 @@ class MapQuality:
     def __init__(
         self,
         resolution: float,
-        window: int = 51,
-        sigma_cap: float = 0.0,
-        hit_floor: float = 0.0,
-        learn_after: int = 10,
-        loosen_after: int = 3,
+        *,
+        window: int,
+        sigma_cap: float,
+        hit_floor: float,
+        rms_min_hit: float,
+        learn_after: int,
+        loosen_after: int,
     ) -> None:
         if not (resolution > 0 and math.isfinite(resolution)):
             raise ValueError(f"MapQuality: resolution must be positive, got {resolution!r}")
@@ -95,9 +102,12 @@ class MapQuality:
             raise ValueError(f"MapQuality: sigma_cap must be >= 0, got {sigma_cap!r}")
         if not 0.0 <= hit_floor <= 1.0:
             raise ValueError(f"MapQuality: hit_floor must be in [0, 1], got {hit_floor!r}")
-        if not 1 <= loosen_after <= learn_after:
+        if not 0.0 <= rms_min_hit <= 1.0:
+            raise ValueError(f"MapQuality: rms_min_hit must be in [0, 1], got {rms_min_hit!r}")
+        if not 1 <= loosen_after <= learn_after <= window:
             raise ValueError(
-                f"MapQuality: need 1 <= loosen_after <= learn_after, got {loosen_after!r}, {learn_after!r}"
+                "MapQuality: need 1 <= loosen_after <= learn_after <= window, got "
+                f"{loosen_after!r}, {learn_after!r}, {window!r}"
             )
         self.resolution = float(resolution)
         #: a prior for the per-beam residual: a cell's quantisation (res / sqrt 12) and a
@@ -106,6 +116,7 @@ class MapQuality:
         #: the learned residual's ceiling
         self.sigma_max = max(2.0 * self.prior, float(sigma_cap))
         self.hit_floor = float(hit_floor)
+        self.rms_min_hit = float(rms_min_hit)
         self.learn_after = int(learn_after)
         self.loosen_after = int(loosen_after)
         self._measured = False
@@ -119,6 +130,27 @@ class MapQuality:
         self._vhit_ref = 1.0
         self._see_ref = 0.0
 
+    @classmethod
+    def from_config(cls, resolution: float, config: LocalizerConfig | None = None) -> MapQuality:
+        """The map quality the localizer learns with ``config`` (default: the default
+        config): its ``localizer.quality_*`` settings; the residual's ceiling a fraction of
+        ``icp.min_correspondence_distance``, the hit share's floor ``verify_min_hit_ratio``
+        and the residual's one a fraction of it."""
+        if config is None:
+            from icploc.config import LocalizerConfig
+
+            config = LocalizerConfig()
+        lc = config.localizer
+        return cls(
+            resolution,
+            window=lc.quality_window,
+            sigma_cap=lc.quality_sigma_cap * config.icp.min_correspondence_distance,
+            hit_floor=lc.verify_min_hit_ratio,
+            rms_min_hit=lc.quality_rms_min_hit * lc.verify_min_hit_ratio,
+            learn_after=lc.quality_learn_after,
+            loosen_after=lc.quality_loosen_after,
+        )
+
     def observe(self, check: FitCheck, rms: float | None = None) -> None:
         """Learn from a verified fit; ``rms``: the ICP's own residual (else ``check.rms``)."""
         self._observe_rms(check.rms if rms is None else rms)
@@ -129,11 +161,12 @@ class MapQuality:
 
     def observe_consistent(self, check: FitCheck, rms: float | None = None) -> None:
         """Learn from a fit the odometry agrees with (chi-square accepted) that verification
-        turned down: its residual (``rms``, the ICP's own, else ``check.rms``), and its hit
-        share when it is at least ``hit_floor``. Learning the share from verified fits
+        turned down: its residual (``rms``, the ICP's own, else ``check.rms``) when its hit
+        share is at least ``rms_min_hit``, and its hit share when it is at least ``hit_floor``. Learning the share from verified fits
         alone ratchets: only shares above the threshold are ever seen, so one well-mapped
         start (a reference near 1) would keep every later fit unverified."""
-        self._observe_rms(check.rms if rms is None else rms)
+        if check.hit >= self.rms_min_hit:
+            self._observe_rms(check.rms if rms is None else rms)
         if check.hit >= self.hit_floor:
             self._hit.append(check.hit)
         self._count()
@@ -152,7 +185,9 @@ class MapQuality:
         m = median(self._rms) if n >= self.loosen_after else self.prior
         # early only when the prior is clearly too tight (beyond the old cap of twice it)
         early = n >= self.loosen_after and m > _LOOSEN_EARLY * self.prior
-        self._measured = n >= self.learn_after or early
+        # once measured it stays so (later tighter fits lower the median, not the state: a
+        # flip back to the prior would unverify the right poses again)
+        self._measured = self._measured or n >= self.learn_after or early
         self._sigma = (
             min(max(m, 0.5 * self.prior), self.sigma_max) if self._measured else self.prior
         )
@@ -179,7 +214,8 @@ class MapQuality:
 
     @property
     def hit_reference(self) -> float:
-        """The typical hit share of verified fits here (1 before any)."""
+        """The typical hit share of the fits learned from (verified ones, and consistent
+        ones with at least ``hit_floor`` of their beams on walls); 1 before five."""
         return self._hit_ref
 
     @property

@@ -319,10 +319,8 @@ class Localizer:
         # the residual may be learned up to half the ICP's final correspondence distance
         # floor (a 5 cm grid from another pass: walls 4-6 cm from the scan's); the usual hit
         # share only from fits with at least the verification's floor of beams on walls
-        self.quality = MapQuality(
-            _map_resolution(map, self.index, self.config.map.resolution),
-            sigma_cap=0.5 * self.config.icp.min_correspondence_distance,
-            hit_floor=lc.verify_min_hit_ratio,
+        self.quality = MapQuality.from_config(
+            _map_resolution(map, self.index, self.config.map.resolution), self.config
         )
         self.checker = FitChecker(self.index, self.quality, see_through=lc.verify_see_through)
         #: independent beams of a scan: the beams on one wall share its error (its shape,
