@@ -97,9 +97,10 @@ def load_prepared(path: str | Path) -> Map:
             if len(shape) != 2:
                 raise MapError(path, "meta.grid_shape", f"invalid {shape!r}")
             n = shape[0] * shape[1]
-            grid = np.unpackbits(z["grid"], count=n).astype(bool).reshape(shape)
+            # unpackbits gives 0 / 1 bytes: viewed as bool, not copied
+            grid = np.unpackbits(z["grid"], count=n).view(bool).reshape(shape)
             if "free" in z.files:
-                free = np.unpackbits(z["free"], count=n).astype(bool).reshape(shape)
+                free = np.unpackbits(z["free"], count=n).view(bool).reshape(shape)
         m = Map(
             z["lines"],
             grid=grid,

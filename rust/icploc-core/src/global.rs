@@ -742,6 +742,58 @@ fn child_sums(f: &LikelihoodField, level: usize, offs: &[(i32, i32)], i: i32, j:
     out
 }
 
+/// One heading's cell offsets as the coarse search reads them: the offsets, the same as
+/// row-major index offsets in a grid `w` wide, and their bounding box.
+struct Shifts<'a> {
+    offs: &'a [(i32, i32)],
+    lin: Vec<isize>,
+    /// (min x, min y, max x, max y) of `offs`
+    bbox: [i32; 4],
+}
+
+impl<'a> Shifts<'a> {
+    fn new(offs: &'a [(i32, i32)], w: usize) -> Self {
+        let lin = offs
+            .iter()
+            .map(|&(x, y)| y as isize * w as isize + x as isize)
+            .collect();
+        let mut bbox = [i32::MAX, i32::MAX, i32::MIN, i32::MIN];
+        for &(x, y) in offs {
+            bbox = [
+                bbox[0].min(x),
+                bbox[1].min(y),
+                bbox[2].max(x),
+                bbox[3].max(y),
+            ];
+        }
+        Self { offs, lin, bbox }
+    }
+}
+
+/// [`child_sums`] with one test per node instead of one per point where all four cells of
+/// every point lie inside the grid (most nodes of a large map): the same sums.
+#[inline]
+fn child_sums_shifted(f: &LikelihoodField, level: usize, sh: &Shifts, i: i32, j: i32) -> [u32; 4] {
+    let s = 1i32 << level;
+    let [x0, y0, x1, y1] = sh.bbox;
+    let (w, h) = (f.w as i32, f.h as i32);
+    if sh.offs.is_empty() || i + x0 < 0 || j + y0 < 0 || i + x1 + s >= w || j + y1 + s >= h {
+        return child_sums(f, level, sh.offs, i, j);
+    }
+    let g = &f.pooled[level];
+    let base = j as isize * f.w as isize + i as isize;
+    let (su, sw) = (s as usize, s as usize * f.w);
+    let mut out = [0u32; 4];
+    for &l in &sh.lin {
+        let c = (base + l) as usize;
+        out[0] += g[c] as u32;
+        out[1] += g[c + su] as u32;
+        out[2] += g[c + sw] as u32;
+        out[3] += g[c + sw + su] as u32;
+    }
+    out
+}
+
 impl GlobalLocalizer {
     /// The coarse branch-and-bound of [`Self::search`]: every level-0 leaf (heading `k`,
     /// cell (i, j)) in `region` (cells, inclusive) on a free cell whose score is at least
@@ -789,6 +841,10 @@ impl GlobalLocalizer {
             n.bound = self.field.sum(top, &offsets[n.k as usize], n.i, n.j);
         });
         roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
+        let shifts: Vec<Shifts> = offsets
+            .iter()
+            .map(|o| Shifts::new(o, self.field.w))
+            .collect();
         let full = 255 * m as u32;
         let floor = (cfg.min_score * full as f64).ceil() as u32;
         let best = AtomicU32::new(floor);
@@ -808,10 +864,10 @@ impl GlobalLocalizer {
                         if n.bound < thr {
                             continue;
                         }
-                        let offs = &offsets[n.k as usize];
                         let lvl = n.level as usize - 1;
                         let s = 1i32 << lvl;
-                        let sums = child_sums(&self.field, lvl, offs, n.i, n.j);
+                        let sums =
+                            child_sums_shifted(&self.field, lvl, &shifts[n.k as usize], n.i, n.j);
                         let mut kids: [Node; 4] = [n; 4];
                         let mut nk = 0;
                         for (c, (a, b)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate()
@@ -1229,6 +1285,45 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn shifted_child_sums_are_the_child_sums_inside_and_at_the_edges() {
+        let g = localizer(&office_segments(), 0.05);
+        let f = &g.field;
+        let (w, h) = (f.w as i32, f.h as i32);
+        let mut rng = Rng::new(11);
+        for spread in [3.0, 20.0, 80.0] {
+            let offs: Vec<(i32, i32)> = (0..50)
+                .map(|_| {
+                    (
+                        rng.range(-spread, spread) as i32,
+                        rng.range(-spread, spread) as i32,
+                    )
+                })
+                .collect();
+            let sh = Shifts::new(&offs, f.w);
+            for level in 0..f.levels() {
+                let s = 1i32 << level;
+                let mut at = vec![(0, 0), (-s, -s), (w - 1, h - 1), (w - s, 3), (17, h - s)];
+                at.extend((0..300).map(|_| {
+                    (
+                        rng.range(-10.0, w as f64 + 10.0) as i32,
+                        rng.range(-10.0, h as f64 + 10.0) as i32,
+                    )
+                }));
+                for (i, j) in at {
+                    assert_eq!(
+                        child_sums_shifted(f, level, &sh, i, j),
+                        child_sums(f, level, &offs, i, j),
+                        "spread {spread} level {level} at ({i}, {j})"
+                    );
+                }
+            }
+        }
+        // a heading with no points sums to nothing
+        let none = Shifts::new(&[], f.w);
+        assert_eq!(child_sums_shifted(f, 2, &none, 5, 5), [0; 4]);
     }
 
     #[test]

@@ -137,12 +137,12 @@ impl LikelihoodField {
         levels: usize,
     ) -> Self {
         let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+        // in parallel (a 5 cm field of a large map has ~25 M cells), and without the
+        // exponential where it rounds to 0 anyway: the same bytes
         let base: Vec<u8> = dist
-            .iter()
-            .map(|&d| {
-                let d = d as f64;
-                (255.0 * (-d * d * inv2s2).exp()).round() as u8
-            })
+            .par_iter()
+            .with_min_len(4096)
+            .map(|&d| likelihood_u8(d, inv2s2))
             .collect();
         let mut pooled = vec![base];
         for lvl in 1..=levels {
@@ -246,18 +246,66 @@ impl LikelihoodField {
     }
 }
 
+/// `255·exp(−d²·inv2s2)` rounded to a byte: the plain formula `likelihood_u8` keeps.
+#[cfg(test)]
+fn likelihood_u8_exact(d: f32, inv2s2: f64) -> u8 {
+    let d = d as f64;
+    (255.0 * (-d * d * inv2s2).exp()).round() as u8
+}
+
+/// Beyond this exponent `255·exp(−x)` is below 0.4922 and rounds to 0
+/// (`ln 510 ≈ 6.2344`).
+const ZERO_EXPONENT: f64 = 6.25;
+
+/// [`likelihood_u8_exact`] without the exponential where the byte is 0 (most of a large
+/// map's cells lie far from every wall): the same value for every `d`.
+#[inline]
+fn likelihood_u8(d: f32, inv2s2: f64) -> u8 {
+    let d = d as f64;
+    let x = d * d * inv2s2;
+    if x > ZERO_EXPONENT {
+        0
+    } else {
+        (255.0 * (-x).exp()).round() as u8
+    }
+}
+
 /// One max-pooling step: cell c takes `op` over c and its neighbours `s` cells right, up
-/// and diagonally (where inside the grid).
+/// and diagonally (where inside the grid). `op` must be commutative and associative (max,
+/// or): row by row, the row `s` above first, then the cell `s` to the right (in place,
+/// left to right: the cell read is not written yet), so the inner loops vectorise.
 pub(crate) fn pool<T: Copy + Send + Sync>(
     prev: &[T],
     w: usize,
     h: usize,
     s: usize,
-    op: fn(T, T) -> T,
+    op: impl Fn(T, T) -> T + Sync + Send,
 ) -> Vec<T> {
+    let mut out = prev.to_vec();
+    if w == 0 {
+        return out;
+    }
+    out.par_chunks_mut(w)
+        .with_min_len((4096 / w).max(1))
+        .enumerate()
+        .for_each(|(j, row)| {
+            if j + s < h {
+                let up = &prev[(j + s) * w..(j + s + 1) * w];
+                for (m, &u) in row.iter_mut().zip(up) {
+                    *m = op(*m, u);
+                }
+            }
+            for i in 0..w.saturating_sub(s) {
+                row[i] = op(row[i], row[i + s]);
+            }
+        });
+    out
+}
+
+/// The cell-by-cell form of [`pool`] (the reference its tests compare with).
+#[cfg(test)]
+fn pool_plain<T: Copy>(prev: &[T], w: usize, h: usize, s: usize, op: fn(T, T) -> T) -> Vec<T> {
     (0..w * h)
-        .into_par_iter()
-        .with_min_len(4096)
         .map(|c| {
             let (i, j) = (c % w, c / w);
             let mut m = prev[c];
@@ -292,6 +340,74 @@ mod grid_bound_tests {
         let short = a.distances()[1..].to_vec();
         let e = LikelihoodField::from_distances(&idx, 0.05, 0.1, 4, short).unwrap_err();
         assert!(matches!(e, IcpError::InvalidInput { .. }), "{e}");
+    }
+
+    #[test]
+    fn the_likelihood_byte_skips_only_exponentials_that_round_to_zero() {
+        // every sigma the searches use, and distances swept finely through the cut-off
+        // (where the byte goes 1 -> 0), far beyond it, and the odd values
+        for sigma in [0.05, 0.1, 0.15, 0.2, 0.4, 1.0] {
+            let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+            let cut = (ZERO_EXPONENT / inv2s2).sqrt() as f32;
+            let mut ds: Vec<f32> = (0..20_000).map(|k| k as f32 * cut / 10_000.0).collect();
+            ds.extend((0..2000).map(|k| cut * (1.0 + (k as f32 - 1000.0) * 1e-6)));
+            ds.extend([0.0, -0.0, 1e-30, 1e30, f32::INFINITY, f32::NAN, f32::MAX]);
+            for d in ds {
+                assert_eq!(
+                    likelihood_u8(d, inv2s2),
+                    likelihood_u8_exact(d, inv2s2),
+                    "sigma {sigma} d {d}"
+                );
+            }
+            // the cut-off itself is in the zero tail
+            assert_eq!(likelihood_u8_exact(cut * 0.999, inv2s2), 0, "sigma {sigma}");
+        }
+    }
+
+    #[test]
+    fn the_built_base_level_is_the_plain_formula_of_every_distance() {
+        let pts: Vec<[f64; 2]> = (0..400)
+            .map(|k| [0.05 * k as f64, 3.0 * (0.03 * k as f64).sin()])
+            .collect();
+        let idx = MapIndex::new(pts, None).unwrap();
+        let sigma = 0.15;
+        let f = LikelihoodField::build(&idx, 0.05, sigma, 3).unwrap();
+        let inv2s2 = 1.0 / (2.0 * sigma * sigma);
+        let want: Vec<u8> = f
+            .dist
+            .iter()
+            .map(|&d| likelihood_u8_exact(d, inv2s2))
+            .collect();
+        assert!(want.contains(&0) && want.iter().any(|&b| b > 200));
+        assert_eq!(f.pooled[0], want);
+    }
+
+    #[test]
+    fn the_row_pooling_is_the_cell_by_cell_pooling() {
+        // odd sizes, steps beyond the grid, a single row / column; bytes and booleans
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (7, 5), (33, 17), (130, 70)] {
+            let bytes: Vec<u8> = (0..w * h).map(|_| next() as u8).collect();
+            let flags: Vec<bool> = (0..w * h).map(|_| next() % 7 == 0).collect();
+            for s in [1, 2, 4, 8, 16, 32, 64, 128, 256] {
+                assert_eq!(
+                    pool(&bytes, w, h, s, u8::max),
+                    pool_plain(&bytes, w, h, s, u8::max),
+                    "{w} x {h} step {s}"
+                );
+                assert_eq!(
+                    pool(&flags, w, h, s, |a, b| a | b),
+                    pool_plain(&flags, w, h, s, |a, b| a | b),
+                    "{w} x {h} step {s}"
+                );
+            }
+        }
     }
 
     #[test]
