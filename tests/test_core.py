@@ -373,7 +373,8 @@ def test_wrong_type_names_the_field(field, value):
     [dict(max_iterations=0), dict(max_iterations=10**7), dict(expected_noise=0.0), dict(accept_inlier_ratio=1.5),
      dict(accept_see_through=-0.1), dict(window_position=-1.0), dict(window_heading=4.0),
      dict(window_angle_step=0.0), dict(window_angle_step=1e-9), dict(heading_step=float("nan")),
-     dict(prior_sure_rms=-0.1), dict(prior_sure_rms=float("inf"))],
+     dict(prior_sure_rms=-0.1), dict(prior_sure_rms=float("inf")), dict(vanished_object_size=-1.0),
+     dict(vanished_object_size=float("nan"))],
 )
 def test_out_of_range_names_the_field(kw):
     (field,) = kw

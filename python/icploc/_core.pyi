@@ -68,7 +68,9 @@ class IcpConfig:
     match the map's, and in full only when nothing there explains the scan. A fit from
     that heading that explains the scan only by the looser rules is compared with the ICP
     from the initial pose unless its RMS is within ``prior_sure_rms`` x ``expected_noise``
-    (0: always compared)."""
+    (0: always compared). Beams through mapped objects of at most
+    ``vanished_object_size`` m that the scan does not see (a parked car that left since
+    mapping) do not count against a tight fit as beams through walls (0: they do)."""
 
     metric: Metric
     max_iterations: int
@@ -94,6 +96,7 @@ class IcpConfig:
     accept_inlier_ratio: float
     accept_see_through: float
     prior_sure_rms: float
+    vanished_object_size: float
     def __new__(
         cls,
         *,
@@ -121,6 +124,7 @@ class IcpConfig:
         accept_inlier_ratio: float = ...,
         accept_see_through: float = ...,
         prior_sure_rms: float = ...,
+        vanished_object_size: float = ...,
     ) -> Self: ...
     def validate(self) -> None:
         """Raise :class:`InvalidConfigError` if any value is out of range."""

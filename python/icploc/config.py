@@ -200,6 +200,14 @@ class IcpSection(Section):
         "skips the comparison with the ICP from the initial pose (0: always compared)",
         ge=0,
     )
+    vanished_object_size: float = _f(
+        _core_default("vanished_object_size"),
+        "the verified start does not count beams through mapped objects of at most this "
+        "size (bounding-box diagonal) that the scan does not see (a parked car that left) "
+        "as beams through walls (0: every crossing counts)",
+        "m",
+        ge=0,
+    )
     adaptive_correspondence: bool = _f(
         True,
         "open the first correspondence threshold to cover the odometry prediction's "

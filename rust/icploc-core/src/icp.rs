@@ -110,6 +110,12 @@ pub struct IcpConfig {
     /// (one more ICP on such starts). On the tuned families' small starts the turned fits
     /// that the comparison corrected had an RMS of 0.58-0.74 σ, the right ones 0.35-0.47 σ.
     pub prior_sure_rms: f64,
+    /// Beams that cross only mapped objects of at most this size (bounding-box diagonal,
+    /// m) that the scan does not see at all (a parked car that has left since mapping)
+    /// do not count against a tight fit as beams through walls ([`Fit::vanished`]);
+    /// 0 counts every crossing (off). Free-standing partitions and wall stubs of about
+    /// this size are "objects" too.
+    pub vanished_object_size: f64,
 }
 
 /// The iteration limit may not exceed this (a larger one is a typo, and could hang a call).
@@ -146,6 +152,7 @@ impl Default for IcpConfig {
             accept_inlier_ratio: 0.75,
             accept_see_through: 0.05,
             prior_sure_rms: 0.5,
+            vanished_object_size: 6.0,
         }
     }
 }
@@ -347,6 +354,13 @@ impl IcpConfig {
             return Err(bad(
                 "prior_sure_rms",
                 self.prior_sure_rms,
+                "must be non-negative and finite",
+            ));
+        }
+        if !nonneg(self.vanished_object_size) {
+            return Err(bad(
+                "vanished_object_size",
+                self.vanished_object_size,
                 "must be non-negative and finite",
             ));
         }

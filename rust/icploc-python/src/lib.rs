@@ -482,7 +482,7 @@ pub(crate) struct PyIcpConfig {
 }
 
 /// The field names, in order (constructor keywords, attributes, `to_dict` keys).
-const ICP_FIELDS: [&str; 24] = [
+const ICP_FIELDS: [&str; 25] = [
     "metric",
     "max_iterations",
     "max_correspondence_distance",
@@ -507,6 +507,7 @@ const ICP_FIELDS: [&str; 24] = [
     "accept_inlier_ratio",
     "accept_see_through",
     "prior_sure_rms",
+    "vanished_object_size",
 ];
 
 fn config_err(
@@ -632,6 +633,7 @@ fn set_icp_field(
                 "accept_inlier_ratio" => c.accept_inlier_ratio = x,
                 "accept_see_through" => c.accept_see_through = x,
                 "prior_sure_rms" => c.prior_sure_rms = x,
+                "vanished_object_size" => c.vanished_object_size = x,
                 _ => unreachable!("every field is handled"),
             }
         }
@@ -687,6 +689,7 @@ fn get_icp_field<'py>(
         "accept_inlier_ratio" => c.accept_inlier_ratio.into_pyobject(py)?.into_any(),
         "accept_see_through" => c.accept_see_through.into_pyobject(py)?.into_any(),
         "prior_sure_rms" => c.prior_sure_rms.into_pyobject(py)?.into_any(),
+        "vanished_object_size" => c.vanished_object_size.into_pyobject(py)?.into_any(),
         _ => {
             return Err(pyo3::exceptions::PyAttributeError::new_err(format!(
                 "IcpConfig has no field {name:?}"
@@ -799,6 +802,7 @@ icp_pymethods!(
     accept_inlier_ratio => set_accept_inlier_ratio,
     accept_see_through => set_accept_see_through,
     prior_sure_rms => set_prior_sure_rms,
+    vanished_object_size => set_vanished_object_size,
 );
 
 // ---------------------------------------------------------------- IcpResult

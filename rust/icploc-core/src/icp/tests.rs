@@ -977,6 +977,57 @@ fn beams_through_a_mapped_car_that_left_are_not_beams_through_walls() {
 }
 
 #[test]
+fn vanished_object_size_zero_counts_every_crossing_and_small_objects_are_up_to_it() {
+    let (room, car) = room_with_car();
+    let mut map = room.clone();
+    map.extend_from_slice(&car);
+    let idx = index_of(&map);
+    let truth = Pose2::new(3.0, 4.0, 0.0);
+    let scan = scan_of(&room, truth);
+    // off: the beams through the car that left are beams through walls again, and the
+    // tight fit no longer passes as it is
+    let off = IcpConfig {
+        vanished_object_size: 0.0,
+        ..IcpConfig::default()
+    };
+    let f = window::assess(&scan, &idx, truth, &off);
+    assert!(f.see_through > 0.2 && f.vanished == 0.0, "{f:?}");
+    let r = align(&scan, &idx, truth, &off).unwrap();
+    assert_ne!(r.start, StartPath::Plain, "{r:?}");
+    // a limit below the car's size: it is no small object
+    let diag = {
+        let (lo, hi) = car
+            .iter()
+            .fold(([f64::MAX; 2], [f64::MIN; 2]), |(lo, hi), p| {
+                (
+                    [lo[0].min(p[0]), lo[1].min(p[1])],
+                    [hi[0].max(p[0]), hi[1].max(p[1])],
+                )
+            });
+        (hi[0] - lo[0]).hypot(hi[1] - lo[1])
+    };
+    let below = IcpConfig {
+        vanished_object_size: 0.9 * diag,
+        ..IcpConfig::default()
+    };
+    assert_eq!(window::assess(&scan, &idx, truth, &below).vanished, 0.0);
+    let above = IcpConfig {
+        vanished_object_size: 1.1 * diag,
+        ..IcpConfig::default()
+    };
+    assert_eq!(
+        window::assess(&scan, &idx, truth, &above).vanished,
+        f.see_through
+    );
+    // and a negative size is a config error naming the field
+    let bad = IcpConfig {
+        vanished_object_size: -1.0,
+        ..IcpConfig::default()
+    };
+    assert!(format!("{:?}", bad.validate().unwrap_err()).contains("vanished_object_size"));
+}
+
+#[test]
 fn beams_through_a_wall_still_count_past_a_car_that_left() {
     let (room, car) = room_with_car();
     let mut map = room.clone();

@@ -78,8 +78,11 @@ pub struct Fit {
     /// Share of the checked beams that pass through a mapped wall.
     pub see_through: f64,
     /// Share of the checked beams (counted in `see_through` too) whose crossings are all
-    /// through small mapped objects that no scan point lies on: objects that have left
-    /// since mapping (parked cars, moved furniture), not a misalignment.
+    /// through small mapped objects (at most `IcpConfig::vanished_object_size`) that the
+    /// scan does not see — fewer than [`SEEN_POINTS`] scan points within [`OBSERVED`] of
+    /// them, or fewer than [`SEEN_SHARE`] of the beams crossing them: objects that have
+    /// left since mapping (parked cars, moved furniture), not a misalignment. 0 when that
+    /// size is 0.
     pub vanished: f64,
     /// Mean Gaussian likelihood (σ = expected noise) of the point distances, times
     /// (1 − `see_through`)², in [0, 1]: the ranking score of candidate poses. Squared: a
@@ -106,7 +109,7 @@ pub(crate) fn map_distance(index: &MapIndex, normals: &[[f64; 2]], q: [f64; 2], 
 /// How well `pose` explains `scan` (sensor-frame points, sensor at the origin).
 pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig) -> Fit {
     let (inlier_ratio, rms, lik) = distances(scan, index, pose, cfg);
-    let (st, vanished) = see_through_parts(scan, index, pose, None, true);
+    let (st, vanished) = see_through_parts(scan, index, pose, None, cfg.vanished_object_size);
     Fit {
         inlier_ratio,
         rms,
@@ -162,7 +165,7 @@ pub(crate) fn assess_with(
     } else {
         f64::INFINITY
     };
-    let (st, vanished) = see_through_parts(scan, index, pose, Some(nn), true);
+    let (st, vanished) = see_through_parts(scan, index, pose, Some(nn), cfg.vanished_object_size);
     Fit {
         inlier_ratio: inl as f64 / nf,
         rms,
@@ -217,7 +220,7 @@ pub(crate) fn distances(
 /// steeply (not grazing) at a point on the wall — within half a sample spacing (+ 5 mm) of a
 /// map point, by the exact k-d tree answer — not through a gap beside it.
 pub fn see_through(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2) -> f64 {
-    see_through_parts(scan, index, pose, None, false).0
+    see_through_parts(scan, index, pose, None, 0.0).0
 }
 
 /// A scan point is on a small object when within this distance (m) of one of its map
@@ -229,17 +232,18 @@ const SEEN_POINTS: usize = 3;
 const SEEN_SHARE: f64 = 0.2;
 
 /// [`see_through`], and (`vanished`) the share of the checked beams whose crossings are
-/// all through small mapped objects ([`crate::index::objects`]: cars, furniture, pillars)
-/// that no point of the scan lies on — objects the world no longer has (a parked car that
-/// left since mapping): the beam keeps going past such an object, and a wall it crosses
-/// after it counts as a wall. `nn`: the closest map point of every scan point at `pose`
-/// (from an ICP's last pass), else looked up when needed.
+/// all through small mapped objects ([`crate::index::objects`]: cars, furniture, pillars,
+/// of at most `vanished` m; 0: none counted, no objects built) that the scan does not see
+/// (see [`Fit::vanished`]) — objects the world no longer has (a parked car that left since
+/// mapping): the beam keeps going past such an object, and a wall it crosses after it
+/// counts as a wall. `nn`: the closest map point of every scan point at `pose` (from an
+/// ICP's last pass), else looked up when needed.
 pub(crate) fn see_through_parts(
     scan: &[[f64; 2]],
     index: &MapIndex,
     pose: Pose2,
     nn: Option<&[u32]>,
-    vanished: bool,
+    vanished: f64,
 ) -> (f64, f64) {
     let normals = index.normals();
     let spacing = index.spacing();
@@ -314,12 +318,12 @@ pub(crate) fn see_through_parts(
                         (e2 <= on_wall2).then_some(ej)
                     };
                     if let Some(hj) = hit {
-                        let objects = if vanished {
+                        let objects = if vanished > 0.0 {
                             Some(index.objects())
                         } else {
                             None
                         };
-                        match objects.filter(|o| o.is_small(hj)) {
+                        match objects.filter(|o| o.is_small(hj, vanished)) {
                             Some(o) => {
                                 let l = o.label(hj);
                                 if through_small[first_small..].iter().all(|e| e.1 != l) {

@@ -1,21 +1,19 @@
 //! The map's objects: its points linked into connected pieces (points in the same or
-//! adjacent cells of a grid of `link` metres), each labelled, with whether it is small
-//! (a bounding-box diagonal of at most [`SMALL_OBJECT`]). The see-through check of
-//! `icp()` tells a beam through a small mapped object that the scan does not see at all
-//! (a parked car that has left since mapping, a moved cabinet) from a beam through a wall.
-
-/// Pieces of the map whose bounding box has at most this diagonal (m) are small objects:
-/// cars, furniture, pillars — not the building's walls (a wall piece between two doors of
-/// a corridor is a few metres long, but joined to the walls of its room).
-pub const SMALL_OBJECT: f64 = 6.0;
+//! adjacent cells of a grid of `link` metres), each labelled, with its size (the diagonal
+//! of its bounding box). The see-through check of `icp()` tells a beam through a small
+//! mapped object that the scan does not see at all (a parked car that has left since
+//! mapping, a moved cabinet) from a beam through a wall; "small" is at most
+//! `IcpConfig::vanished_object_size` (cars, furniture, pillars — not the building's walls:
+//! a wall piece between two doors of a corridor is a few metres long, but joined to the
+//! walls of its room).
 
 /// The map's connected pieces.
 #[derive(Clone, Debug)]
 pub struct Objects {
     /// the piece of every map point
     label: Vec<u32>,
-    /// is piece k small
-    small: Vec<bool>,
+    /// the bounding-box diagonal of piece k (m)
+    size: Vec<f64>,
 }
 
 impl Objects {
@@ -83,11 +81,11 @@ impl Objects {
             b[3] = b[3].max(p[1]);
             label[i] = l;
         }
-        let small = boxes
+        let size = boxes
             .iter()
-            .map(|b| (b[2] - b[0]).hypot(b[3] - b[1]) <= SMALL_OBJECT)
+            .map(|b| (b[2] - b[0]).hypot(b[3] - b[1]))
             .collect();
-        Self { label, small }
+        Self { label, size }
     }
 
     /// The piece of map point `j`.
@@ -96,21 +94,29 @@ impl Objects {
         self.label[j]
     }
 
-    /// Is map point `j` on a small object?
+    /// The size (bounding-box diagonal, m) of the piece map point `j` is on.
     #[inline]
-    pub fn is_small(&self, j: usize) -> bool {
-        self.small[self.label[j] as usize]
+    pub fn size(&self, j: usize) -> f64 {
+        self.size[self.label[j] as usize]
+    }
+
+    /// Is map point `j` on a piece of at most `limit` m (bounding-box diagonal)?
+    #[inline]
+    pub fn is_small(&self, j: usize, limit: f64) -> bool {
+        self.size(j) <= limit
     }
 
     /// Number of pieces.
     pub fn count(&self) -> usize {
-        self.small.len()
+        self.size.len()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    /// the default limit of a small object (`IcpConfig::default().vanished_object_size`)
+    const CAR: f64 = 6.0;
 
     fn segment(a: [f64; 2], b: [f64; 2], step: f64) -> Vec<[f64; 2]> {
         let len = (b[0] - a[0]).hypot(b[1] - a[1]);
@@ -137,9 +143,9 @@ mod tests {
         }
         let o = Objects::build(&pts, 0.05);
         assert_eq!(o.count(), 2);
-        assert!(!o.is_small(0));
-        assert!(!o.is_small(wall - 1));
-        assert!((wall..pts.len()).all(|j| o.is_small(j) && o.label(j) == o.label(wall)));
+        assert!(!o.is_small(0, CAR));
+        assert!(!o.is_small(wall - 1, CAR));
+        assert!((wall..pts.len()).all(|j| o.is_small(j, CAR) && o.label(j) == o.label(wall)));
         assert_ne!(o.label(0), o.label(wall));
     }
 
@@ -149,7 +155,7 @@ mod tests {
         pts.extend(segment([3.2, 0.0], [10.0, 0.0], 0.025));
         let o = Objects::build(&pts, 0.05);
         assert_eq!(o.count(), 2);
-        assert!(o.is_small(0));
-        assert!(!o.is_small(pts.len() - 1));
+        assert!(o.is_small(0, CAR));
+        assert!(!o.is_small(pts.len() - 1, CAR));
     }
 }
