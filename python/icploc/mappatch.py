@@ -255,6 +255,8 @@ def _chain(
         step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
         sxy = 0.01 + 0.02 * step
         sth = CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step
+        if not out:
+            sth = _exit_step_heading_sigma(u)
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
         if world and pts.shape[0] >= 20:
@@ -286,6 +288,24 @@ def _chain(
             del world[:-keep], normals[:-keep]
         prev, prev_c = pose, c
     return out, trust, covs
+
+
+def _exit_step_heading_sigma(u: Pose) -> float:
+    """The heading sigma [rad] of a stretch's first chain step ``u`` (from the exit, the
+    last verified pose, to the first scan outside): odometry alone (no earlier scan of the
+    stretch to match), over the scans the exit detection took (simulated wing: 1.3-1.6 m
+    of corridor). The localizer's motion model's (:class:`icploc.config.LocalizerSection`
+    ``alpha1`` turn^2 + ``alpha2`` travel^2, 0.36 deg/m) with the chain's per-step floor
+    (:data:`CHAIN_ODOM_HEADING`), not the chain's 0.03 rad/m, which weighs a step against
+    its scan match: over 1.4 m that is 2.6 deg, and the exit's heading no longer held the
+    stretch (simulated wing, seed 18: the corridor's way in +0.5..0.7 deg off, the wing
+    7 cm off along it)."""
+    from icploc.config import LocalizerSection
+
+    lc = LocalizerSection()
+    t = math.hypot(u[0], u[1])
+    var = lc.alpha1 * u[2] * u[2] + lc.alpha2 * t * t
+    return math.sqrt(CHAIN_ODOM_HEADING[0] ** 2 + var)
 
 
 def _chain_config() -> Any:
