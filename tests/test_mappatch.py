@@ -398,3 +398,27 @@ def test_the_exits_heading_holds_the_stretch_across_the_exit_gap() -> None:
     # way 3.4 mm off across at most (7.4 mm)
     assert float(head[0]) < 0.4
     assert float(lateral.max()) < 0.005
+
+
+def test_the_exit_steps_heading_noise_is_the_localizers_learned_odometry_noise() -> None:
+    # the first chain step's heading variance: the motion model's alpha1 turn^2 +
+    # alpha2 travel^2 times the localizer's learned noise gain, plus the chain's floor
+    from icploc.config import LocalizerSection
+    from icploc.mappatch import CHAIN_ODOM_HEADING, _chain
+    from icploc.motion import MotionModel
+
+    lc = LocalizerSection()
+    empty = [np.zeros((0, 2))] * 3
+    coasted = [(1.4, 0.0, 0.05), (1.44, 0.0, 0.05), (1.48, 0.0, 0.05)]
+    floor = CHAIN_ODOM_HEADING[0] ** 2
+    want = lc.alpha1 * 0.05**2 + lc.alpha2 * 1.4**2
+    for gain in (1.0, 4.0):
+        model = MotionModel(lc.alpha1, lc.alpha2, lc.alpha3, lc.alpha4, lc.alpha5, gain=gain)
+        _, _, covs = _chain((0.0, 0.0, 0.0), empty, coasted, exit_motion=model)
+        assert float(covs[0][2, 2]) - floor == pytest.approx(gain * want, rel=1e-6)
+    # the later steps keep the chain's own noise
+    _, _, covs = _chain((0.0, 0.0, 0.0), empty, coasted)
+    step = 0.04
+    assert float(covs[1][2, 2]) == pytest.approx(
+        (CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step) ** 2, rel=1e-6
+    )
