@@ -372,3 +372,53 @@ def test_the_patch_is_sure_only_of_walls_that_lie_within_ten_centimetres(tmp_pat
     conf = yaml.safe_load(path.read_text())["icploc_patch_confidence"]
     assert conf["wall_cells"] == int(g.occupied.sum())
     assert conf["confident_wall_cells"] == int(np.sum(sigma[g.occupied] <= PATCH_SIGMA_BOUND + 1e-9))
+
+
+def test_the_exits_heading_holds_the_stretch_across_the_exit_gap() -> None:
+    # the first outside scan is the exit detection's scans (1.3-1.6 m in the simulated
+    # wing) past the exit: one odometry step with no scan to match. Here the odometry is
+    # right over that gap and drifts 2 deg over the 4 m after it; the exit and the lock
+    # are at their true poses. With the chain's per-step heading sigma (2.6 deg over
+    # 1.4 m) much of the lock's correction went into the gap; with the motion model's
+    # (0.5 deg) the drift is undone where it happened.
+    from icploc.mappatch import graph_solution
+
+    n = 100
+    truth = [(1.4, 0.0, 0.0)]
+    dr = [(1.4, 0.0, 0.0)]
+    for _ in range(n):
+        truth.append(compose(truth[-1], (0.04, 0.0, 0.0)))
+        dr.append(compose(dr[-1], (0.04, 0.0, math.radians(2.0) / n)))
+    scans = [np.zeros((0, 2))] * len(dr)
+    x, _ = graph_solution((0.0, 0.0, 0.0), scans, dr, truth[-1])
+    t = np.array(truth)
+    head = np.degrees(np.abs(np.angle(np.exp(1j * (x[:, 2] - t[:, 2])))))
+    lateral = np.abs(x[:, 1] - t[:, 1])
+    # measured: the first outside scan 0.17 deg off (the chain's sigma: 0.86 deg), the
+    # way 3.4 mm off across at most (7.4 mm)
+    assert float(head[0]) < 0.4
+    assert float(lateral.max()) < 0.005
+
+
+def test_the_exit_steps_heading_noise_is_the_localizers_learned_odometry_noise() -> None:
+    # the first chain step's heading variance: the motion model's alpha1 turn^2 +
+    # alpha2 travel^2 times the localizer's learned noise gain, plus the chain's floor
+    from icploc.config import LocalizerSection
+    from icploc.mappatch import CHAIN_ODOM_HEADING, _chain
+    from icploc.motion import MotionModel
+
+    lc = LocalizerSection()
+    empty = [np.zeros((0, 2))] * 3
+    coasted = [(1.4, 0.0, 0.05), (1.44, 0.0, 0.05), (1.48, 0.0, 0.05)]
+    floor = CHAIN_ODOM_HEADING[0] ** 2
+    want = lc.alpha1 * 0.05**2 + lc.alpha2 * 1.4**2
+    for gain in (1.0, 4.0):
+        model = MotionModel(lc.alpha1, lc.alpha2, lc.alpha3, lc.alpha4, lc.alpha5, gain=gain)
+        _, _, covs = _chain((0.0, 0.0, 0.0), empty, coasted, exit_motion=model)
+        assert float(covs[0][2, 2]) - floor == pytest.approx(gain * want, rel=1e-6)
+    # the later steps keep the chain's own noise
+    _, _, covs = _chain((0.0, 0.0, 0.0), empty, coasted)
+    step = 0.04
+    assert float(covs[1][2, 2]) == pytest.approx(
+        (CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step) ** 2, rel=1e-6
+    )

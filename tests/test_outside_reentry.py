@@ -147,3 +147,19 @@ def test_a_stretch_records_the_scans_after_its_lock_for_the_patch() -> None:
     st = mon.stretches[0]
     assert st.end is not None
     assert [k for k, _, _ in st.lead_out] == list(range(st.end + 1, st.end + 21))
+
+
+@pytest.mark.slow
+def test_a_stretch_records_the_localizers_motion_model_at_its_exit() -> None:
+    # the patch's pose graph takes the odometry's heading noise from the exit to the first
+    # outside scan from it (icploc.mappatch._exit_step_heading_sigma): the configured
+    # alphas with the noise gain the localizer learned by then
+    from icploc.config import LocalizerSection
+    from icploc.motion import MotionModel
+
+    _, _, _, mon = localized()
+    m = mon.stretches[0].exit_motion
+    lc = LocalizerSection()
+    assert isinstance(m, MotionModel)
+    assert (m.alpha1, m.alpha2, m.alpha3) == (lc.alpha1, lc.alpha2, lc.alpha3)
+    assert 1.0 <= m.gain <= lc.noise_gain_max

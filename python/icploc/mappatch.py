@@ -24,6 +24,7 @@ to the map). The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's faint frin
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Sequence
@@ -230,11 +231,13 @@ def _chain(
     gate: float = 16.0,
     weak_axis_beams: float = WEAK_AXIS_BEAMS,
     keyframe_step: float = KEYFRAME_STEP,
+    exit_motion: Any = None,
 ) -> tuple[list[Pose], list[float], list[NDArray[np.float64]]]:
     """:func:`refined_poses` and per step its covariance (map frame). A step within the
     keyframe spacing (:func:`_apart`: under ``keyframe_step`` m and :data:`KEYFRAME_TURN`)
     leaves a direction its match holds by fewer than ``weak_axis_beams`` beams to the
-    odometry (:data:`WEAK_AXIS_BEAMS`)."""
+    odometry (:data:`WEAK_AXIS_BEAMS`). The first step's heading sigma is the odometry's
+    own (:func:`_exit_step_heading_sigma`, ``exit_motion``)."""
     from icploc._core import IcpError, MapIndex, icp
     from icploc.fusion import fuse, mahalanobis2, scan_covariance
 
@@ -255,6 +258,8 @@ def _chain(
         step = math.hypot(u[0], u[1]) + 0.3 * abs(u[2])
         sxy = 0.01 + 0.02 * step
         sth = CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step
+        if not out:
+            sth = _exit_step_heading_sigma(u, exit_motion)
         P = np.diag([sxy * sxy, sxy * sxy, sth * sth])
         cov = P
         if world and pts.shape[0] >= 20:
@@ -286,6 +291,31 @@ def _chain(
             del world[:-keep], normals[:-keep]
         prev, prev_c = pose, c
     return out, trust, covs
+
+
+def _exit_step_heading_sigma(u: Pose, motion: Any = None) -> float:
+    """The heading sigma [rad] of a stretch's first chain step ``u`` (from the exit, the
+    last verified pose, to the first scan outside): odometry alone (no earlier scan of the
+    stretch to match), over the scans the exit detection took (simulated wing: 1.3-1.6 m
+    of corridor). The localizer's motion model's (``motion``, a
+    :class:`icploc.motion.MotionModel` with its learned noise gain; None: the configured
+    alphas of :class:`icploc.config.LocalizerSection`): ``alpha1`` turn^2 + ``alpha2``
+    travel^2 (0.36 deg/m), without its per-scan floor (this is one step) but with the
+    chain's (:data:`CHAIN_ODOM_HEADING`); not the chain's 0.03 rad/m, which weighs a step
+    against its scan match: over 1.4 m that is 2.6 deg, and the exit's heading no longer
+    held the stretch (simulated wing, seed 18: the corridor's way in +0.5..0.7 deg off,
+    the wing 7 cm off along it)."""
+    from icploc.motion import MotionModel
+
+    if motion is None:
+        from icploc.config import LocalizerSection
+
+        lc = LocalizerSection()
+        motion = MotionModel(lc.alpha1, lc.alpha2, lc.alpha3, lc.alpha4, lc.alpha5)
+    elif isinstance(motion, MotionModel):
+        motion = dataclasses.replace(motion, floor_xy=0.0, floor_theta=0.0)
+    var = float(motion.motion_covariance(u)[2, 2])
+    return math.sqrt(CHAIN_ODOM_HEADING[0] ** 2 + var)
 
 
 def _chain_config() -> Any:
@@ -553,6 +583,7 @@ def graph_solution(
     lead: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
     marginals: bool = False,
     sequence_reach: float | None = None,
+    exit_motion: Any = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
@@ -572,7 +603,9 @@ def graph_solution(
     returned. ``sequence_reach`` (default :data:`SEQUENCE_REACH`): each keyframe's heading
     also tied, pairwise, to the keyframes before it on its way within that reach
     (:func:`_sequence_edges`), so the chain's heading does not drift with the odometry's;
-    0: none. Returns the poses (N, 3) and, with ``marginals``, their marginal covariances
+    0: none. ``exit_motion``: the localizer's motion model at the exit
+    (:attr:`icploc.outside.Stretch.exit_motion`), the first step's heading noise
+    (:func:`_exit_step_heading_sigma`). Returns the poses (N, 3) and, with ``marginals``, their marginal covariances
     (N, 3, 3; :func:`_marginals`) at the solution, else None."""
     from icploc._core import IcpConfig
 
@@ -588,8 +621,9 @@ def graph_solution(
         scans = [*scans, *lead[0]]
     total = len(coasted)
     chain, _, covs = _chain(
-        start, scans, coasted, keep=keep, min_inliers=min_inliers, keyframe_step=keyframe_step
-    )
+        start, scans, coasted, keep=keep, min_inliers=min_inliers, keyframe_step=keyframe_step,
+        exit_motion=exit_motion,
+    )  # fmt: skip
     s0 = (float(start[0]), float(start[1]), float(start[2]))
     nodes: list[Pose] = [s0, *chain]
     edges = [
@@ -952,7 +986,7 @@ def _stretch_solution(
         lead = ([q for _, q, _ in st.lead_out], [p for _, _, p in st.lead_out])
         x, cov = graph_solution(
             st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead,
-            marginals=marginals,
+            marginals=marginals, exit_motion=st.exit_motion,
         )  # fmt: skip
         return x, (none if cov is None else list(cov))
     if refine:

@@ -413,6 +413,10 @@ class Stretch:
     start: int  #: index (scans processed by the localizer) of the first outside scan
     start_stamp: float
     exit_pose: Pose  #: the last pose before leaving (the coasting's origin)
+    #: the localizer's odometry motion model at the exit (:class:`icploc.motion.MotionModel`,
+    #: its learned noise gain): the noise of the odometry from the exit to the first
+    #: outside scan (:func:`icploc.mappatch.graph_solution`); None: the configured defaults
+    exit_motion: Any = field(default=None, repr=False)
     end: int | None = None  #: index of the scan that locked again (None: not back yet)
     end_stamp: float | None = None
     #: scans from the start of re-entry (the scan explains the map again) to the lock
@@ -525,7 +529,9 @@ class OutsideMonitor:
             ):
                 # from the last tracking pose by odometry (not the degraded poses since)
                 exit_pose, self._dr = self._tracked, self._since
-            self.stretches.append(Stretch(k, float(scan.stamp), exit_pose))
+            self.stretches.append(
+                Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model)
+            )
             self.state = "outside"
             self._below = 0
             return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
