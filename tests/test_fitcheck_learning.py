@@ -135,7 +135,7 @@ def test_a_measured_residual_stays_measured_when_tighter_fits_follow() -> None:
 def test_consistent_fits_that_explain_little_of_the_scan_teach_no_residual() -> None:
     # a wrong place the odometry happens to agree with: a tenth of the beams on walls and a
     # loose residual; it must not loosen every later verification
-    q = _quality()
+    q = _quality(quality_rms_min_hit=0.5)
     for _ in range(12):
         q.observe_consistent(FitCheck(0.1, 0.0, 0.048, 300), rms=0.048)
     assert (q.measured, q.sigma) == (False, pytest.approx(q.prior))

@@ -478,10 +478,11 @@ class LocalizerSection(Section):
         le=1,
     )
     quality_rms_min_hit: float = _f(
-        0.5,
+        0.0,
         "a fit the odometry agrees with that did not verify teaches the residual only when "
         "at least this fraction of verify_min_hit_ratio of its beams end on walls (a looser "
-        "residual learned from a wrong place loosens every later verification)",
+        "residual learned from a wrong place loosens every later verification); 0: every "
+        "such fit (at 0.5 freiburg-campus 5 cm, biased odometry, went 5.7 -> 26.6 m max)",
         ge=0,
         le=1,
     )
