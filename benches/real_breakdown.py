@@ -138,7 +138,11 @@ class _record_quality:
 def describe(rows: list[dict], label: str) -> str:
     err = np.array([r["err"] for r in rows])
     p95 = float(np.percentile(err, 95, method="higher"))
-    lines = [f"## {label}: {len(rows)} scans, median {np.median(err) * 100:.1f} / p95 {p95 * 100:.1f} / max {err.max() * 100:.1f} cm"]
+    false = sum(1 for r in rows if r["status"] == "tracking" and r["err"] > 0.5)
+    lines = [
+        f"## {label}: {len(rows)} scans, median {np.median(err) * 100:.1f} / p95 {p95 * 100:.1f} / max {err.max() * 100:.1f} cm,"
+        f" false tracking {false}"
+    ]
     st = Counter(r["status"] for r in rows)
     lines.append("status: " + ", ".join(f"{k} {v}" for k, v in sorted(st.items())))
     tail = [r for r in rows if r["err"] >= p95]
