@@ -74,10 +74,18 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
                 "nis": float(e.nis), "hit": float(e.hit_ratio), "residual": float(e.residual), "inlier_ratio": float(e.inlier_ratio),
                 "degeneracy": float(e.degeneracy), "nees": _nees(err, e.covariance),
             }  # fmt: skip
+            # errors split along / across the reference heading (a corridor's axis when driving along it)
+            c, s_ = math.cos(r[2]), math.sin(r[2])
+            row["err_fwd"], row["err_lat"] = float(c * err[0] + s_ * err[1]), float(-s_ * err[0] + c * err[1])
+            if k > 0:
+                d_ref = ref[k, :2] - ref[k - 1, :2]
+                d_odo = sub.poses[k, :2] - sub.poses[k - 1, :2]
+                row["step_ref"], row["step_odo"] = float(np.hypot(*d_ref)), float(np.hypot(*d_odo))
             p = e.prediction
             pe = np.array([p[0] - r[0], p[1] - r[1], wrap_angle(p[2] - r[2])])
             row["pred_err"] = float(math.hypot(pe[0], pe[1]))
             row["pred_th"] = float(pe[2])
+            row["pred_fwd"] = float(c * pe[0] + s_ * pe[1])
             row["cal_scale"], row["cal_turn"], row["cal_drift"] = (float(v) for v in e.calibration)
             row["sig_xy"] = float(math.sqrt(max(e.covariance[0, 0] + e.covariance[1, 1], 0.0)))
             row["sig_th"] = float(math.sqrt(max(e.covariance[2, 2], 0.0)))
@@ -88,6 +96,10 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
                 row["meas_nees"] = _nees(ze, e.measurement_covariance)
                 row["meas_th"] = float(ze[2])
                 R = e.measurement_covariance
+                row["meas_fwd"] = float(c * ze[0] + s_ * ze[1])
+                w, v = np.linalg.eigh(np.asarray(R[:2, :2], dtype=float))
+                row["meas_sig_weak"] = float(math.sqrt(max(w[-1], 0.0)))
+                row["meas_weak_vs_heading"] = float(wrap_angle(math.atan2(v[1, -1], v[0, -1]) - r[2]))
                 row["meas_sig_xy"] = float(math.sqrt(max(R[0, 0] + R[1, 1], 0.0)))
                 row["meas_sig_th"] = float(math.sqrt(max(R[2, 2], 0.0)))
                 row["meas_nees_xy"] = _nees(ze[:2], R[:2, :2])
@@ -126,7 +138,11 @@ class _record_quality:
 def describe(rows: list[dict], label: str) -> str:
     err = np.array([r["err"] for r in rows])
     p95 = float(np.percentile(err, 95, method="higher"))
-    lines = [f"## {label}: {len(rows)} scans, median {np.median(err) * 100:.1f} / p95 {p95 * 100:.1f} / max {err.max() * 100:.1f} cm"]
+    false = sum(1 for r in rows if r["status"] == "tracking" and r["err"] > 0.5)
+    lines = [
+        f"## {label}: {len(rows)} scans, median {np.median(err) * 100:.1f} / p95 {p95 * 100:.1f} / max {err.max() * 100:.1f} cm,"
+        f" false tracking {false}"
+    ]
     st = Counter(r["status"] for r in rows)
     lines.append("status: " + ", ".join(f"{k} {v}" for k, v in sorted(st.items())))
     tail = [r for r in rows if r["err"] >= p95]

@@ -95,3 +95,28 @@ def test_a_corridor_with_its_length_pinned_keeps_tracking() -> None:
     err, ests = _drive(w, 0.10, 15)
     assert err.max() < 0.1
     assert all(e.status is Status.TRACKING for e in ests[1:])
+
+
+def _calibrated(world: worlds.World, slip: float, scans: int, y: float = 1.0, step: float = 0.3) -> Localizer:
+    loc = Localizer(sample_lines(world.lines), initial_pose=(0.0, y, 0.0))
+    for k in range(scans):
+        truth = (k * step * (1.0 + slip), y, 0.0)
+        loc.update(_scan(world, truth, 0.1 * k, k), (k * step, 0.0, 0.0))
+    return loc
+
+
+def test_fits_that_leave_the_corridor_length_to_the_odometry_teach_the_calibration_nothing() -> None:
+    # door frames every 2 m: fewer than tracking_min_axis_independent measurements along
+    # the corridor a fit. Such a fit stays at its prediction or snaps to a neighbouring
+    # frame; on infinite-corridor 5 cm bad (odometry ~2 % short) they slid back and taught
+    # a scale 1.6 % short, and the dead reckoning fell 3 m behind. The old code learned
+    # from them (here 16 m of evidence, right only because these frames happen to pin it)
+    loc = _calibrated(_corridor(frames=2.0), 0.03, 60)
+    assert loc.calibration.distance_seen == 0.0
+    assert loc.calibration.scale == 1.0
+    # a 4 m wide corridor whose end wall 7 m ahead holds its length with a full
+    # measurement and more: the same odometry error is learned
+    lines = [[-5.0, 0.0, 7.0, 0.0], [-5.0, 4.0, 7.0, 4.0], [7.0, 0.0, 7.0, 4.0]]
+    pinned = _calibrated(worlds.World("corridor_end", np.array(lines, dtype=np.float64)), 0.03, 18, y=2.0)
+    assert pinned.calibration.distance_seen > 2.0
+    assert pinned.calibration.scale > 1.003

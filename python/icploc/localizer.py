@@ -1072,7 +1072,7 @@ class Localizer:
             if verified:
                 self.quality.observe(check, fit_rms)
                 if z is not None and R is not None and odom is not None:
-                    self._calibrate(odom, z, R)
+                    self._calibrate(odom, z, R, axis)
             elif accepted and observed in (Reason.NONE, Reason.UNVERIFIED):
                 self.quality.observe_consistent(check, fit_rms)
                 if (
@@ -1082,7 +1082,7 @@ class Localizer:
                     and R is not None
                     and odom is not None
                 ):
-                    self._calibrate(odom, z, R)
+                    self._calibrate(odom, z, R, axis)
         if accepted and reason == Reason.ODOMETRY_OFF:
             # the latest prediction a fit overruled is the rival (an older one disputed a
             # pose the map has since left)
@@ -1448,11 +1448,24 @@ class Localizer:
         self._rejected = (z, R, odom, count)
         return count
 
-    def _calibrate(self, odom: Pose, z: Pose, R: NDArray[np.float64]) -> None:
+    def _calibrate(self, odom: Pose, z: Pose, R: NDArray[np.float64], axis: float) -> None:
         """Feed the odometry calibration with the motion between two verified, well
-        constrained scan matches at least ``calibration_baseline`` apart."""
+        constrained scan matches at least ``calibration_baseline`` apart. ``axis``: the
+        independent measurements the fit gives along its weakest direction
+        (:func:`~icploc.fusion.axis_measurements`)."""
         lc = self.config.localizer
         if not self.calibration.enabled:
+            return
+        if not axis >= lc.tracking_min_axis_independent:
+            # a fit that measures the position along every direction less than fully
+            # (``tracking_min_axis_independent``: a corridor's length, held by a door frame
+            # or two) is no evidence of the motion along it, whatever its covariance claims: it stays at its prediction (the calibration's own scale,
+            # read back) or slides to a neighbouring door. On infinite-corridor 5 cm bad
+            # (odometry ~2 % short) such fits slid back and taught a 1.6 % short scale,
+            # the dead reckoning then fell 3 m behind along the corridor (at
+            # min_axis_independent's 0.5 the bar let a scale 1 % long through there, and a
+            # pose 0.55 m ahead was promised). Neither an anchor nor an end: the pair spans
+            # it from the last fit that pinned the position.
             return
         a, b, c = float(R[0, 0]), float(R[0, 1]), float(R[1, 1])
         lmax = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
