@@ -433,9 +433,12 @@ class GlobalLocalizer:
         scan_xy: ArrayLike,
         region: Sequence[float] | None = None,
         heading: tuple[float, float] | None = None,
+        min_score: float | None = None,
     ) -> GlobalSearchResult:
         """Find the pose of an (N, 2) sensor-frame scan; ``region`` (xmin, ymin, xmax, ymax)
-        bounds the position, ``heading`` (min, max) the heading in radians."""
+        bounds the position, ``heading`` (min, max) the heading in radians; ``min_score``
+        this search's coarse floor (a share of a perfect score, in [0, 1)) in place of the
+        configured one: the leaves at or above it are those of the plain search."""
     def distances(self) -> NDArray[np.float32]:
         """The likelihood field's distances (m, each cell centre to the map, row by row)."""
     def refine(self, scan_xy: ArrayLike, poses: ArrayLike) -> list[GlobalCandidate]:

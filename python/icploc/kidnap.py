@@ -41,7 +41,8 @@ class CheckVerdict:
     ``verdict``: ``""`` (the tracked pose explains the scan as well as any), ``"unsure"`` (no
     convincing pose anywhere: a crowd, an unmapped place) or ``"elsewhere"`` (``pose``, a
     distinct place, explains it much better); ``here`` / ``best``: the scores of the tracked
-    pose and of the search's best pose."""
+    pose and of the search's best pose (``"unsure"``: the best the check's floored search
+    kept, below the confirming minimum like any the plain search would have found)."""
 
     verdict: str
     pose: Pose | None = None

@@ -53,6 +53,13 @@ __all__ = [
 #: (:class:`icploc.config.RelocalizeSection`, the one source of their defaults and checks)
 RelocalizeConfig = RelocalizeSection
 
+#: a kidnap / lock check's coarse floor per unit of the refined score it must reach. The
+#: coarse likelihood (``global_search.sigma``, 15 cm, on the grid) of a lattice leaf is
+#: well above the fine one (``score_sigma``, 5 cm) of the pose ICP refines it to; measured
+#: on the real 5 cm cells' checks (248 refined candidates): coarse / fine >= 1.2 for every
+#: one, >= 1.66 below a fine 0.3 (see benches/results/speed.md); kept at 0.8
+_COARSE_PER_FINE = 0.8
+
 
 @dataclass
 class Hypothesis:
@@ -739,12 +746,24 @@ class GlobalRelocalization:
     # corridor fits its old place well but not cleanly
 
     def check_pose(
-        self, index: Any, points: NDArray[np.float64], tracked: Pose, strict: bool = False
+        self,
+        index: Any,
+        points: NDArray[np.float64],
+        tracked: Pose,
+        strict: bool = False,
+        floored: bool = True,
     ) -> CheckVerdict:
         """One global search: does a distinct pose elsewhere explain ``points`` (robot
         frame) much better than ``tracked``? ``strict`` (checking a fresh lock): any
         distinct pose clearly better than ``tracked`` (by the tracker's dominance margin)
-        counts. Touches no localizer state (it may run on a worker thread)."""
+        counts. Touches no localizer state (it may run on a worker thread).
+
+        ``floored`` (the default): the search looks only for poses that could change the
+        verdict, those scoring at least the confirming minimum (``strict``: and above
+        the tracked pose); its coarse floor is that score times ``_COARSE_PER_FINE`` (a
+        coarse score is, as measured, well above a refined pose's score), so it prunes much of
+        the tree where nothing fits well (a crowd, a poorly mapped place) and returns
+        the same candidates above the floor. ``floored=False``: the plain search."""
         if not self.ready(index):
             return CheckVerdict("unsure")
         rel = self.relocalizer
@@ -755,10 +774,25 @@ class GlobalRelocalization:
         sub = np.ascontiguousarray(_subsample(pts, rel.config.max_points))
         here = rel.glob.refine(sub, np.array([tracked], dtype=np.float64))[0]
         s_here = rel._score(here)
-        cands = [
-            c for c in rel.glob.search(pts, rel.region, rel.heading).candidates
-            if rel.glob.distinct(here.pose, c.pose)
-        ]
+        floor = None
+        if floored:
+            good = float(getattr(rel, "_min_score", rel.config.min_score))
+            floor = _COARSE_PER_FINE * (max(good, s_here) if strict else good)
+            if floor <= self.global_search.min_score:
+                floor = None  # no higher than the search's own floor: the plain search
+        found = rel.glob.search(pts, rel.region, rel.heading, min_score=floor).candidates
+        cands = [c for c in found if rel.glob.distinct(here.pose, c.pose)]
+        if not cands and floor is not None and not strict:
+            # "" (no distinct pose at all) or "unsure" (none good) is told by the plain
+            # search's leaves, every leaf within accept_ratio of its best: the floored
+            # search kept them all if its floor is at most that; otherwise search again
+            # down to there (the plain search's leaves exactly, its best leaf now known)
+            top = max((c.coarse_score for c in found), default=0.0)
+            below = self.global_search.accept_ratio * top
+            if floor > below:
+                again = None if below <= self.global_search.min_score else below
+                found = rel.glob.search(pts, rel.region, rel.heading, min_score=again).candidates
+                cands = [c for c in found if rel.glob.distinct(here.pose, c.pose)]
         if not cands:
             return CheckVerdict("", here=s_here, best=s_here)
         best = max(cands, key=rel._score)

@@ -353,7 +353,31 @@ impl GlobalLocalizer {
         region: Option<[f64; 4]>,
         heading: Option<(f64, f64)>,
     ) -> Result<GlobalResult> {
+        self.search_above(scan, region, heading, None)
+    }
+
+    /// [`Self::search`] with this search's own coarse floor: `min_score` (in [0, 1), the
+    /// coarse score as a fraction of perfect) in place of the configured `min_score`. A
+    /// caller that only cares about poses scoring above some level (a check for a place
+    /// clearly better than a known one) prunes the tree from the start: the leaves are
+    /// exactly those of [`Self::search`] at or above the floor.
+    pub fn search_above(
+        &self,
+        scan: &[[f64; 2]],
+        region: Option<[f64; 4]>,
+        heading: Option<(f64, f64)>,
+        min_score: Option<f64>,
+    ) -> Result<GlobalResult> {
         crate::check_finite("scan", scan)?;
+        if let Some(f) = min_score {
+            if !(0.0..1.0).contains(&f) {
+                return Err(IcpError::InvalidInput {
+                    what: "min_score".into(),
+                    reason: format!("must be in [0, 1), got {f}"),
+                });
+            }
+        }
+        let floor_score = min_score.unwrap_or(self.cfg.min_score);
         let t0 = std::time::Instant::now();
         let cfg = &self.cfg;
         let usable: Vec<[f64; 2]> = scan
@@ -436,7 +460,8 @@ impl GlobalLocalizer {
         let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
         let offsets = cell_offsets(&sub, headings.iter().copied(), self.field.res);
         let full = 255 * m as u32;
-        let (mut leaves, nodes) = self.coarse_leaves(&offsets, [ri0, rj0, ri1, rj1], m);
+        let (mut leaves, nodes) =
+            self.coarse_leaves(&offsets, [ri0, rj0, ri1, rj1], m, floor_score);
         let n_leaves = leaves.len();
         // ties broken by position: the seeds (and the result) do not depend on thread timing
         leaves.sort_unstable_by_key(|l| (std::cmp::Reverse(l.score), l.k, l.j, l.i));
@@ -806,6 +831,7 @@ impl GlobalLocalizer {
         offsets: &[Vec<(i32, i32)>],
         region: [i32; 4],
         m: usize,
+        min_score: f64,
     ) -> (Vec<Leaf>, usize) {
         let cfg = &self.cfg;
         let [ri0, rj0, ri1, rj1] = region;
@@ -846,7 +872,7 @@ impl GlobalLocalizer {
             .map(|o| Shifts::new(o, self.field.w))
             .collect();
         let full = 255 * m as u32;
-        let floor = (cfg.min_score * full as f64).ceil() as u32;
+        let floor = (min_score * full as f64).ceil() as u32;
         let best = AtomicU32::new(floor);
         let ratio = cfg.accept_ratio;
         let threshold = |b: u32| -> u32 { ((b as f64) * ratio).ceil() as u32 };
@@ -1351,7 +1377,7 @@ mod tests {
                 region[2].min(w - 1),
                 region[3].min(h - 1),
             ];
-            let (leaves, nodes) = g.coarse_leaves(&offsets, region, m);
+            let (leaves, nodes) = g.coarse_leaves(&offsets, region, m, g.cfg.min_score);
             let mut got: Vec<_> = leaves.iter().map(|l| (l.score, l.k, l.i, l.j)).collect();
             got.sort_unstable();
             let want = exhaustive_leaves(&g, &offsets, region, m);
@@ -1379,6 +1405,40 @@ mod tests {
             let b = g.search(&scan, None, None).unwrap();
             assert_eq!(a.candidates, b.candidates);
             assert_eq!((a.ambiguous, a.leaves), (b.ambiguous, b.leaves));
+        }
+    }
+
+    #[test]
+    fn search_above_prunes_below_its_floor_only() {
+        let segs = office_segments();
+        let g = localizer(&segs, 0.05);
+        let mut rng = Rng::new(23);
+        let scan = make_scan(
+            &segs,
+            Pose2::new(21.0, 9.5, 1.0),
+            361,
+            30.0,
+            0.01,
+            0.05,
+            &mut rng,
+        );
+        let a = g.search(&scan, None, None).unwrap();
+        let top = a
+            .candidates
+            .iter()
+            .map(|c| c.coarse_score)
+            .fold(0.0f64, f64::max);
+        assert!(top > 0.5, "{top}");
+        // a floor the accept ratio already implies: the same result
+        let b = g.search_above(&scan, None, None, Some(0.75 * top)).unwrap();
+        assert_eq!(a.candidates, b.candidates);
+        assert_eq!(a.leaves, b.leaves);
+        // a floor above every pose: nothing, almost at once
+        let c = g.search_above(&scan, None, None, Some(0.99)).unwrap();
+        assert!(c.candidates.is_empty());
+        assert!(c.nodes * 4 < a.nodes, "{} vs {}", c.nodes, a.nodes);
+        for bad in [-0.1, 1.0, f64::NAN] {
+            assert!(g.search_above(&scan, None, None, Some(bad)).is_err());
         }
     }
 

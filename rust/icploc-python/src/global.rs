@@ -248,19 +248,21 @@ impl PyGlobalLocalizer {
 
     /// Search for the pose of `scan_xy` (N, 2 sensor-frame points); `region`: the sensor
     /// position's (xmin, ymin, xmax, ymax), `heading`: (min, max) radians.
-    #[pyo3(signature = (scan_xy, region=None, heading=None))]
+    /// `min_score`: this search's coarse floor in place of the configured one.
+    #[pyo3(signature = (scan_xy, region=None, heading=None, min_score=None))]
     fn search(
         &self,
         py: Python<'_>,
         scan_xy: &Bound<'_, PyAny>,
         region: Option<&Bound<'_, PyAny>>,
         heading: Option<(f64, f64)>,
+        min_score: Option<f64>,
     ) -> PyResult<PyGlobalResult> {
         let scan = array2(py, scan_xy, 2, "scan_xy")?;
         let region = pair4(py, region, "region")?;
         let s = scan.pairs();
         let r = py
-            .detach(|| guarded(|| self.inner.search(s, region, heading)))
+            .detach(|| guarded(|| self.inner.search_above(s, region, heading, min_score)))
             .map_err(|e| to_py(py, e))?;
         Ok(PyGlobalResult { inner: r })
     }
