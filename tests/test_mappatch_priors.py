@@ -2,7 +2,7 @@
 a prior the solved graph disagrees with by a few sigma, yet within the outlier gate (a
 wall matched beside itself), is down-weighted by its chi-square and the graph solved
 again, so it no longer drags its part of the stretch (and the walls drawn from there)
-off. The bound is a chi-square quantile per the prior's degrees of freedom (its
+off. The bound is per the prior's degrees of freedom (its
 information's rank), so a right full-rank prior is not mistaken for a wrong one."""
 
 from __future__ import annotations
@@ -11,14 +11,13 @@ import numpy as np
 import pytest
 from icploc.fusion import scan_covariance
 from icploc.mappatch import (
-    WALL_PRIOR_QUANTILE,
+    WALL_PRIOR_CHI2_PER_DOF,
     _Edge,
     _prior_chi2,
     _prior_dof,
     _solve_graph,
     _wall_prior_solve,
 )
-from scipy.stats import chi2 as chi2_dist
 
 
 def _graph(n: int = 40):  # type: ignore[no-untyped-def]
@@ -42,7 +41,7 @@ def _graph(n: int = 40):  # type: ignore[no-untyped-def]
 
 def test_a_wrong_wall_prior_within_the_gate_no_longer_drags_the_stretch_off() -> None:
     x, edges, priors, walls = _graph()
-    plain, kept_plain = _wall_prior_solve(x.copy(), edges, priors, walls, None, 16.0, quantile=0.0)
+    plain, kept_plain = _wall_prior_solve(x.copy(), edges, priors, walls, None, 16.0, per_dof=0.0)
     y, kept = _wall_prior_solve(x.copy(), edges, priors, walls, None, 16.0)
     # the wrong prior passes the gate: without the re-weighting it pulls node 20 (and the
     # walls its scan draws) more than 10 cm off; re-weighted, within 8 cm
@@ -51,7 +50,7 @@ def test_a_wrong_wall_prior_within_the_gate_no_longer_drags_the_stretch_off() ->
     assert abs(float(y[20, 1])) < 0.08
     # the whole stretch closer to the truth, and the right priors agree with it
     assert float(np.abs(y[:, 1]).max()) < 0.6 * float(np.abs(plain[:, 1]).max())
-    assert max(_prior_chi2(y, q) for q in walls[:4]) < chi2_dist.ppf(WALL_PRIOR_QUANTILE, 1)
+    assert max(_prior_chi2(y, q) for q in walls[:4]) < WALL_PRIOR_CHI2_PER_DOF
     # the wrong prior's information was scaled down, the right ones' kept
     assert float(kept[4][2][1, 1]) < 0.5 * float(walls[4][2][1, 1])
     np.testing.assert_array_equal(kept[0][2], walls[0][2])
@@ -91,8 +90,8 @@ def test_a_right_full_rank_prior_is_left_as_it_is_and_a_wrong_one_scaled() -> No
     assert _prior_dof(full) == 3
     at = _solve_graph(x.copy(), edges, [*priors, right, wrong])
     # the right prior's residual at the solution lies between the old bound and the new
-    assert 3.0 < _prior_chi2(at, right) < chi2_dist.ppf(WALL_PRIOR_QUANTILE, 3)
-    assert chi2_dist.ppf(WALL_PRIOR_QUANTILE, 3) < _prior_chi2(at, wrong) < 16.0
+    assert 3.0 < _prior_chi2(at, right) < 3 * WALL_PRIOR_CHI2_PER_DOF
+    assert 3 * WALL_PRIOR_CHI2_PER_DOF < _prior_chi2(at, wrong) < 16.0
     y, kept = _wall_prior_solve(x.copy(), edges, priors, [right, wrong], None, 16.0)
     assert [k for k, _, _ in kept] == [20, 30]
     np.testing.assert_array_equal(kept[0][2], full)
@@ -110,7 +109,7 @@ def test_the_same_chi_square_scales_a_one_direction_prior() -> None:
     assert _prior_dof(lateral[2]) == 1
     at = _solve_graph(x.copy(), edges, [*priors, lateral])
     c = _prior_chi2(at, lateral)
-    assert chi2_dist.ppf(WALL_PRIOR_QUANTILE, 1) < c < chi2_dist.ppf(WALL_PRIOR_QUANTILE, 3)
+    assert WALL_PRIOR_CHI2_PER_DOF < c < 3 * WALL_PRIOR_CHI2_PER_DOF
     _, kept = _wall_prior_solve(x.copy(), edges, priors, [lateral], None, 16.0)
     assert float(kept[0][2][1, 1]) < float(lateral[2][1, 1])
 
