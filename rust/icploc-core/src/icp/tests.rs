@@ -949,16 +949,24 @@ fn index_of(segs: &[[f64; 4]]) -> MapIndex {
         .unwrap()
 }
 
-#[test]
-fn beams_through_a_mapped_car_that_left_are_not_beams_through_walls() {
+/// The room with its car mapped, the car since gone: (the room's walls, the car's
+/// outline, the index of both, the truth at (3, 4) facing the car, the scan of the room alone
+/// from there).
+fn car_left() -> (Vec<[f64; 4]>, Vec<[f64; 4]>, MapIndex, Pose2, Vec<[f64; 2]>) {
     let (room, car) = room_with_car();
     let mut map = room.clone();
     map.extend_from_slice(&car);
     let idx = index_of(&map);
-    let cfg = IcpConfig::default();
-    // the car has left: from the truth, facing it, a third of the beams pass through it
     let truth = Pose2::new(3.0, 4.0, 0.0);
     let scan = scan_of(&room, truth);
+    (room, car, idx, truth, scan)
+}
+
+#[test]
+fn beams_through_a_mapped_car_that_left_are_not_beams_through_walls() {
+    let cfg = IcpConfig::default();
+    // the car has left: from the truth, facing it, a third of the beams pass through it
+    let (room, car, idx, truth, scan) = car_left();
     let f = window::assess(&scan, &idx, truth, &cfg);
     assert!(f.see_through > 0.2, "{f:?}");
     assert_eq!(f.vanished, f.see_through, "{f:?}");
@@ -978,12 +986,7 @@ fn beams_through_a_mapped_car_that_left_are_not_beams_through_walls() {
 
 #[test]
 fn vanished_object_size_zero_counts_every_crossing_and_small_objects_are_up_to_it() {
-    let (room, car) = room_with_car();
-    let mut map = room.clone();
-    map.extend_from_slice(&car);
-    let idx = index_of(&map);
-    let truth = Pose2::new(3.0, 4.0, 0.0);
-    let scan = scan_of(&room, truth);
+    let (_, car, idx, truth, scan) = car_left();
     // off: the beams through the car that left are beams through walls again, and the
     // tight fit no longer passes as it is
     let off = IcpConfig {
@@ -1029,14 +1032,10 @@ fn vanished_object_size_zero_counts_every_crossing_and_small_objects_are_up_to_i
 
 #[test]
 fn beams_through_a_wall_still_count_past_a_car_that_left() {
-    let (room, car) = room_with_car();
-    let mut map = room.clone();
-    map.extend_from_slice(&car);
-    let idx = index_of(&map);
     let cfg = IcpConfig::default();
     // the scan from (3, 4) facing east, read at a pose 0.7 m farther east: the east wall's
     // returns lie behind the wall, past the car that left
-    let scan = scan_of(&room, Pose2::new(3.0, 4.0, 0.0));
+    let (room, car, idx, _, scan) = car_left();
     let wrong = Pose2::new(3.7, 4.0, 0.0);
     let f = window::assess(&scan, &idx, wrong, &cfg);
     assert!(f.see_through - f.vanished > 0.2, "{f:?}");
@@ -1081,13 +1080,8 @@ fn a_tight_pose_with_beams_through_a_car_that_left_counts_as_searched_tight() {
     // only through a mapped car that left meets it (before, its 44 % see-through did not:
     // 32 more seeds, on the garage's large starts up to 13 ms). This checks the rule on
     // the right pose; the window path itself is not driven here.
-    let (room, car) = room_with_car();
-    let mut map = room.clone();
-    map.extend_from_slice(&car);
-    let idx = index_of(&map);
     let cfg = IcpConfig::default();
-    let truth = Pose2::new(3.0, 4.0, 0.0);
-    let scan = scan_of(&room, truth);
+    let (_, _, idx, truth, scan) = car_left();
     let r = align(&scan, &idx, truth, &cfg).unwrap();
     let f = r.fit.expect("assessed");
     assert!(f.see_through > SEARCHED_SEE_THROUGH, "{f:?}");
