@@ -949,10 +949,13 @@ fn index_of(segs: &[[f64; 4]]) -> MapIndex {
         .unwrap()
 }
 
+/// Wall segments (x0, y0, x1, y1).
+type Walls = Vec<[f64; 4]>;
+
 /// The room with its car mapped, the car since gone: (the room's walls, the car's
 /// outline, the index of both, the truth at (3, 4) facing the car, the scan of the room alone
 /// from there).
-fn car_left() -> (Vec<[f64; 4]>, Vec<[f64; 4]>, MapIndex, Pose2, Vec<[f64; 2]>) {
+fn car_left() -> (Walls, Walls, MapIndex, Pose2, Vec<[f64; 2]>) {
     let (room, car) = room_with_car();
     let mut map = room.clone();
     map.extend_from_slice(&car);
