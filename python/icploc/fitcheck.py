@@ -162,9 +162,10 @@ class MapQuality:
     def observe_consistent(self, check: FitCheck, rms: float | None = None) -> None:
         """Learn from a fit the odometry agrees with (chi-square accepted) that verification
         turned down: its residual (``rms``, the ICP's own, else ``check.rms``) when its hit
-        share is at least ``rms_min_hit``, and its hit share when it is at least ``hit_floor``. Learning the share from verified fits
-        alone ratchets: only shares above the threshold are ever seen, so one well-mapped
-        start (a reference near 1) would keep every later fit unverified."""
+        share is at least ``rms_min_hit``, and its hit share when it is at least
+        ``hit_floor``. Learning the share from verified fits alone ratchets: only shares
+        above the threshold are ever seen, so one well-mapped start (a reference near 1)
+        would keep every later fit unverified."""
         if check.hit >= self.rms_min_hit:
             self._observe_rms(check.rms if rms is None else rms)
         if check.hit >= self.hit_floor:

@@ -326,15 +326,7 @@ class Localizer:
         #: independent beams of a scan: the beams on one wall share its error (its shape,
         #: another pass's wall, the grid's quantisation), whatever the map's resolution
         self._independent_beams = lc.scan_independent_beams
-        self.motion_model = MotionModel(
-            lc.alpha1,
-            lc.alpha2,
-            lc.alpha3,
-            lc.alpha4,
-            lc.alpha5,
-            floor_xy=lc.process_sigma_xy,
-            floor_theta=lc.process_sigma_theta,
-        )
+        self.motion_model = MotionModel.from_config(lc)
         self.calibration = OdometryCalibration.from_config(lc)
         self.odometry = OdometryBuffer(max_extrapolation=min(0.25, lc.max_odometry_gap))
         self._trig = _TrigCache()
@@ -724,13 +716,11 @@ class Localizer:
         )
         return (ix, iy, wrap_angle(ith)), R
 
-    def _verified(self, check: FitCheck, lock: bool = False) -> bool:
-        """The pose's evidence is as good as this map's verified fits usually are. For a
-        recovery's lock (``lock``) on a map whose usual hit share is not measured yet (lost
-        before five fits were seen) the share is held to the absolute floor only: the
-        assumed share of 1 would refuse every lock on a map from another pass. The same holds
-        for tracking: the relative bar applies once the share is measured (``lock`` is
-        kept for the callers; before, the first fits on a map from another pass were held
+    def _verified(self, check: FitCheck) -> bool:
+        """The pose's evidence is as good as this map's verified fits usually are. Until the
+        map's usual hit share is measured (five fits) the share is held to the absolute
+        floor only, for a tracking fit as for a recovery's lock: the assumed share of 1
+        would refuse every fit on a map from another pass (the first fits there were held
         to 0.8 x an assumed 1 and none verified)."""
         lc = self.config.localizer
         q = self.quality
@@ -806,7 +796,7 @@ class Localizer:
         if m is None:
             return False, res, pose
         z, R = m
-        return self._verified(self._check(points, z, z, res), lock=True), res, z
+        return self._verified(self._check(points, z, z, res)), res, z
 
     def _update_tracking(
         self,
@@ -1459,8 +1449,9 @@ class Localizer:
         if not axis >= lc.tracking_min_axis_independent:
             # a fit that measures the position along every direction less than fully
             # (``tracking_min_axis_independent``: a corridor's length, held by a door frame
-            # or two) is no evidence of the motion along it, whatever its covariance claims: it stays at its prediction (the calibration's own scale,
-            # read back) or slides to a neighbouring door. On infinite-corridor 5 cm bad
+            # or two) is no evidence of the motion along it, whatever its covariance
+            # claims: it stays at its prediction (the calibration's own scale, read back)
+            # or slides to a neighbouring door. On infinite-corridor 5 cm bad
             # (odometry ~2 % short) such fits slid back and taught a 1.6 % short scale,
             # the dead reckoning then fell 3 m behind along the corridor (at
             # min_axis_independent's 0.5 the bar let a scale 1 % long through there, and a

@@ -324,10 +324,8 @@ def _exit_step_heading_sigma(u: Pose, motion: Any = None) -> float:
     if motion is None:
         from icploc.config import LocalizerSection
 
-        lc = LocalizerSection()
-        motion = MotionModel(lc.alpha1, lc.alpha2, lc.alpha3, lc.alpha4, lc.alpha5)
-    elif isinstance(motion, MotionModel):
-        motion = dataclasses.replace(motion, floor_xy=0.0, floor_theta=0.0)
+        motion = MotionModel.from_config(LocalizerSection())
+    motion = dataclasses.replace(motion, floor_xy=0.0, floor_theta=0.0)
     var = float(motion.motion_covariance(u)[2, 2])
     return math.sqrt(CHAIN_ODOM_HEADING[0] ** 2 + var)
 
@@ -619,8 +617,8 @@ def graph_solution(
     (:func:`_sequence_edges`), so the chain's heading does not drift with the odometry's;
     0: none. ``exit_motion``: the localizer's motion model at the exit
     (:attr:`icploc.outside.Stretch.exit_motion`), the first step's heading noise
-    (:func:`_exit_step_heading_sigma`). Returns the poses (N, 3) and, with ``marginals``, their marginal covariances
-    (N, 3, 3; :func:`_marginals`) at the solution, else None."""
+    (:func:`_exit_step_heading_sigma`). Returns the poses (N, 3) and, with ``marginals``,
+    their marginal covariances (N, 3, 3; :func:`_marginals`) at the solution, else None."""
     from icploc._core import IcpConfig
 
     n = len(coasted)
@@ -805,7 +803,8 @@ def _wall_prior_solve(
     chi-square ``gate`` is dropped and the graph solved again; then each kept wall prior's
     information is scaled by ``min(1, per_dof * dof / chi2)`` (``chi2`` its residual at
     that solution, ``dof`` the prior's degrees of freedom, :func:`_prior_dof`; default
-    :data:`WALL_PRIOR_CHI2_PER_DOF`; 0 or less: no scaling) and the graph solved once more. Returns the poses and the wall priors as used."""
+    :data:`WALL_PRIOR_CHI2_PER_DOF`; 0 or less: no scaling) and the graph solved once
+    more. Returns the poses and the wall priors as used."""
     if per_dof is None:
         per_dof = WALL_PRIOR_CHI2_PER_DOF
     y = _solve_graph(x, edges, [*priors, *mp], scale=scale)

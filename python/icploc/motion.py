@@ -58,6 +58,19 @@ class MotionModel:
     #: multiplies every alpha (the online noise estimate; 1 = as configured)
     gain: float = 1.0
 
+    @classmethod
+    def from_config(cls, lc: LocalizerSection) -> MotionModel:
+        """The configured model: ``lc``'s alphas and process noise floors."""
+        return cls(
+            lc.alpha1,
+            lc.alpha2,
+            lc.alpha3,
+            lc.alpha4,
+            lc.alpha5,
+            floor_xy=lc.process_sigma_xy,
+            floor_theta=lc.process_sigma_theta,
+        )
+
     def motion_covariance(self, d: Sequence[float]) -> NDArray[np.float64]:
         """3x3 covariance of the motion ``d`` (dx, dy, dtheta) in its start frame."""
         q00, q01, q11, q22 = self._motion_q(float(d[0]), float(d[1]), float(d[2]))
