@@ -103,3 +103,67 @@ def test_the_trackers_thresholds_follow_the_maps_fit_quality_down_never_up() -> 
     r.expect(0.95)  # a clean map raises nothing
     clean = r._good(c.min_score - 0.01, c.min_inlier_ratio)
     assert (before, after, clean) == (False, True, False)
+
+
+def _lab_tracker(config: object = None) -> tuple[object, object, tuple[float, float, float]]:
+    """A Localizer tracking the furnished lab (no people) from its start pose, and the prepared
+    points of one more scan there."""
+    import numpy as np
+    from icploc import MapIndex
+    from icploc import sim as worlds
+    from icploc.localizer import Localizer
+    from icploc.messages import Scan
+
+    lab = worlds.lab(people=0)
+    pts, nrm = [], []
+    for x1, y1, x2, y2 in lab.lines:
+        n = max(int(math.hypot(x2 - x1, y2 - y1) / 0.05), 1)
+        t = (np.arange(n) + 0.5) / n
+        pts.append(np.column_stack([x1 + t * (x2 - x1), y1 + t * (y2 - y1)]))
+        length = math.hypot(x2 - x1, y2 - y1)
+        nrm.append(np.tile([-(y2 - y1) / length, (x2 - x1) / length], (n, 1)))
+    truth = (0.0, 0.0, 0.0)
+    loc = Localizer(MapIndex(np.vstack(pts), np.vstack(nrm)), config, initial_pose=truth)
+    angles = np.linspace(-math.pi, math.pi, 361, endpoint=False)
+    rng = np.random.default_rng(0)
+    for k in range(9):
+        r = lab.ranges(truth, angles, 8.0, 0.1 * k, rng, 0.0)
+        scan = Scan(stamp=0.1 * k, ranges=r, angles=angles, max_range=8.0)
+        e = loc.update(scan, (0.0, 0.0, 0.0))
+    assert e.status is Status.TRACKING
+    return loc, loc.prepare(scan), truth
+
+
+def test_coasting_goes_on_past_the_lost_sigma_while_the_dead_reckoning_means_something() -> None:
+    """Lost on a long stretch the map barely shows, the dead reckoning's sigma passes
+    localizer.lost_sigma_xy (2 m) long before it means nothing; a consistent fit that
+    explains the scan better still corrects it (freiburg-campus 5 cm bad odometry: without
+    it the pose ran 6.7 m off). A pose that means nothing is never corrected."""
+    import numpy as np
+    from icploc.localizer import _unknown_covariance
+
+    loc, pts, truth = _lab_tracker()
+    pred = (truth[0] + 0.3, truth[1] + 0.2, truth[2] + 0.03)
+    sig = 2.5  # > lost_sigma_xy, < coast_sigma_xy
+    pose, _, fused = loc._coast(pts, pred, np.diag([sig**2 / 2, sig**2 / 2, 0.05]))
+    assert fused and math.hypot(pose[0] - truth[0], pose[1] - truth[1]) < 0.05
+    _, _, fused_unknown = loc._coast(pts, pred, _unknown_covariance())
+    assert not fused_unknown
+
+
+def test_a_coasting_correction_may_move_as_far_as_the_dead_reckoning_is_uncertain() -> None:
+    """The tracking jump cap (gating.max_translation_jump) does not bound a coasting fit:
+    from a dead reckoning 1 m off with a 1 m sigma the fit lies 1 m away; it is taken within
+    coast_jump_sigmas sigmas (0: the jump cap alone, as before)."""
+    import numpy as np
+    from icploc.config import LocalizerConfig
+
+    cfg = LocalizerConfig.from_dict({"gating": {"max_translation_jump": 0.5}})
+    loc, pts, truth = _lab_tracker(cfg)
+    pred = (truth[0] + 1.0, truth[1], truth[2] + 0.03)
+    cov = np.diag([0.5, 0.5, 0.05])  # sigma 1 m
+    pose, _, fused = loc._coast(pts, pred, cov)
+    assert fused and math.hypot(pose[0] - truth[0], pose[1] - truth[1]) < 0.05
+    loc.config.localizer.coast_jump_sigmas = 0.0
+    _, _, fused_capped = loc._coast(pts, pred, cov)
+    assert not fused_capped

@@ -563,6 +563,20 @@ class LocalizerSection(Section):
         "while lost: the dead reckoning is corrected by scan fits consistent with it (the "
         "chi-square gate, explaining the scan at least as well); the status stays lost",
     )
+    coast_sigma_xy: float = _f(
+        8.0,
+        "lost_coasting goes on while the dead-reckoned position's sigma is at most this (past "
+        "lost_sigma_xy: a long stretch the map barely shows, bad odometry drifting metres)",
+        "m",
+        gt=0,
+    )
+    coast_jump_sigmas: float = _f(
+        3.0,
+        "... and a coasting fit may move the pose by up to this many of those sigmas (at least "
+        "gating.max_translation_jump): a fit from a dead reckoning 2 m off lies 2 m away",
+        "sigmas",
+        ge=0,
+    )
     lost_noise_gain: float = _f(
         4.0, "while lost the odometry noise variances are this many times the learned ones", gt=0
     )
