@@ -73,6 +73,12 @@ class RecoveryStep:
     #: than a lock needs) that the localizer's verification did not accept: the localizer
     #: resumes there ``degraded``, never ``tracking``, until its own fits verify
     verified: bool = True
+    #: True: the lock's hypothesis dominated every rival of a whole-map search made in this
+    #: lost episode, within ``relocalize.full_search_every`` throttle periods (the tracker
+    #: carried those rivals since and the lock beat them all): a verified lock the dead
+    #: reckoning agrees with then needs no fresh whole-map check (the localizer's strict
+    #: check of a lock, :meth:`icploc.localizer.Localizer._update_lost`)
+    rivals_searched: bool = False
 
 
 class Recovery(Protocol):

@@ -735,8 +735,11 @@ class GlobalRelocalization:
                 return RecoveryStep("confirming", hyps)
             self.reset()
             return RecoveryStep("locked", hyps, lock=pose, result=fit, verified=False)
+        full = self._last_full
+        k = self.settings.full_search_every
+        searched = full is not None and n - full[0] <= every * k
         self.reset()
-        return RecoveryStep("locked", hyps, lock=pose, result=fit)
+        return RecoveryStep("locked", hyps, lock=pose, result=fit, rivals_searched=searched)
 
 
     # -- while tracking: the kidnap check (icploc.kidnap) ---------------------------------
