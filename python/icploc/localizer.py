@@ -1645,7 +1645,9 @@ class Localizer:
         odometry then does not carry the pose off while the verification is still unsure
         (a place the map barely covers); the status stays ``lost`` and the pose jumps only to
         a verified lock (or, after ``recover_after`` such fits in a row, to tracking, see
-        :meth:`_update_lost`). A pose that means nothing (unknown covariance) is not corrected."""
+        :meth:`_update_lost`). A pose that means nothing (unknown covariance) is not corrected:
+        coasting stops once the position's sigma passes ``localizer.coast_sigma_xy``, and a
+        fit may move the pose by ``coast_jump_sigmas`` of that sigma (at least the jump cap)."""
         lc = self.config.localizer
         g = self.config.gating
         sig = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
