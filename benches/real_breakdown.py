@@ -107,6 +107,8 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
             if k < len(quality.seen):
                 # the map quality after the scan (what the next scan is checked against)
                 row["sigma"], row["hit_ref"], row["hit_measured"] = quality.seen[k]
+            if k in quality.fits:
+                row["hit_fit"], row["hit_pred"], row["fit_verified"] = quality.fits[k]
             rows.append(row)
     return rows
 
@@ -129,10 +131,25 @@ class _record_quality:
             seen.append((float(q.sigma), float(q.hit_reference), bool(q.hit_measured)))
             return out
 
+        #: per tracking scan: (hit share at the fit, at the prediction, whether the fit verified)
+        self.fits: dict[int, tuple[float, float, bool]] = {}
+        self._orig_tr = Localizer._update_tracking
+        orig_tr, fits = self._orig_tr, self.fits
+
+        def update_tracking(loc: Any, scan: Any, pts: Any, pred: Any, *a: Any, **kw: Any) -> Any:
+            est = orig_tr(loc, scan, pts, pred, *a, **kw)
+            if est.measurement is not None:
+                at_z = loc.checker.check(pts, est.measurement)
+                at_pred = loc.checker.check(pts, pred)
+                fits[len(seen)] = (float(at_z.hit), float(at_pred.hit), bool(loc._verified(at_z)))
+            return est
+
         Localizer.update = update  # type: ignore[method-assign]
+        Localizer._update_tracking = update_tracking  # type: ignore[method-assign]
 
     def stop(self) -> None:
         self._cls.update = self._orig  # type: ignore[method-assign]
+        self._cls._update_tracking = self._orig_tr  # type: ignore[method-assign]
 
 
 def describe(rows: list[dict], label: str) -> str:

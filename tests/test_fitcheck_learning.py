@@ -94,7 +94,29 @@ def test_the_localizer_learns_up_to_half_the_final_correspondence_floor_at_the_f
     assert q.hit_floor == pytest.approx(cfg.localizer.verify_min_hit_ratio)
 
 
-def test_before_the_usual_hit_share_is_measured_only_the_floor_holds() -> None:
+def test_before_the_usual_hit_share_is_measured_a_fit_half_explaining_the_scan_does_not_verify() -> None:
+    # review finding: with the absolute floor (0.5) alone a wrong start pose with 55 % of
+    # its beams on walls verified, and its fits then taught 0.55 as the map's usual share
+    loc = Localizer(walls_index(BOX), initial_pose=(0.0, 0.0, 0.0))
+    lc = loc.config.localizer
+    tight = 0.5 * loc.quality.sigma
+    assert lc.verify_min_hit_ratio < 0.55 < lc.verify_unmeasured_hit_ratio
+    assert not loc.quality.hit_measured
+    assert not loc._verified(FitCheck(0.55, 0.0, tight, 300))
+    assert loc._verified(FitCheck(lc.verify_unmeasured_hit_ratio, 0.0, tight, 300))
+    # nor does the map's quality learn such fits' share as the usual one
+    for _ in range(10):
+        loc.quality.observe_consistent(FitCheck(0.55, 0.0, tight, 300))
+    assert not loc.quality.hit_measured
+    assert not loc._verified(FitCheck(0.55, 0.0, tight, 300))
+    for _ in range(5):  # fits at the bar do teach it; then the usual relative bar holds
+        loc.quality.observe_consistent(FitCheck(0.62, 0.0, tight, 300))
+    assert loc.quality.hit_measured
+    assert loc.quality.hit_reference == pytest.approx(0.62)
+    assert loc._verified(FitCheck(0.55, 0.0, tight, 300))  # 0.55 >= 0.8 x 0.62
+
+
+def test_before_the_usual_hit_share_is_measured_only_the_unmeasured_bar_holds() -> None:
     loc = Localizer(walls_index(BOX), initial_pose=(0.0, 0.0, 0.0))
     lc = loc.config.localizer
     hit = 0.5 * (lc.verify_min_hit_ratio + lc.verify_hit_fraction)  # between floor and bar

@@ -449,6 +449,14 @@ class LocalizerSection(Section):
     verify_hit_fraction: float = _f(
         0.8, "... and at least this fraction of the share this map's verified fits show", ge=0, le=1
     )
+    verify_unmeasured_hit_ratio: float = _f(
+        0.6,
+        "... and until that share is measured, at least this share (and only fits showing it "
+        "teach the share): a wrong start pose half fitting the scan (55 % of beams on walls) "
+        "would otherwise verify and teach its own share as the usual one",
+        ge=0,
+        le=1,
+    )
     quality_window: int = _f(
         51,
         "the map's learned residual and usual hit share are medians over this many recent fits",
@@ -506,6 +514,15 @@ class LocalizerSection(Section):
         "... and the disagreement is at most this many times the accept quantile",
         "x quantile",
         gt=0,
+    )
+    arbitration_hit_ratio: float = _f(
+        2.0,
+        "... or, short of the usual share, when at least verify_min_hit_ratio of its beams "
+        "end on walls at the usual residual and this many times the prediction's share (plus "
+        "arbitration_margin): a place the map covers by half, the prediction tens of "
+        "centimetres off; 0: off",
+        "x prediction's share",
+        ge=0,
     )
     consistent_rejections: int = _f(
         3, "... or when this many rejected scan poses in a row agree with each other", "scans", gt=0

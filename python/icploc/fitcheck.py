@@ -95,6 +95,7 @@ class MapQuality:
         rms_min_hit: float,
         learn_after: int,
         loosen_after: int,
+        unmeasured_hit: float = 0.0,
     ) -> None:
         if not (resolution > 0 and math.isfinite(resolution)):
             raise ValueError(f"MapQuality: resolution must be positive, got {resolution!r}")
@@ -116,6 +117,8 @@ class MapQuality:
         #: the learned residual's ceiling
         self.sigma_max = max(2.0 * self.prior, float(sigma_cap))
         self.hit_floor = float(hit_floor)
+        #: until the usual share is measured, the share a fit must show to teach it
+        self.unmeasured_hit = float(unmeasured_hit)
         self.rms_min_hit = float(rms_min_hit)
         self.learn_after = int(learn_after)
         self.loosen_after = int(loosen_after)
@@ -146,6 +149,7 @@ class MapQuality:
             window=lc.quality_window,
             sigma_cap=lc.quality_sigma_cap * config.icp.min_correspondence_distance,
             hit_floor=lc.verify_min_hit_ratio,
+            unmeasured_hit=lc.verify_unmeasured_hit_ratio,
             rms_min_hit=lc.quality_rms_min_hit * lc.verify_min_hit_ratio,
             learn_after=lc.quality_learn_after,
             loosen_after=lc.quality_loosen_after,
@@ -168,7 +172,8 @@ class MapQuality:
         would keep every later fit unverified."""
         if check.hit >= self.rms_min_hit:
             self._observe_rms(check.rms if rms is None else rms)
-        if check.hit >= self.hit_floor:
+        floor = self.hit_floor if self.hit_measured else max(self.hit_floor, self.unmeasured_hit)
+        if check.hit >= floor:
             self._hit.append(check.hit)
         self._count()
 
