@@ -656,6 +656,12 @@ fn align_unchecked(
         return align_plain(scan, index, initial, cfg, ws);
     }
     let center = initial.normalized();
+    // the map's pieces, which the see-through check needs once a beam meets a wall: built
+    // by the first call, not by whichever later one first meets a wall (a call that costs
+    // a map-sized build at random: a caller's warm-up call makes the next ones steady)
+    if cfg.vanished_object_size > 0.0 {
+        index.objects();
+    }
     // the heading at which the scan's walls line up with the map's (`None` without enough
     // straight wall pieces in the scan)
     let prior = local::scan_directions(scan).and_then(|h| {

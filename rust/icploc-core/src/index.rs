@@ -421,6 +421,12 @@ impl MapIndex {
         })
     }
 
+    /// Whether [`MapIndex::objects`] has been built.
+    #[cfg(test)]
+    pub(crate) fn objects_built(&self) -> bool {
+        self.objects.get().is_some()
+    }
+
     /// The max-pooled likelihood pyramid of the window search of `icp()`
     /// ([`crate::likelihood`]), built on first use and kept; `None` when the map's bounds
     /// need more than 2²³ cells even at 20 cm.
