@@ -38,9 +38,11 @@ fn main() {
     idx.likelihood_field()
         .expect("the map fits the window grid");
     idx.objects();
-    let mut cfg = IcpConfig::default();
     // PLAIN=1: the plain ICP alone (no verified start)
-    cfg.window_search = std::env::var_os("PLAIN").is_none();
+    let cfg = IcpConfig {
+        window_search: std::env::var_os("PLAIN").is_none(),
+        ..IcpConfig::default()
+    };
     let mut cs = world_cases(&w, 200, err, 7);
     // FAST=1: only the cases whose result came from the fast path (the plain ICP or the
     // one from the heading prior, no window search)
