@@ -510,6 +510,9 @@ struct Workspace {
     nn_pose: Option<Pose2>,
     /// the scan's farthest range (m), for the shift of a step at its far end
     reach: f64,
+    /// [`gather`]'s queries and their answers
+    queries: Vec<[f64; 2]>,
+    answers: Vec<(f64, u32)>,
 }
 
 /// The fit of `r`, the result of the last [`align_plain`] call with `ws` on `scan`: from
@@ -653,6 +656,12 @@ fn align_unchecked(
         return align_plain(scan, index, initial, cfg, ws);
     }
     let center = initial.normalized();
+    // the map's pieces, which the see-through check needs once a beam meets a wall: built
+    // by the first call, not by whichever later one first meets a wall (a call that costs
+    // a map-sized build at random: a caller's warm-up call makes the next ones steady)
+    if cfg.vanished_object_size > 0.0 {
+        index.objects();
+    }
     // the heading at which the scan's walls line up with the map's (`None` without enough
     // straight wall pieces in the scan)
     let prior = local::scan_directions(scan).and_then(|h| {
@@ -1359,6 +1368,10 @@ fn align_plain(
     let mut termination = Termination::MaxIterations;
     ws.moved.resize(n, [0.0; 2]);
     ws.nn.resize(n, 0);
+    // room for every point's pair and query up front (no regrowth in the loop)
+    ws.pairs.reserve(n);
+    ws.queries.reserve(n);
+    ws.answers.reserve(n);
     ws.nn_pose = None;
     ws.reach = scan
         .iter()
@@ -1406,13 +1419,16 @@ fn align_plain(
             coarse: sub,
             nn,
             nn_pose,
+            queries,
+            answers,
             ..
         } = &mut *ws;
+        let mut buf = (queries, answers);
         pairs.clear();
         last_coarse = coarse && !at_final;
         if last_coarse {
             let ids = sub.iter().map(|&i| i as usize);
-            gather(scan, index, pose, thr2, ids, pairs, moved, nn);
+            gather(scan, index, pose, thr2, ids, pairs, moved, nn, &mut buf);
             *nn_pose = None;
             if pairs.len() < coarse_min {
                 coarse = false;
@@ -1421,7 +1437,7 @@ fn align_plain(
         }
         if !last_coarse {
             pairs.clear();
-            gather(scan, index, pose, thr2, 0..n, pairs, moved, nn);
+            gather(scan, index, pose, thr2, 0..n, pairs, moved, nn, &mut buf);
             *nn_pose = Some(pose);
         }
         trim(&mut ws.pairs, cfg.trim_fraction);
@@ -1605,7 +1621,8 @@ const COARSE_POINTS: usize = 96;
 const COARSE_MIN_PAIRS: usize = 12;
 
 /// The pairs of the scan points `ids` moved to `pose` within `sqrt(thr2)` of their closest
-/// map points (`moved`: the moved points, `nn`: their closest map points, by scan index).
+/// map points (`moved`: the moved points, `nn`: their closest map points, by scan index;
+/// `buf`: room for the queries and answers of [`MapIndex::correspondences`]).
 #[inline]
 #[allow(clippy::too_many_arguments)]
 fn gather(
@@ -1613,24 +1630,27 @@ fn gather(
     index: &MapIndex,
     pose: Pose2,
     thr2: f64,
-    ids: impl Iterator<Item = usize>,
+    ids: impl Iterator<Item = usize> + Clone,
     pairs: &mut Vec<Pair>,
     moved: &mut [[f64; 2]],
     nn: &mut [u32],
+    buf: &mut (&mut Vec<[f64; 2]>, &mut Vec<(f64, u32)>),
 ) {
     let (s, c) = pose.theta.sin_cos();
-    for i in ids {
+    let (queries, answers) = buf;
+    queries.clear();
+    for i in ids.clone() {
         let p = scan[i];
         let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
         moved[i] = q;
-        let (d2, j) = index.correspondence(q);
-        nn[i] = j as u32;
+        queries.push(q);
+    }
+    answers.resize(queries.len(), (0.0, 0));
+    index.correspondences(queries, answers);
+    for (i, &(d2, j)) in ids.zip(answers.iter()) {
+        nn[i] = j;
         if d2 <= thr2 {
-            pairs.push(Pair {
-                i: i as u32,
-                j: j as u32,
-                d2,
-            });
+            pairs.push(Pair { i: i as u32, j, d2 });
         }
     }
 }

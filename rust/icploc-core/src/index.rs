@@ -347,6 +347,35 @@ impl MapIndex {
         self.nearest(q)
     }
 
+    /// [`MapIndex::correspondence`] of each of `qs` into `out` (squared distance, index),
+    /// the same answers: the grid cells of all the queries are read first, then their
+    /// points (the reads of one pass do not wait on each other, so their cache misses
+    /// overlap; in one pass each query's point waits for its cell).
+    #[inline]
+    pub fn correspondences(&self, qs: &[[f64; 2]], out: &mut [(f64, u32)]) {
+        assert_eq!(qs.len(), out.len(), "one answer per query");
+        let Some(c) = &self.cache else {
+            for (q, o) in qs.iter().zip(out.iter_mut()) {
+                let (d2, j) = self.nearest(*q);
+                *o = (d2, j as u32);
+            }
+            return;
+        };
+        for (q, o) in qs.iter().zip(out.iter_mut()) {
+            o.1 = c.lookup(*q).map_or(u32::MAX, |j| j as u32);
+        }
+        for (q, o) in qs.iter().zip(out.iter_mut()) {
+            *o = if o.1 != u32::MAX {
+                let p = self.points[o.1 as usize];
+                let d2 = (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1]);
+                (d2, o.1)
+            } else {
+                let (d2, j) = self.nearest(*q);
+                (d2, j as u32)
+            };
+        }
+    }
+
     #[inline]
     pub fn len(&self) -> usize {
         self.points.len()
@@ -390,6 +419,12 @@ impl MapIndex {
         self.objects.get_or_init(|| {
             objects::Objects::build(&self.points, (1.5 * self.spacing()).max(OBJECT_LINK))
         })
+    }
+
+    /// Whether [`MapIndex::objects`] has been built.
+    #[cfg(test)]
+    pub(crate) fn objects_built(&self) -> bool {
+        self.objects.get().is_some()
     }
 
     /// The max-pooled likelihood pyramid of the window search of `icp()`
@@ -642,6 +677,29 @@ mod tests {
             .with_cache(Some(0.02))
             .unwrap();
         (pts, built)
+    }
+
+    /// The batch look-up answers each query as the single one does, with a grid (queries
+    /// inside it, beyond its tiles, NaN) and without one (exact answers).
+    #[test]
+    fn batched_correspondences_are_the_single_answers() {
+        let mut rng = crate::testkit::Rng::new(31);
+        let (pts, built) = built_walls(&mut rng);
+        let plain = MapIndex::new(pts, None).unwrap();
+        let mut qs: Vec<[f64; 2]> = (0..2000)
+            .map(|_| [rng.range(-1.5, 6.5), rng.range(-1.5, 6.5)])
+            .collect();
+        qs.extend((0..200).map(|_| [rng.range(-40.0, 40.0), rng.range(-40.0, 40.0)]));
+        qs.push([f64::NAN, 1.0]);
+        for idx in [&built, &plain] {
+            let mut out = vec![(0.0, 0u32); qs.len()];
+            idx.correspondences(&qs, &mut out);
+            for (q, &(d2, j)) in qs.iter().zip(&out) {
+                let (e2, k) = idx.correspondence(*q);
+                assert_eq!(j as usize, k, "query {q:?}");
+                assert!(d2 == e2 || (d2.is_nan() && e2.is_nan()), "query {q:?}");
+            }
+        }
     }
 
     #[test]

@@ -190,11 +190,15 @@ impl LikelihoodField {
 
     /// Distance (m) from `p` to the map as stored in the grid (nearest cell); `None`
     /// outside the grid.
+    #[inline]
     pub fn distance_at(&self, p: [f64; 2]) -> Option<f64> {
-        let i = ((p[0] - self.x0) / self.res).floor();
-        let j = ((p[1] - self.y0) / self.res).floor();
-        if i >= 0.0 && j >= 0.0 && (i as usize) < self.w && (j as usize) < self.h {
-            Some(self.dist[j as usize * self.w + i as usize] as f64)
+        let x = (p[0] - self.x0) / self.res;
+        let y = (p[1] - self.y0) / self.res;
+        // for x ≥ 0 the truncation is ⌊x⌋ (`f64::floor` is a libm call on baseline x86-64,
+        // and this is the see-through check's inner loop); NaN and negatives fail the test,
+        // +∞ saturates beyond the grid
+        if x >= 0.0 && y >= 0.0 && (x as usize) < self.w && (y as usize) < self.h {
+            Some(self.dist[y as usize * self.w + x as usize] as f64)
         } else {
             None
         }
@@ -439,5 +443,55 @@ mod tests {
         // outside, beside the grid's right edge (x = 1.1: 11 cells of 0.1 m) and beyond a corner
         assert!((f.clearance_at([3.1, 0.5]) - 2.0).abs() < 1e-9);
         assert!((f.clearance_at([-3.0, -4.0]) - 5.0).abs() < 1e-9);
+    }
+
+    /// The stored distance of a point's cell, by `f64::floor` (the definition).
+    fn floor_distance(f: &LikelihoodField, p: [f64; 2]) -> Option<f64> {
+        let i = ((p[0] - f.x0) / f.res).floor();
+        let j = ((p[1] - f.y0) / f.res).floor();
+        if i >= 0.0 && j >= 0.0 && (i as usize) < f.w && (j as usize) < f.h {
+            Some(f.dist[j as usize * f.w + i as usize] as f64)
+        } else {
+            None
+        }
+    }
+
+    #[test]
+    fn distances_are_read_from_the_floor_cell_everywhere() {
+        let pts = vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.4, 0.7]];
+        let index = MapIndex::new(pts, None).unwrap();
+        let f = LikelihoodField::build(&index, 0.1, 0.1, 2).unwrap();
+        let mut rng = crate::testkit::Rng::new(4);
+        let (x1, y1) = (f.x0 + f.w as f64 * f.res, f.y0 + f.h as f64 * f.res);
+        let mut ps: Vec<[f64; 2]> = (0..20_000)
+            .map(|_| {
+                [
+                    rng.range(f.x0 - 1.0, x1 + 1.0),
+                    rng.range(f.y0 - 1.0, y1 + 1.0),
+                ]
+            })
+            .collect();
+        // cell borders, the grid's edges, -0, NaN and infinities
+        for k in 0..=f.w + 1 {
+            ps.push([f.x0 + k as f64 * f.res, f.y0 + 0.35]);
+        }
+        ps.extend([
+            [f.x0, f.y0],
+            [x1, y1],
+            [f.x0 - 1e-12, f.y0],
+            [-0.0, -0.0],
+            [f64::NAN, 0.5],
+            [0.5, f64::NAN],
+            [f64::INFINITY, 0.5],
+            [f64::NEG_INFINITY, 0.5],
+            [0.5, 1e300],
+        ]);
+        let mut inside = 0;
+        for p in ps {
+            let want = floor_distance(&f, p);
+            assert_eq!(f.distance_at(p), want, "point {p:?}");
+            inside += usize::from(want.is_some());
+        }
+        assert!(inside > 2000, "{inside}");
     }
 }

@@ -1090,3 +1090,34 @@ fn a_tight_pose_with_beams_through_a_car_that_left_counts_as_searched_tight() {
     assert!(f.see_through > SEARCHED_SEE_THROUGH, "{f:?}");
     assert!(searched_tight(&r, &f, truth, &cfg), "{f:?}");
 }
+
+/// The first default call builds the map's pieces (which the see-through check needs
+/// once a beam meets a wall), even one whose beams meet none: a warm-up call makes the
+/// later calls steady, none of them pays for the build.
+#[test]
+fn the_first_default_call_builds_the_maps_pieces() {
+    let (p, n) = sample_segments(&office_segments(), 0.05);
+    let idx = MapIndex::new(p.clone(), Some(n))
+        .unwrap()
+        .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+        .unwrap();
+    let truth = Pose2::new(5.0, 5.0, 0.3);
+    let mut rng = Rng::new(3);
+    let scan = make_scan(&office_segments(), truth, 361, 30.0, 0.0, 0.0, &mut rng);
+    assert!(!idx.objects_built());
+    let r = align(&scan, &idx, truth, &IcpConfig::default()).unwrap();
+    assert_eq!(
+        r.fit.map(|f| f.see_through),
+        Some(0.0),
+        "no beam meets a wall"
+    );
+    assert!(idx.objects_built());
+    // off with the vanished-object rule
+    let other = MapIndex::new(p, None).unwrap();
+    let cfg = IcpConfig {
+        vanished_object_size: 0.0,
+        ..IcpConfig::default()
+    };
+    align(&scan, &other, truth, &cfg).unwrap();
+    assert!(!other.objects_built());
+}

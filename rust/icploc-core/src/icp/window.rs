@@ -231,6 +231,21 @@ const SEEN_POINTS: usize = 3;
 /// ... and this share of the beams that cross it.
 const SEEN_SHARE: f64 = 0.2;
 
+/// A beam of [`see_through_parts`] being traced.
+struct Beam {
+    /// its number among the checked beams (from 1)
+    id: u32,
+    /// unit direction, the range to trace to, the sample's range, the range up to which
+    /// crossings are of a small object already passed, and the steps taken
+    u: [f64; 2],
+    end: f64,
+    t: f64,
+    passed: f64,
+    steps: u32,
+    /// the small objects it crossed (labels, each once, in crossing order)
+    small: Vec<u32>,
+}
+
 /// [`see_through`], and (`vanished`) the share of the checked beams whose crossings are
 /// all through small mapped objects ([`crate::index::objects`]: cars, furniture, pillars,
 /// of at most `vanished` m; 0: none counted, no objects built) that the scan does not see
@@ -266,90 +281,116 @@ pub(crate) fn see_through_parts(
     let (mut checked, mut bad) = (0usize, 0usize);
     // (beam, small object) of the beams through small objects only
     let mut through_small: Vec<(u32, u32)> = Vec::new();
+    // The beams are traced in lockstep, a step of each in turn: a beam's next sample
+    // waits on its current one's distance read (a cache miss far from the last beam's
+    // part of the map), and the reads of different beams overlap. Each beam's steps are
+    // exactly those it takes alone; its small objects are listed together when it ends.
+    let mut beams: Vec<Beam> = Vec::with_capacity(SEE_THROUGH_BEAMS + 1);
     for p in scan.iter().filter(|p| picked(p, stride)) {
         let r = p[0].hypot(p[1]);
         if !(r > 2.0 * margin) || !r.is_finite() {
             continue;
         }
         checked += 1;
-        let beam = checked as u32;
-        let first_small = through_small.len();
         let q = pose.transform(*p);
-        let u = [(q[0] - pose.x) / r, (q[1] - pose.y) / r];
-        let end = r - margin;
-        let mut t = margin;
-        // crossings up to here are of a small object already passed
-        let mut passed = margin;
-        let mut steps = 0;
-        while t < end && steps < 1024 {
-            steps += 1;
-            let s = [pose.x + u[0] * t, pose.y + u[1] * t];
-            if let Some(lb) = field.and_then(|f| f.distance_at(s)).map(|d| d - half_diag) {
-                if lb > thr {
-                    t += (lb - thr).max(0.5 * thr);
-                    continue;
-                }
+        beams.push(Beam {
+            id: checked as u32,
+            u: [(q[0] - pose.x) / r, (q[1] - pose.y) / r],
+            end: r - margin,
+            t: margin,
+            passed: margin,
+            steps: 0,
+            small: Vec::new(),
+        });
+    }
+    // one step of beam `b`: false when it has ended
+    let mut step = |b: &mut Beam| -> bool {
+        let end = b.end;
+        let u = b.u;
+        if !(b.t < end && b.steps < 1024) {
+            if !b.small.is_empty() {
+                bad += 1;
+                through_small.extend(b.small.iter().map(|&l| (b.id, l)));
             }
-            let (d2, j) = index.correspondence(s);
-            let d = d2.sqrt();
-            if d > thr {
-                t += (d - thr).max(0.5 * thr);
-                continue;
+            return false;
+        }
+        b.steps += 1;
+        let t = b.t;
+        let s = [pose.x + u[0] * t, pose.y + u[1] * t];
+        if let Some(lb) = field.and_then(|f| f.distance_at(s)).map(|d| d - half_diag) {
+            if lb > thr {
+                b.t += (lb - thr).max(0.5 * thr);
+                return true;
             }
-            let (x, n) = (index.points()[j], normals[j]);
-            let cos = u[0] * n[0] + u[1] * n[1];
-            if cos.abs() >= min_cos {
-                // where the beam meets the line of that wall
-                let sd = (s[0] - x[0]) * n[0] + (s[1] - x[1]) * n[1];
-                let tc = t - sd / cos;
-                if tc > passed && tc < end {
-                    let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
-                    // exact (k-d tree) here: a beam through a doorway passes centimetres
-                    // from the jamb, and the cached answer may be a cell off — unless the
-                    // cached answer already decides it (its distance is at least the
-                    // exact one's, and at most `tol` more, when it is this near)
-                    let (c2, cj) = index.correspondence(cp);
-                    let hit = if c2 <= on_wall2 {
-                        Some(cj)
-                    } else if c2.sqrt() - tol > on_wall {
-                        None
+        }
+        let (d2, j) = index.correspondence(s);
+        let d = d2.sqrt();
+        if d > thr {
+            b.t += (d - thr).max(0.5 * thr);
+            return true;
+        }
+        let (x, n) = (index.points()[j], normals[j]);
+        let cos = u[0] * n[0] + u[1] * n[1];
+        if cos.abs() >= min_cos {
+            // where the beam meets the line of that wall
+            let sd = (s[0] - x[0]) * n[0] + (s[1] - x[1]) * n[1];
+            let tc = t - sd / cos;
+            if tc > b.passed && tc < end {
+                let cp = [pose.x + u[0] * tc, pose.y + u[1] * tc];
+                // exact (k-d tree) here: a beam through a doorway passes centimetres
+                // from the jamb, and the cached answer may be a cell off — unless the
+                // cached answer already decides it (its distance is at least the
+                // exact one's, and at most `tol` more, when it is this near)
+                let (c2, cj) = index.correspondence(cp);
+                let hit = if c2 <= on_wall2 {
+                    Some(cj)
+                } else if c2.sqrt() - tol > on_wall {
+                    None
+                } else {
+                    let (e2, ej) = index.nearest(cp);
+                    (e2 <= on_wall2).then_some(ej)
+                };
+                if let Some(hj) = hit {
+                    let objects = if vanished > 0.0 {
+                        Some(index.objects())
                     } else {
-                        let (e2, ej) = index.nearest(cp);
-                        (e2 <= on_wall2).then_some(ej)
+                        None
                     };
-                    if let Some(hj) = hit {
-                        let objects = if vanished > 0.0 {
-                            Some(index.objects())
-                        } else {
-                            None
-                        };
-                        match objects.filter(|o| o.is_small(hj, vanished)) {
-                            Some(o) => {
-                                let l = o.label(hj);
-                                if through_small[first_small..].iter().all(|e| e.1 != l) {
-                                    through_small.push((beam, l));
-                                }
-                                // on past this face of it (a wall behind may be near)
-                                passed = tc + 0.5 * thr;
-                                t = t.max(passed);
+                    match objects.filter(|o| o.is_small(hj, vanished)) {
+                        Some(o) => {
+                            let l = o.label(hj);
+                            if b.small.iter().all(|&e| e != l) {
+                                b.small.push(l);
                             }
-                            None => {
-                                // a wall: the beam counts as through a wall, whatever
-                                // small objects it passed first
-                                through_small.truncate(first_small);
-                                bad += 1;
-                                break;
-                            }
+                            // on past this face of it (a wall behind may be near)
+                            b.passed = tc + 0.5 * thr;
+                            b.t = b.t.max(b.passed);
+                        }
+                        None => {
+                            // a wall: the beam counts as through a wall, whatever
+                            // small objects it passed first
+                            b.small.clear();
+                            bad += 1;
+                            return false;
                         }
                     }
                 }
             }
-            // a crossing at or above the grazing angle brings some sample of steps this
-            // long within `thr` of the wall
-            t += 1.8 * thr;
         }
-        if through_small.len() > first_small {
-            bad += 1;
+        // a crossing at or above the grazing angle brings some sample of steps this
+        // long within `thr` of the wall
+        b.t += 1.8 * thr;
+        true
+    };
+    let mut active: Vec<usize> = (0..beams.len()).collect();
+    while !active.is_empty() {
+        let mut k = 0;
+        while k < active.len() {
+            if step(&mut beams[active[k]]) {
+                k += 1;
+            } else {
+                active.swap_remove(k);
+            }
         }
     }
     if checked == 0 {

@@ -1073,6 +1073,19 @@ mod tests {
                     }
                     let j = g.cell(s, lx, ly);
                     assert_ne!(j, NONE, "cell {gx},{gy} within reach has no point");
+                    // a query anywhere in the cell reads that cell (the look-up's
+                    // arithmetic agrees with the storage order)
+                    for f in [[0.5, 0.5], [0.01, 0.01], [0.99, 0.02], [0.03, 0.98]] {
+                        let q = [
+                            ((gx as i64 + g.bx) as f64 + f[0]) * res,
+                            ((gy as i64 + g.by) as f64 + f[1]) * res,
+                        ];
+                        assert_eq!(
+                            g.lookup(q),
+                            Some(j as usize),
+                            "query {q:?} in cell {gx},{gy}"
+                        );
+                    }
                     let p = points[j as usize];
                     let d = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
                     assert!(
