@@ -31,7 +31,8 @@ What is done (reusing benches/eval_real.py, seeded):
   occupied cell of the full log's map at the reference poses; the same for the patch's
   *confident* cells (the sigma of where their walls are drawn, from the pose graph's
   covariance, at most ``icploc.mappatch.PATCH_SIGMA_BOUND``, 5 cm: the patch's
-  ``.sigma.pgm``).
+  ``.sigma.pgm``); and the same scans drawn as the patch is but at their reference poses
+  (the drawing's and the measure's own ceiling: the gap to it is the patch's pose error).
 
 Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
 replay, partial map: its first half is the control of "inside the map", the same map
@@ -175,7 +176,43 @@ def run_icploc(
         if ref is not None:
             for st in out["stretches"]:
                 st["explained_from"] = first_explained(st, explained)
+        if patch is not None and ref is not None:
+            out["truth_patch"] = truth_patch(got["loc"], mon, ref)
     return out
+
+
+def truth_patch(loc: Any, mon: Any, ref: NDArray[np.float64]) -> Any:
+    """The patch's scans (those of the stretches it draws) ray-cast as the patch is, but at
+    their reference poses: what the patch would be with perfect poses (its drawing's and
+    the measure's own ceiling; the gap to the patch is its poses' error). None without
+    one."""
+    from icploc.mappatch import PATCH_PEAK_SHARE, grid_from_scans, in_patch, patch_layout
+
+    res, align = patch_layout(loc.map)
+    scans, poses = [], []
+    for st in mon.stretches:
+        if in_patch(st):
+            for k, pts, _ in st.scans:
+                scans.append(pts)
+                poses.append(tuple(float(v) for v in ref[k]))
+    if not scans:
+        return None
+    return grid_from_scans(
+        scans, poses, resolution=res, align=align, mounting=loc.config.scan.mounting,
+        peak_share=PATCH_PEAK_SHARE,
+    )  # fmt: skip
+
+
+def wall_distances(occupied: NDArray[np.bool_], res: float, origin: Any, full: Any) -> Any:
+    """Per occupied cell of a grid (row 0 = lowest y), the distance to the nearest occupied
+    cell of the full log's map ``full``."""
+    from scipy.spatial import cKDTree
+
+    rc = np.argwhere(occupied)
+    xy = np.column_stack(
+        [origin[0] + (rc[:, 1] + 0.5) * res, origin[1] + (rc[:, 0] + 0.5) * res]
+    )
+    return cKDTree(full.occupied_centres()).query(xy, k=1)[0]
 
 
 def patch_quality(patch: Path, full_map: Path) -> dict[str, Any]:
@@ -312,6 +349,16 @@ def evaluate(
                     )
                     if patch is not None and patch.exists():
                         got["patch"] = patch_quality(patch, maps["full"])
+                    tp = got.pop("truth_patch", None)
+                    if tp is not None and "patch" in got:
+                        d = wall_distances(
+                            tp.occupied, tp.resolution, tp.origin,
+                            rg.read_map_server(maps["full"]),
+                        )  # fmt: skip
+                        got["patch"]["truth_patch_cells"] = int(len(d))
+                        got["patch"]["truth_patch_within_0_1m"] = (
+                            float(np.mean(d <= 0.1 + 1e-9)) if len(d) else None
+                        )
             elif m == "mrpt":
                 import real_mrpt
 
@@ -397,6 +444,11 @@ def md_row(r: dict) -> str:
         + (
             f"{_pct(r['patch_wall_within_0_1m'])} / {_pct(r['patch_wall_within_0_2m'])} "
             f"of {r['patch_cells']}"
+            + (
+                f" (at the reference poses {_pct(r['truth_patch_within_0_1m'])} / 10 cm)"
+                if r.get("truth_patch_within_0_1m") is not None
+                else ""
+            )
             if r.get("patch_cells")
             else "–"
         )

@@ -51,3 +51,28 @@ def test_a_lock_is_timed_from_the_first_scan_the_map_explains_in_the_last_re_ent
     assert ep.first_explained(_stretch(8, 15, 5), {16: True, 14: False}) is None
     # still open: its re-entering scans up to the end
     assert ep.first_explained(_stretch(8, None), {30: False, 31: True}) == 31
+
+
+def test_the_truth_patch_draws_the_patch_scans_at_their_reference_poses() -> None:
+    from types import SimpleNamespace
+
+    from icploc.outside import Stretch
+
+    # a wall 2 m ahead, seen from three poses; the recorded (coasted) poses are 0.5 m off
+    ys = np.linspace(-1.0, 1.0, 81)
+    pts = np.column_stack([np.full_like(ys, 2.0), ys])
+    ref = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    closed = Stretch(0, 0.0, (0.0, 0.0, 0.0), end=3, lock_pose=(0.3, 0.0, 0.0),
+                     correction=(0.0, 0.0, 0.0))  # fmt: skip
+    closed.scans = [(k, pts - [0.1 * k, 0.0], (0.1 * k + 0.5, 0.0, 0.0)) for k in (1, 2, 3)]
+    open_ = Stretch(3, 0.0, (0.0, 0.0, 0.0))  # not back: not in the patch
+    open_.scans = [(3, pts + [3.0, 0.0], (0.3, 0.0, 0.0))]
+    loc = SimpleNamespace(map=None, config=SimpleNamespace(scan=SimpleNamespace(mounting=(0.0, 0.0, 0.0))))
+    mon = SimpleNamespace(stretches=[closed, open_])
+    g = ep.truth_patch(loc, mon, ref)
+    assert g is not None and g.scans_used == 3
+    rc = np.argwhere(g.occupied)
+    x = g.origin[0] + (rc[:, 1] + 0.5) * g.resolution
+    # the wall where it is (x = 2), not where the coasted poses put it (2.5), nor the open
+    # stretch's (5)
+    assert len(x) > 0 and np.all(np.abs(x - 2.0) <= g.resolution)
