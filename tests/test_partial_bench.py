@@ -38,7 +38,10 @@ def test_the_table_counts_re_entries_of_the_stretches_come_back() -> None:
         "lock_after_explained_median": 2.0, "lock_after_explained_max": 2,
     }  # fmt: skip
     cell = ep.md_row(row).split(" | ")[10]
-    assert cell == "1 of 1 (4), 2 (max 2) from the first explained; 1 open at the end, no revisit after"
+    assert (
+        cell
+        == "1 of 1 (4), 2 (max 2) from the first explained; 1 open at the end, no revisit after"
+    )
 
 
 def test_a_lock_is_timed_from_the_first_scan_the_map_explains_in_the_last_re_entry() -> None:
@@ -67,7 +70,9 @@ def test_the_truth_patch_draws_the_patch_scans_at_their_reference_poses() -> Non
     closed.scans = [(k, pts - [0.1 * k, 0.0], (0.1 * k + 0.5, 0.0, 0.0)) for k in (1, 2, 3)]
     open_ = Stretch(3, 0.0, (0.0, 0.0, 0.0))  # not back: not in the patch
     open_.scans = [(3, pts + [3.0, 0.0], (0.3, 0.0, 0.0))]
-    loc = SimpleNamespace(map=None, config=SimpleNamespace(scan=SimpleNamespace(mounting=(0.0, 0.0, 0.0))))
+    loc = SimpleNamespace(
+        map=None, config=SimpleNamespace(scan=SimpleNamespace(mounting=(0.0, 0.0, 0.0)))
+    )
     mon = SimpleNamespace(stretches=[closed, open_])
     g = ep.truth_patch(loc, mon, ref)
     assert g is not None and g.scans_used == 3
