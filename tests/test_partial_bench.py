@@ -36,8 +36,12 @@ def test_the_table_counts_re_entries_of_the_stretches_come_back() -> None:
         "reentry_scans_median": 4.0, "stretches_back": 1,
         "stretches": [_stretch(2, 10, 4), _stretch(30, None)],
         "lock_after_explained_median": 2.0, "lock_after_explained_max": 2,
+        "inside_same_as_plain": [17, 20],
     }  # fmt: skip
-    cell = ep.md_row(row).split(" | ")[10]
+    cells = ep.md_row(row).split(" | ")
+    # inside the map: the first half scan by scan as the default replay's
+    assert cells[5] == "17 of 20 identical"
+    cell = cells[11]
     assert (
         cell
         == "1 of 1 (4), 2 (max 2) from the first explained; 1 open at the end, no revisit after"
