@@ -20,15 +20,23 @@ What is done (reusing benches/eval_real.py, seeded):
 * scores: inside the map = the first half: median / p95; *revisits* = second-half scans within
   1 m of a first-half reference position: share within 0.5 m; false ``tracking`` = scans
   ``tracking`` > 0.5 m off (MRPT has no status: every scan > 0.5 m off counts); for
-  icploc ``--partial-map`` also the stretches outside the map, the re-entry scans and its
+  icploc ``--partial-map`` also the stretches outside the map, the re-entry scans (counted
+  of the stretches the robot comes back from: a revisit at or after the stretch's start;
+  one still open at the log's end with no revisit after it never came back), the scans
+  from the first re-entering scan the map *explains at its reference pose* (the
+  localizer's own verification from the true pose) to the lock (a lock cannot come
+  earlier: how late it is, not how long the robot walked on space the map saw only from
+  afar), and its
   ``--map-patch``: the share of the patch's occupied cells within 10 / 20 cm of an
   occupied cell of the full log's map at the reference poses; the same for the patch's
   *confident* cells (the sigma of where their walls are drawn, from the pose graph's
   covariance, at most ``icploc.mappatch.PATCH_SIGMA_BOUND``, 5 cm: the patch's
-  ``.sigma.pgm``).
+  ``.sigma.pgm``); and the same scans drawn as the patch is but at their reference poses
+  (the drawing's and the measure's own ceiling: the gap to it is the patch's pose error).
 
 Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
-replay, partial map), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
+replay, partial map: its first half is the control of "inside the map", the same map
+without the outside-the-map state), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
 partial map; as eval_real runs it). Writes ``benches/results/partial.md`` / ``.json``.
 """
 
@@ -73,6 +81,33 @@ def held_out(n: int, keep: NDArray[np.int64], stop: int, guard: int = 1) -> NDAr
     return idx[~near[:stop]]
 
 
+def first_explained(stretch: dict, explained: dict[int, bool]) -> int | None:
+    """The first scan of a stretch's re-entry (its last one, after the last time it went
+    out again) the map explains at the reference pose (``explained``: scan -> verified at
+    its reference pose, for the re-entering scans); None: none of them."""
+    end = stretch["end"] if stretch["end"] is not None else math.inf
+    ks = sorted(k for k in explained if stretch["start"] <= k <= end)
+    # the re-entry that locked: the last unbroken run of re-entering scans
+    run: list[int] = []
+    for k in ks:
+        run = [*run, k] if run and k == run[-1] + 1 else [k]
+    for k in run:
+        if explained[k]:
+            return k
+    return None
+
+
+def came_back(stretches: list[dict], rev: NDArray[np.bool_]) -> list[bool]:
+    """Per stretch outside the map: does the robot come back into the mapped area after
+    its start (a *revisit* scan, within ``REVISIT_M`` of a first-half place, at or after
+    the stretch's first outside scan)? A stretch still open at the log's end with no
+    revisit after it never came back: the log ended outside (or at the map's far edge,
+    away from every place the map was made from); its missing lock is no failed
+    re-entry."""
+    idx = np.flatnonzero(rev)
+    return [bool(s["end"] is not None or (idx >= s["start"]).any()) for s in stretches]
+
+
 def revisits(ref: NDArray[np.float64], keep: NDArray[np.int64], half: int) -> NDArray[np.bool_]:
     """Per kept scan: in the second half and within REVISIT_M of a first-half place."""
     from scipy.spatial import cKDTree
@@ -88,23 +123,46 @@ def run_icploc(
     pose: tuple[float, float, float],
     partial: bool,
     patch: Path | None = None,
+    ref: NDArray[np.float64] | None = None,
 ) -> dict:
     from icploc.replay import replay
 
     got: dict[str, Any] = {}
+    #: per re-entering scan (``ref``: the reference poses of the replayed scans): does the
+    #: map explain the scan at its reference pose (the localizer's own verification,
+    #: Localizer.verify_pose, from the true pose)? A lock cannot come before that.
+    explained: dict[int, bool] = {}
+
+    from icploc.outside import OutsideMonitor
+
+    after = OutsideMonitor.after
+
+    def watched(mon: Any, loc: Any, est: Any, pts: Any) -> Any:
+        k = loc.scans_processed  # this scan's index (counted after the hooks)
+        if ref is not None and mon.state == "reentering" and 0 <= k < len(ref):
+            ok, _, _ = loc.verify_pose(pts, tuple(float(v) for v in ref[k]))
+            explained[k] = bool(ok)
+        return after(mon, loc, est, pts)
+
     t0 = time.perf_counter()
-    res = replay(
-        log_path,
-        map_yaml,
-        initial_pose=pose,
-        partial_map=partial,
-        map_patch=patch,
-        on_localizer=lambda loc: got.setdefault("loc", loc),
-    )
+    # the monitor is attached after on_localizer runs: its hook watched for this replay
+    OutsideMonitor.after = watched  # type: ignore[method-assign]
+    try:
+        res = replay(
+            log_path,
+            map_yaml,
+            initial_pose=pose,
+            partial_map=partial,
+            map_patch=patch,
+            on_localizer=lambda loc: got.setdefault("loc", loc),
+        )
+    finally:
+        OutsideMonitor.after = after  # type: ignore[method-assign]
     out: dict[str, Any] = {
         "poses": [list(e.pose) for e in res.estimates],
         "status": [e.status.value for e in res.estimates],
         "mapped": [bool(getattr(e, "mapped", True)) for e in res.estimates],
+        "reason": [str(e.reason) for e in res.estimates],
         "time_s": time.perf_counter() - t0,
         "notes": list(res.notes),
     }
@@ -115,7 +173,46 @@ def run_icploc(
              "reentry_scans": s.reentry_scans, "distance_m": s.distance}
             for s in mon.stretches
         ]  # fmt: skip
+        if ref is not None:
+            for st in out["stretches"]:
+                st["explained_from"] = first_explained(st, explained)
+        if patch is not None and ref is not None:
+            out["truth_patch"] = truth_patch(got["loc"], mon, ref)
     return out
+
+
+def truth_patch(loc: Any, mon: Any, ref: NDArray[np.float64]) -> Any:
+    """The patch's scans (those of the stretches it draws) ray-cast as the patch is, but at
+    their reference poses: what the patch would be with perfect poses (its drawing's and
+    the measure's own ceiling; the gap to the patch is its poses' error). None without
+    one."""
+    from icploc.mappatch import PATCH_PEAK_SHARE, grid_from_scans, in_patch, patch_layout
+
+    res, align = patch_layout(loc.map)
+    scans, poses = [], []
+    for st in mon.stretches:
+        if in_patch(st):
+            for k, pts, _ in st.scans:
+                scans.append(pts)
+                poses.append(tuple(float(v) for v in ref[k]))
+    if not scans:
+        return None
+    return grid_from_scans(
+        scans, poses, resolution=res, align=align, mounting=loc.config.scan.mounting,
+        peak_share=PATCH_PEAK_SHARE,
+    )  # fmt: skip
+
+
+def wall_distances(occupied: NDArray[np.bool_], res: float, origin: Any, full: Any) -> Any:
+    """Per occupied cell of a grid (row 0 = lowest y), the distance to the nearest occupied
+    cell of the full log's map ``full``."""
+    from scipy.spatial import cKDTree
+
+    rc = np.argwhere(occupied)
+    xy = np.column_stack(
+        [origin[0] + (rc[:, 1] + 0.5) * res, origin[1] + (rc[:, 0] + 0.5) * res]
+    )
+    return cKDTree(full.occupied_centres()).query(xy, k=1)[0]
 
 
 def patch_quality(patch: Path, full_map: Path) -> dict[str, Any]:
@@ -169,8 +266,40 @@ def score(
     }
 
 
+def write_scans(
+    path: Path,
+    keep: NDArray[np.int64],
+    ref: NDArray[np.float64],
+    est: NDArray[np.float64],
+    got: dict[str, Any],
+    first: NDArray[np.bool_],
+    rev: NDArray[np.bool_],
+) -> None:
+    """One method's run scan by scan (``--scans DIR``): the log index, the reference and
+    estimated poses, the position error, status, reason, mapped, first half, revisit."""
+    n = len(keep)
+    status = got.get("status") or [""] * n
+    reason = got.get("reason") or [""] * n
+    mapped = got.get("mapped") or [True] * n
+    e = np.hypot(est[:, 0] - ref[:, 0], est[:, 1] - ref[:, 1])
+    lines = ["i,log_index,ref_x,ref_y,ref_th,x,y,th,err_m,status,reason,mapped,first_half,revisit"]
+    for i in range(n):
+        lines.append(
+            f"{i},{int(keep[i])},{ref[i, 0]:.4f},{ref[i, 1]:.4f},{ref[i, 2]:.5f},"
+            f"{est[i, 0]:.4f},{est[i, 1]:.4f},{est[i, 2]:.5f},{e[i]:.4f},{status[i]},"
+            f"{reason[i]},{int(bool(mapped[i]))},{int(first[i])},{int(rev[i])}"
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+
+
 def evaluate(
-    path: Path, methods: list[str], cache: Path, seed: int, max_range: float
+    path: Path,
+    methods: list[str],
+    cache: Path,
+    seed: int,
+    max_range: float,
+    scans_dir: Path | None = None,
 ) -> list[dict]:
     name = path.name.replace("-corrected.log.gz", "")
     log = rl.read_flaser(path)
@@ -203,6 +332,7 @@ def evaluate(
     first = keep < half
     rev = revisits(ref, keep, half)
     rows = []
+    ests: dict[str, NDArray[np.float64]] = {}
     for m in methods:
         row: dict[str, Any] = {"log": name, "method": m, "map_res_m": RES, "scans_in_log": n}
         try:
@@ -216,9 +346,20 @@ def evaluate(
                         pose,
                         m == "icploc",
                         patch,
+                        ref[keep] if m == "icploc" else None,
                     )
                     if patch is not None and patch.exists():
                         got["patch"] = patch_quality(patch, maps["full"])
+                    tp = got.pop("truth_patch", None)
+                    if tp is not None and "patch" in got:
+                        d = wall_distances(
+                            tp.occupied, tp.resolution, tp.origin,
+                            rg.read_map_server(maps["full"]),
+                        )  # fmt: skip
+                        got["patch"]["truth_patch_cells"] = int(len(d))
+                        got["patch"]["truth_patch_within_0_1m"] = (
+                            float(np.mean(d <= 0.1 + 1e-9)) if len(d) else None
+                        )
             elif m == "mrpt":
                 import real_mrpt
 
@@ -238,6 +379,8 @@ def evaluate(
             continue
         est = np.asarray(got["poses"], dtype=np.float64).reshape(-1, 3)
         row.update(score(est, ref[keep], got.get("status"), first, rev))
+        if scans_dir is not None:
+            write_scans(scans_dir / f"{name}_{m}.csv", keep, ref[keep], est, got, first, rev)
         row["time_s"] = got.get("time_s")
         if "mapped" in got:
             row["outside_scans"] = int(np.sum(~np.asarray(got["mapped"])))
@@ -247,9 +390,32 @@ def evaluate(
             row["stretches"] = got["stretches"]
             ents = [s["reentry_scans"] for s in got["stretches"] if s["reentry_scans"] is not None]
             row["reentries"] = len(ents)
+            back = came_back(got["stretches"], rev)
+            for st, b in zip(got["stretches"], back, strict=True):
+                st["came_back"] = b
+            # re-entries are counted of the stretches the robot comes back from
+            row["stretches_back"] = int(sum(back))
+            # the scans from the first the map explains at the reference pose to the lock
+            lag = [
+                s["end"] - s["explained_from"] + 1
+                for s in got["stretches"]
+                if s["end"] is not None and s.get("explained_from") is not None
+            ]
+            row["lock_after_explained_median"] = float(np.median(lag)) if lag else None
+            row["lock_after_explained_max"] = int(max(lag)) if lag else None
             row["reentry_scans_median"] = float(np.median(ents)) if ents else None
         rows.append(row)
-        print(md_row(row), flush=True)
+        ests[m] = est
+    if "icploc" in ests and "icploc-plain" in ests:
+        # inside the map the outside-the-map state must cost nothing: the first half scan
+        # by scan against the default replay on the same map
+        same = np.all(np.abs(ests["icploc"][first] - ests["icploc-plain"][first]) <= 1e-9, axis=1)
+        for row in rows:
+            if row["method"] == "icploc" and "scans" in row:
+                row["inside_same_as_plain"] = [int(same.sum()), int(len(same))]
+    for row in rows:
+        if "scans" in row:
+            print(md_row(row), flush=True)
     return rows
 
 
@@ -262,27 +428,40 @@ def _pct(v: Any) -> str:
 
 
 HEADER = (
-    "| log | method | scans | inside median cm | inside p95 cm | revisits | revisits within 0.5 m "
-    "| false tracking | lost | outside scans | re-entries (median scans) | patch walls within 10 / 20 cm "
+    "| log | method | scans | inside median cm | inside p95 cm | inside scans as icploc-plain's | revisits | revisits within 0.5 m "
+    "| false tracking | lost | outside scans | re-entries locked of stretches come back (median scans from re-entry; from the first scan the map explains at its true pose) | patch walls within 10 / 20 cm "
     "| confident patch walls (sigma <= 5 cm) within 10 / 20 cm |\n"
-    "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---|"
+    "|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---|---|---|"
 )
 
 
 def md_row(r: dict) -> str:
     if "scans" not in r:
-        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
+        return f"| {r['log']} | {r['method']} | – | – | – | – | – | – | – | – | – | – | – | {r.get('error', '')} |"
+    sp = r.get("inside_same_as_plain")
+    same = "–" if sp is None else f"{sp[0]} of {sp[1]} identical"
     re_ = "–"
     if r.get("reentries") is not None:
         med = r.get("reentry_scans_median")
-        re_ = f"{r['reentries']} of {len(r['stretches'])} ({'–' if med is None else f'{med:g}'})"
+        back = r.get("stretches_back", len(r["stretches"]))
+        re_ = f"{r['reentries']} of {back} ({'–' if med is None else f'{med:g}'})"
+        lag = r.get("lock_after_explained_median")
+        if lag is not None:
+            re_ += f", {lag:g} (max {r['lock_after_explained_max']}) from the first explained"
+        if len(r["stretches"]) > back:
+            re_ += f"; {len(r['stretches']) - back} open at the end, no revisit after"
     return (
         f"| {r['log']} | {r['method']} | {r['scans']} | {_cm(r['inside_median_m'])} | "
-        f"{_cm(r['inside_p95_m'])} | {r['revisits']} | {_pct(r['revisits_within_0_5m'])} | "
+        f"{_cm(r['inside_p95_m'])} | {same} | {r['revisits']} | {_pct(r['revisits_within_0_5m'])} | "
         f"{r['false_tracking']} | {_pct(r.get('lost_share'))} | {r.get('outside_scans', '–')} | {re_} | "
         + (
             f"{_pct(r['patch_wall_within_0_1m'])} / {_pct(r['patch_wall_within_0_2m'])} "
             f"of {r['patch_cells']}"
+            + (
+                f" (at the reference poses {_pct(r['truth_patch_within_0_1m'])} / 10 cm)"
+                if r.get("truth_patch_within_0_1m") is not None
+                else ""
+            )
             if r.get("patch_cells")
             else "–"
         )
@@ -307,6 +486,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-range", type=float, default=30.0)
     ap.add_argument("--cache", type=Path, default=er.cache_dir())
     ap.add_argument("--out-dir", type=Path, default=er.RESULTS)
+    ap.add_argument(
+        "--scans", type=Path, default=None, metavar="DIR",
+        help="also write each method's run scan by scan to DIR/LOG_METHOD.csv",
+    )  # fmt: skip
     a = ap.parse_args(argv)
     methods = [m for m in a.methods.split(",") if m]
     paths = er.find_logs(er.DATA, a.logs)
@@ -319,7 +502,7 @@ def main(argv: list[str] | None = None) -> int:
     print(HEADER)
     rows: list[dict] = []
     for p in paths:
-        rows += evaluate(p, methods, a.cache, a.seed, a.max_range)
+        rows += evaluate(p, methods, a.cache, a.seed, a.max_range, a.scans)
     a.out_dir.mkdir(parents=True, exist_ok=True)
     table = "\n".join([HEADER, *(md_row(r) for r in rows)])
     cmd = " ".join(["python benches/eval_partial.py", *(sys.argv[1:] if argv is None else argv)])

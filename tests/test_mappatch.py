@@ -422,3 +422,46 @@ def test_the_exit_steps_heading_noise_is_the_localizers_learned_odometry_noise()
     assert float(covs[1][2, 2]) == pytest.approx(
         (CHAIN_ODOM_HEADING[0] + CHAIN_ODOM_HEADING[1] * step) ** 2, rel=1e-6
     )
+
+
+def test_the_scans_of_the_exit_gap_chain_the_exit_to_the_stretch() -> None:
+    # a corridor (walls y = +-1); the exit at the origin, its true pose; the odometry over
+    # the 1.4 m exit gap turns 2 deg that the robot did not, then is right; the lock at the
+    # true pose. Without the gap's scans the first outside scan is one odometry step from
+    # the exit (its heading sigma 0.5 deg: much of the drift stays, the whole stretch
+    # rotated); with them (the stretch's lead-in) each step is matched against the
+    # previous scans, as the stretch's are. Measured: the stretch 0.55 deg / 2.0 cm off
+    # without, 0.03 deg / 0.3 mm with.
+    from icploc.mappatch import graph_solution
+
+    xs = np.arange(-6.0, 16.0, 0.05)
+    walls = np.vstack([np.column_stack([xs, np.full_like(xs, y)]) for y in (-1.0, 1.0)])
+
+    def scan(p: tuple[float, float, float]) -> np.ndarray:
+        c, s = math.cos(p[2]), math.sin(p[2])
+        d = walls - np.array(p[:2])
+        local = np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+        return local[np.hypot(local[:, 0], local[:, 1]) < 5.0]
+
+    gap, n = 35, 100
+    truth = [(0.0, 0.0, 0.0)]
+    dr = [(0.0, 0.0, 0.0)]
+    for i in range(gap + n):
+        truth.append(compose(truth[-1], (0.04, 0.0, 0.0)))
+        turn = math.radians(2.0) / gap if i < gap else 0.0
+        dr.append(compose(dr[-1], (0.04, 0.0, turn)))
+    scans = [scan(p) for p in truth]
+    t = np.array(truth[gap + 1 :])
+
+    def head_err(x: np.ndarray) -> np.ndarray:
+        return np.degrees(np.abs(np.angle(np.exp(1j * (x[:, 2] - t[:, 2])))))
+
+    x0, _ = graph_solution(truth[0], scans[gap + 1 :], dr[gap + 1 :], truth[-1])
+    x1, _ = graph_solution(
+        truth[0], scans[gap + 1 :], dr[gap + 1 :], truth[-1],
+        lead_in=(scans[1 : gap + 1], dr[1 : gap + 1]),
+    )  # fmt: skip
+    assert x1.shape == x0.shape == (n, 3)
+    assert float(head_err(x0).max()) > 0.4  # the exit gap's drift kept
+    assert float(head_err(x1).max()) < 0.1
+    assert float(np.abs(x1[:, 1] - t[:, 1]).max()) < 0.003

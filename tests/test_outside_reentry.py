@@ -163,3 +163,36 @@ def test_a_stretch_records_the_localizers_motion_model_at_its_exit() -> None:
     assert isinstance(m, MotionModel)
     assert (m.alpha1, m.alpha2, m.alpha3) == (lc.alpha1, lc.alpha2, lc.alpha3)
     assert 1.0 <= m.gain <= lc.noise_gain_max
+
+
+@pytest.mark.slow
+def test_a_stretch_records_the_scans_between_its_exit_and_its_first_outside_scan() -> None:
+    # the exit anchor is the last tracking pose; the scans the exit detection took after
+    # it (1.3-1.6 m of the simulated corridor) are kept, at their poses by odometry from
+    # it, so the patch's graph chains them by scan matches instead of one odometry step
+    _, _, ests, mon = localized()
+    st = mon.stretches[0]
+    ks = [k for k, _, _ in st.lead_in]
+    assert len(ks) >= 10 and ks == list(range(ks[0], st.start))
+    exit_k = ks[0] - 1
+    assert ests[exit_k].status.value == "tracking" and ests[exit_k].pose == st.exit_pose
+    assert all(e.status.value != "tracking" for e in ests[ks[0] : st.start])
+    # the lead-in's poses run on into the stretch's own dead reckoning
+    last = st.lead_in[-1][2]
+    assert math.dist(last[:2], st.scans[0][2][:2]) < 0.1
+
+
+@pytest.mark.slow
+def test_an_exit_gap_longer_than_lead_in_scans_records_no_lead_in() -> None:
+    from icploc.localizer import Localizer, run
+    from icploc.outside import attach
+    from partial_world import partial_run
+
+    with pytest.raises(ValueError, match="lead_in_scans"):
+        OutsideConfig(lead_in_scans=-1).validate()
+    r, m = partial_run(0)
+    loc = Localizer(m, initial_pose=tuple(r.truth[0]))
+    mon = attach(loc, OutsideConfig(lead_in_scans=5), record=True)
+    run(loc, r.items)
+    st = mon.stretches[0]
+    assert st.lead_in == [] and st.scans  # the simulated gap is 30-40 scans

@@ -596,6 +596,7 @@ def graph_solution(
     marginals: bool = False,
     sequence_reach: float | None = None,
     exit_motion: Any = None,
+    lead_in: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
     """A stretch's poses from a least-squares pose graph: node 0 is the exit (the last
     verified pose, held by a prior of ``anchor_sigma`` (m, rad)), then one node per scan;
@@ -617,13 +618,24 @@ def graph_solution(
     (:func:`_sequence_edges`), so the chain's heading does not drift with the odometry's;
     0: none. ``exit_motion``: the localizer's motion model at the exit
     (:attr:`icploc.outside.Stretch.exit_motion`), the first step's heading noise
-    (:func:`_exit_step_heading_sigma`). Returns the poses (N, 3) and, with ``marginals``,
-    their marginal covariances (N, 3, 3; :func:`_marginals`) at the solution, else None."""
+    (:func:`_exit_step_heading_sigma`). ``lead_in``: the scans between the exit and the
+    first scan of the stretch and their poses in the dead reckoning's frame (the
+    coasted poses' own: by odometry from the exit; :attr:`icploc.outside.Stretch.lead_in`):
+    nodes chained in between, so the exit gap is scan-matched steps instead of one
+    odometry step, and matched against the mapped walls with the rest; not returned.
+    Returns the poses (N, 3) and, with ``marginals``, their marginal covariances (N, 3, 3;
+    :func:`_marginals`) at the solution, else None."""
     from icploc._core import IcpConfig
 
-    n = len(coasted)
-    if n == 0:
+    if len(coasted) == 0:
         return np.zeros((0, 3)), (np.zeros((0, 3, 3)) if marginals else None)
+    # the lead-in's nodes first (1..m), then the stretch's (m+1..m+n), then the lead-out's
+    m = 0
+    if lead_in is not None and len(lead_in[0]):
+        m = len(lead_in[0])
+        coasted = [*((float(p[0]), float(p[1]), float(p[2])) for p in lead_in[1]), *coasted]
+        scans = [*lead_in[0], *scans]
+    n = len(coasted)  # the lead-in's and the stretch's nodes after the exit
     lead_poses: list[Pose] = []
     if lead is not None and lock is not None and len(lead[0]):
         l0 = (float(lock[0]), float(lock[1]), float(lock[2]))
@@ -698,8 +710,8 @@ def graph_solution(
         if mp:
             x, keep_p = _wall_prior_solve(x, edges, priors, mp, sc, outlier_chi2)
             priors = [*priors, *keep_p]
-    cov = _marginals(x, edges, priors, sc)[1 : n + 1] if marginals else None
-    return x[1 : n + 1], cov
+    cov = _marginals(x, edges, priors, sc)[m + 1 : n + 1] if marginals else None
+    return x[m + 1 : n + 1], cov
 
 
 def _keyframes(x: NDArray[np.float64], scans: Sequence[NDArray[np.float64]], step: float) -> list[int]:
@@ -1010,9 +1022,10 @@ def _stretch_solution(
     scans = [pts for _, pts, _ in st.scans]
     if refine and closed and st.lock_pose is not None:
         lead = ([q for _, q, _ in st.lead_out], [p for _, _, p in st.lead_out])
+        lead_in = ([q for _, q, _ in st.lead_in], [p for _, _, p in st.lead_in])
         x, cov = graph_solution(
             st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead,
-            marginals=marginals, exit_motion=st.exit_motion,
+            marginals=marginals, exit_motion=st.exit_motion, lead_in=lead_in,
         )  # fmt: skip
         return x, (none if cov is None else list(cov))
     if refine:

@@ -95,6 +95,11 @@ class OutsideConfig:
     exit_odometry: float = 3.0
     #: with ``record``: scans recorded after a stretch's lock (:attr:`Stretch.lead_out`)
     lead_out_scans: int = 20
+    #: with ``record``: at most this many scans between a stretch's exit anchor (the last
+    #: ``tracking`` pose) and its first outside scan kept for the patch's pose graph
+    #: (:attr:`Stretch.lead_in`: scan-matched steps instead of the odometry alone over
+    #: the exit gap)
+    lead_in_scans: int = 200
     #: scans a re-entry candidate must stay put (by odometry) before it locks
     reentry_confirm: int = 2
     #: scans of the local re-entry search alone; after them the localizer's own recovery
@@ -125,8 +130,11 @@ class OutsideConfig:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
         if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
             raise ValueError("outside: reentry_confirm must be >= 1, reentry_local_scans >= 0")
-        if self.lead_out_scans < 0:
-            raise ValueError(f"outside: lead_out_scans must be >= 0, got {self.lead_out_scans}")
+        if self.lead_out_scans < 0 or self.lead_in_scans < 0:
+            raise ValueError(
+                "outside: lead_out_scans and lead_in_scans must be >= 0, got "
+                f"{self.lead_out_scans}, {self.lead_in_scans}"
+            )
         if self.reentry_starts < 1 or self.reentry_verify < 1 or self.reentry_max_probes < 1:
             raise ValueError(
                 "outside: reentry_starts, reentry_verify and reentry_max_probes must be >= 1"
@@ -435,6 +443,14 @@ class Stretch:
     lead_out: list[tuple[int, NDArray[np.float64], Pose]] = field(
         default_factory=list, repr=False
     )
+    #: with ``record``: the scans between the exit anchor (the last ``tracking`` pose) and
+    #: the first outside scan (inside the map: not in the patch), their poses by odometry
+    #: from the exit (they chain the exit to the stretch by scan matches for the patch's
+    #: pose graph, and tie it to the mapped walls); empty when the exit is the last scan
+    #: before the stretch
+    lead_in: list[tuple[int, NDArray[np.float64], Pose]] = field(
+        default_factory=list, repr=False
+    )
 
     @property
     def closed(self) -> bool:
@@ -480,6 +496,9 @@ class OutsideMonitor:
         self._tracked: Pose | None = None
         self._since: Pose | None = None
         self._since_m = 0.0
+        #: with ``record``, inside the map: the scans since the last ``tracking`` one, their
+        #: poses by odometry from it (a stretch's lead-in)
+        self._gap: list[tuple[int, NDArray[np.float64], Pose]] | None = []
         #: after a lock: scans still to record into the stretch's lead-out, their odometry
         self._lead_left = 0
         self._lead_dr: Pose | None = None
@@ -529,9 +548,14 @@ class OutsideMonitor:
             ):
                 # from the last tracking pose by odometry (not the degraded poses since)
                 exit_pose, self._dr = self._tracked, self._since
+                lead_in = self._gap or []
+            else:
+                lead_in = []
+            self._gap = []
             self.stretches.append(
-                Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model)
-            )
+                Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model,
+                        lead_in=lead_in)
+            )  # fmt: skip
             self.state = "outside"
             self._below = 0
             return self._coast(loc, scan, pts, pred, pred_cov, odom, t0, share)
@@ -605,8 +629,16 @@ class OutsideMonitor:
         if self.state == "inside" and est.status is Status.TRACKING:
             self._tracked = self._since = est.pose
             self._since_m = 0.0
+            self._gap = []
         elif self.state != "inside":
             self._tracked = self._since = None
+            self._gap = []
+        elif self.record and self._since is not None:
+            # a scan between the last tracking one and a stretch that may follow
+            if self._gap is not None and len(self._gap) < self.config.lead_in_scans:
+                self._gap.append((loc.scans_processed, np.array(pts), self._since))
+            else:
+                self._gap = None  # more than lead_in_scans since the tracking pose: none
         if est.mapped != mapped:
             est = dataclasses.replace(est, mapped=mapped)
         if self.state == "reentering" and est.status is Status.LOST:
