@@ -40,7 +40,7 @@ def test_a_default_replay_of_a_carmen_log_imports_none_of_the_unused_parts(tmp_p
         "wall = np.c_[np.full(200, 2.0), np.linspace(-3, 3, 200)]\n"
         f"replay({str(log)!r}, wall, initial_pose=(0.0, 0.0, 0.0))\n"
         "unused = ('pydantic', 'numpy.ma', 'icploc.drivers.sick_protocol',"
-        " 'icploc.drivers.arcos_protocol')\n"
+        " 'icploc.drivers.arcos_protocol', 'icploc.drivers.recording', 'gzip')\n"
         "print(*(m for m in unused if m in sys.modules))\n"
     )
     assert _modules_after(code) == []
@@ -57,3 +57,26 @@ def test_count_distinct_is_the_length_of_unique(a: np.ndarray) -> None:
     from icploc.logs._base import _count_distinct
 
     assert _count_distinct(a) == len(np.unique(a))
+
+
+def test_a_map_load_through_the_prepared_map_cache_imports_no_openssl(tmp_path: Path) -> None:
+    """The cache key's blake2b is hashlib's own, taken without hashlib's OpenSSL import."""
+    import os
+
+    from icploc.maps.ros import save_ros
+
+    occ = np.zeros((40, 50), dtype=bool)
+    occ[5, 5:45] = True
+    save_ros(tmp_path / "m.yaml", occ, 0.05, (0.0, 0.0, 0.0))
+    code = (
+        "import sys\nfrom icploc.maps import Map\n"
+        f"m = Map.load({str(tmp_path / 'm.yaml')!r})\n"
+        "print('cache' in m.meta, *(m for m in ('hashlib', '_hashlib') if m in sys.modules))\n"
+    )
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    env.pop("ICPLOC_NO_CACHE", None)
+    runs = [
+        subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+        for _ in range(2)
+    ]
+    assert [r.stdout.split() for r in runs] == [["False"], ["True"]]  # fitted and stored, then read

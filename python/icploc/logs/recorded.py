@@ -15,29 +15,39 @@ import heapq
 import math
 import os
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from icploc.drivers.recording import (
-    KIND_META,
-    KIND_RX,
-    RecordingFormatError,
-    is_recording,
-    iter_records,
-    recorded_mounting,
-)
 from icploc.logs._base import LogData, LogFormatError, LogInfo, register_format, scan_span
 from icploc.messages import Odometry, Scan
 from icploc.se2 import Pose, compose
 
+if TYPE_CHECKING:
+    from icploc.drivers.recording import RecordingFormatError
+
 __all__ = ["RecordingFormatError", "is_recorded", "load_recorded", "read_recorded", "replay_config"]
+
+# icploc.drivers.recording is imported where a recording is sniffed or read: a process that
+# reads another format (a CARMEN replay) imports this module, for the registry, but not it
+
+
+def __getattr__(name: str) -> Any:
+    if name == "RecordingFormatError":
+        from icploc.drivers.recording import RecordingFormatError
+
+        return RecordingFormatError
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def is_recorded(path: str | os.PathLike[str]) -> bool:
     """True if ``path`` is an icploc raw-byte recording (checks the magic bytes)."""
+    from icploc.drivers.recording import is_recording
+
     return os.path.isfile(path) and is_recording(path)
 
 
 def _devices(path: str | os.PathLike[str]) -> dict[int, dict[str, Any]]:
+    from icploc.drivers.recording import KIND_META, iter_records
+
     devs: dict[int, dict[str, Any]] = {}
     for rec in iter_records(path):
         if rec.kind == KIND_META and rec.device not in devs:
@@ -51,6 +61,7 @@ def _sick_stream(path: str | os.PathLike[str], dev: int, meta: dict[str, Any]) -
     bits = int(meta.get("bits_per_byte", 11 if variant == "pls" else 10))
     max_range = meta.get("max_range")
     from icploc.drivers import sick_protocol as sp  # on reading one (~8 ms to import)
+    from icploc.drivers.recording import KIND_META, KIND_RX, iter_records
 
     parser = sp.TelegramParser(addresses=frozenset(range(0x80, 0x85)))
     seq = 0
@@ -79,6 +90,7 @@ def _powerbot_stream(
     path: str | os.PathLike[str], dev: int, meta: dict[str, Any]
 ) -> Iterator[Odometry]:
     from icploc.drivers import arcos_protocol as ap  # on reading one (~5 ms to import)
+    from icploc.drivers.recording import KIND_META, KIND_RX, iter_records
 
     parser = ap.PacketParser(byte_time=10.0 / float(meta.get("baudrate", 9600)))
     decoder = ap.SipDecoder(ap.POWERBOT)
@@ -132,6 +144,8 @@ def read_recorded(path: str | os.PathLike[str]) -> Iterator[Scan | Odometry]:
 
     Raises :class:`~icploc.drivers.recording.RecordingFormatError` if the file is not a
     recording or is corrupt (a record cut short at the very end is tolerated)."""
+    from icploc.drivers.recording import RecordingFormatError
+
     devs = _devices(path)
     streams: list[Iterator[Scan | Odometry]] = []
     for dev, meta in sorted(devs.items()):
@@ -183,6 +197,8 @@ def replay_config(path: str | os.PathLike[str], config: Any, config_given: bool)
     unless ``config_given`` (a config file) sets another, non-zero one, which then wins; a
     recording made before recordings carried the mounting keeps the config's, and the note
     says so (not silently: a laser 0.25 m ahead of the centre shifts every scan)."""
+    from icploc.drivers.recording import recorded_mounting
+
     configured: Pose = tuple(config.scan.mounting)  # type: ignore[assignment]
     rec = recorded_mounting(path)
     if rec is None:

@@ -26,13 +26,17 @@ sigma, pyramid and clearance are computed from them each time), only the map's p
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+try:  # hashlib's own blake2b, without hashlib's import of OpenSSL (~4 ms of a replay's start)
+    from _blake2 import blake2b
+except ImportError:  # pragma: no cover (an interpreter without the built-in module)
+    from hashlib import blake2b
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
@@ -71,7 +75,7 @@ def cache_key(files: Iterable[Path], settings: dict[str, Any]) -> str:
     """Content hash of ``files`` plus the settings and the fitting-code version."""
     from icploc._core import __version__
 
-    h = hashlib.blake2b(digest_size=20)
+    h = blake2b(digest_size=20)
     h.update(f"icploc {__version__} fit {FIT_VERSION}\n".encode())
     h.update(json.dumps(settings, sort_keys=True, default=str).encode())
     for f in files:
@@ -147,7 +151,7 @@ def _index_path(entry: Path, spacing: float, resolution: float) -> Path:
 def _digest(points: NDArray[Any], normals: NDArray[Any]) -> bytes:
     import numpy as np
 
-    h = hashlib.blake2b(digest_size=20)
+    h = blake2b(digest_size=20)
     for a in (points, normals):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
     return h.digest()
