@@ -450,7 +450,7 @@ class LocalizerSection(Section):
         0.8, "... and at least this fraction of the share this map's verified fits show", ge=0, le=1
     )
     verify_unmeasured_hit_ratio: float = _f(
-        0.6,
+        0.56,
         "... and until that share is measured, at least this share (and only fits showing it "
         "teach the share): a wrong start pose half fitting the scan (55 % of beams on walls) "
         "would otherwise verify and teach its own share as the usual one",
