@@ -222,7 +222,7 @@ pub(crate) const SLIDE_STEP: f64 = 0.04;
 
 /// Places along the unit map-frame direction `dir` from `pose` (same heading), at offsets
 /// in [`t_lo`, `t_hi`] m every [`SLIDE_STEP`], where the sensor-frame points `sub` score at
-/// least [`SLIDE_KEEP`] of the best place and lie at least [`SLIDE_MIN_OFFSET`] from `pose`:
+/// least [`SLIDE_KEEP`] of the best place (the best local maximum) and lie at least [`SLIDE_MIN_OFFSET`] from `pose`:
 /// local maxima, best first, at most [`SLIDE_CANDIDATES`]. The score: the mean Gaussian
 /// likelihood of the points' distances to the map (point-to-line near a wall; σ the
 /// expected noise widened by half a step), as [`crate::icp::assess`] scores a pose — the
@@ -266,26 +266,32 @@ pub(crate) fn slide_candidates(
                 .sum()
         })
         .collect();
-    let best = scores.iter().copied().fold(0.0, f64::max);
-    let keep = SLIDE_KEEP * best;
     let last = scores.len() - 1;
     // a place is a peak of its neighbourhood of ±`SLIDE_MIN_OFFSET` (the range noise and
     // people make ripples a step or two apart on the flank of one place; the places a fit
     // can settle at are door frames and rack uprights a metre or more apart)
     let nms = ((SLIDE_MIN_OFFSET / SLIDE_STEP).round() as usize).max(1);
+    let peak = |i: usize| {
+        let s = scores[i];
+        s > 0.0
+            && i > 0
+            && i < last
+            && scores[i.saturating_sub(nms)..i].iter().all(|&o| s >= o)
+            && scores[i + 1..(i + 1 + nms).min(last + 1)]
+                .iter()
+                .all(|&o| s > o)
+    };
+    // the best place: the best peak (a score still rising at the range's end is a place
+    // beyond it, which would otherwise hold every place inside below `SLIDE_KEEP`)
+    let best = (0..=last)
+        .filter(|&i| peak(i))
+        .map(|i| scores[i])
+        .fold(0.0, f64::max);
+    let keep = SLIDE_KEEP * best;
     let mut peaks: Vec<(f64, i64)> = (0..=last)
         .filter(|&i| {
-            let s = scores[i];
             let t = (i as i64 + k_lo) as f64 * SLIDE_STEP;
-            s >= keep
-                && s > 0.0
-                && t.abs() >= SLIDE_MIN_OFFSET
-                && i > 0
-                && i < last
-                && scores[i.saturating_sub(nms)..i].iter().all(|&o| s >= o)
-                && scores[i + 1..(i + 1 + nms).min(last + 1)]
-                    .iter()
-                    .all(|&o| s > o)
+            scores[i] >= keep && t.abs() >= SLIDE_MIN_OFFSET && peak(i)
         })
         .map(|i| (scores[i], i as i64 + k_lo))
         .collect();
