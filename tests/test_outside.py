@@ -3,13 +3,19 @@ odometry, left again by a verified lock; on a simulated building whose map lacks
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 import pytest
 from icploc.maps import Map
 from icploc.outside import MappedArea, OutsideConfig
-from partial_world import localized
+from partial_world import localized, partial_run
+
+
+@functools.lru_cache(maxsize=1)
+def partial_run_cached():  # type: ignore[no-untyped-def]
+    return partial_run()
 
 
 def _grid_map() -> Map:
@@ -151,3 +157,57 @@ def test_the_estimates_csv_says_a_scan_was_outside_the_map(tmp_path) -> None:  #
         w.write(e)
     row = next(csv.DictReader((tmp_path / "e.csv").read_text().splitlines()))
     assert [row["status"], row["reason"], row["mapped"]] == ["degraded", "outside_map", "0"]
+
+
+def test_the_reference_observer_changes_no_estimate() -> None:
+    # benches/eval_partial.py's observer (verify_pose at the reference pose on every
+    # re-entering scan) sits on the monitor instance: the estimates are the same without it
+    import sys
+    from pathlib import Path
+
+    from icploc.localizer import Localizer, run
+    from icploc.outside import attach
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benches"))
+    import eval_partial as ep
+
+    r, m = partial_run_cached()
+    items = r.items[: 2 * 3100]  # to just past the re-entry lock (scan ~3057)
+    got = []
+    explained: dict[int, bool] = {}
+    for observer in (None, ep.reentry_observer(r.truth, explained)):
+        loc = Localizer(m, initial_pose=tuple(r.truth[0]))
+        mon = attach(loc, record=True, observer=observer)
+        got.append((run(loc, items), mon))
+    (plain, mon0), (watched, mon1) = got
+    assert len(explained) > 10  # the observer ran on the re-entering scans
+    assert [s.end for s in mon0.stretches] == [s.end for s in mon1.stretches]
+    assert len(plain) == len(watched)
+    assert [(e.pose, e.status, e.reason, e.mapped) for e in plain] == [
+        (e.pose, e.status, e.reason, e.mapped) for e in watched
+    ]
+    assert all(np.array_equal(a.covariance, b.covariance) for a, b in zip(plain, watched, strict=True))
+
+
+def test_the_patch_lead_in_and_lead_out_come_from_the_typed_config() -> None:
+    from icploc.config import LocalizerConfig
+    from icploc.localizer import Localizer
+    from icploc.outside import attach
+
+    cfg = LocalizerConfig.from_dict({"map": {"patch_lead_in_scans": 7, "patch_lead_out_scans": 3}})
+    mon = attach(Localizer(_grid_map(), cfg, initial_pose=(1.0, 2.0, 0.0)))
+    assert (mon.config.lead_in_scans, mon.config.lead_out_scans) == (7, 3)
+    # one source of the defaults: the typed config's
+    d = LocalizerConfig().map
+    assert (OutsideConfig().lead_in_scans, OutsideConfig().lead_out_scans) == (
+        d.patch_lead_in_scans,
+        d.patch_lead_out_scans,
+    )
+
+
+def test_a_negative_patch_lead_in_is_a_config_error() -> None:
+    from icploc.config import LocalizerConfig
+    from icploc.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="patch_lead_in_scans"):
+        LocalizerConfig.from_dict({"map": {"patch_lead_in_scans": -1}})

@@ -667,6 +667,16 @@ class MapSection(Section):
     )
     visibility_fov_deg: float = _f(360.0, "field of view of the culling", "deg", gt=0)
     visibility_max_range: float = _f(30.0, "range of the culling", "m", gt=0)
+    patch_lead_in_scans: int = _f(
+        200,
+        "map patch (--map-patch): at most this many scans between a stretch's last tracking "
+        "pose and its first scan outside the map kept for the patch's pose graph",
+        "scans",
+        ge=0,
+    )
+    patch_lead_out_scans: int = _f(
+        20, "map patch: scans recorded after a stretch's re-entry lock", "scans", ge=0
+    )
 
 
 class RelocalizeSection(Section):

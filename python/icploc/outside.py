@@ -44,8 +44,13 @@ from icploc.se2 import Pose
 from icploc.status import Reason
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from icploc.localizer import Estimate, Localizer
     from icploc.messages import Scan
+
+    #: :attr:`OutsideMonitor.observer`: (monitor, localizer, estimate, scan points)
+    Observer = Callable[["OutsideMonitor", Localizer, Estimate, NDArray[np.float64]], None]
 
 __all__ = [
     "MappedArea",
@@ -60,6 +65,13 @@ __all__ = [
 REASON = Reason.OUTSIDE_MAP
 #: ... and of a scan back on the map, dead-reckoned while the re-entry search runs
 REENTERING = Reason.REENTERING
+
+
+def _map_default(key: str) -> int:
+    """A default of the typed config's ``map`` section (their one source)."""
+    from icploc.config import MapSection
+
+    return int(getattr(MapSection(), key))
 
 
 @dataclass(frozen=True)
@@ -93,13 +105,14 @@ class OutsideConfig:
     #: a stretch's exit anchor is the last ``tracking`` pose when the odometry from it to
     #: the first scan outside is at most this long [m] (else the last believed pose)
     exit_odometry: float = 3.0
-    #: with ``record``: scans recorded after a stretch's lock (:attr:`Stretch.lead_out`)
-    lead_out_scans: int = 20
+    #: with ``record``: scans recorded after a stretch's lock (:attr:`Stretch.lead_out`);
+    #: its default and YAML key: ``map.patch_lead_out_scans``
+    lead_out_scans: int = field(default_factory=lambda: _map_default("patch_lead_out_scans"))
     #: with ``record``: at most this many scans between a stretch's exit anchor (the last
     #: ``tracking`` pose) and its first outside scan kept for the patch's pose graph
     #: (:attr:`Stretch.lead_in`: scan-matched steps instead of the odometry alone over
-    #: the exit gap)
-    lead_in_scans: int = 200
+    #: the exit gap); its default and YAML key: ``map.patch_lead_in_scans``
+    lead_in_scans: int = field(default_factory=lambda: _map_default("patch_lead_in_scans"))
     #: scans a re-entry candidate must stay put (by odometry) before it locks
     reentry_confirm: int = 2
     #: scans of the local re-entry search alone; after them the localizer's own recovery
@@ -467,8 +480,14 @@ class OutsideMonitor:
         *,
         record: bool = False,
         mounting: Pose = (0.0, 0.0, 0.0),
+        observer: Observer | None = None,
     ) -> None:
         self.area = area
+        #: called first in :meth:`after` with (monitor, localizer, estimate, scan points),
+        #: the monitor's state still the scan's own; it must not change the localizer or
+        #: the monitor (benches/eval_partial.py: is a re-entering scan explained at its
+        #: reference pose?). None: nothing
+        self.observer = observer
         #: the map's walls and mapped area for the patch (:class:`icploc.mappatch.MappedWalls`;
         #: set by :func:`attach`)
         self.walls: Any = None
@@ -593,6 +612,8 @@ class OutsideMonitor:
 
     def after(self, loc: Localizer, est: Estimate, pts: NDArray[np.float64]) -> Estimate:
         """Called on every estimate: marks it, closes a stretch at the re-entry lock."""
+        if self.observer is not None:
+            self.observer(self, loc, est, pts)
         from icploc.localizer import Status
         from icploc.status import LOCK_REASONS
 
@@ -794,13 +815,27 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
 
 
 def attach(
-    loc: Localizer, config: OutsideConfig | None = None, *, record: bool = False
+    loc: Localizer,
+    config: OutsideConfig | None = None,
+    *,
+    record: bool = False,
+    observer: Observer | None = None,
 ) -> OutsideMonitor:
-    """Give ``loc`` an outside-the-map monitor (its ``outside`` hook) and return it."""
+    """Give ``loc`` an outside-the-map monitor (its ``outside`` hook) and return it.
+    Without ``config``: the defaults, the patch's lead-in and lead-out from ``loc``'s
+    configuration (``map.patch_lead_in_scans``, ``map.patch_lead_out_scans``). ``observer``:
+    see :class:`OutsideMonitor`."""
+    if config is None:
+        mc = loc.config.map
+        config = OutsideConfig(
+            lead_in_scans=mc.patch_lead_in_scans, lead_out_scans=mc.patch_lead_out_scans
+        )
     area = MappedArea.of(loc.map, loc.index, config)
     from icploc.mappatch import MappedWalls
 
-    mon = OutsideMonitor(area, config, record=record, mounting=loc.config.scan.mounting)
+    mon = OutsideMonitor(
+        area, config, record=record, mounting=loc.config.scan.mounting, observer=observer
+    )
     mon.walls = MappedWalls(loc.index, area)
     loc.outside = mon
     return mon

@@ -200,6 +200,7 @@ def replay(
     map_patch: str | Path | None = None,
     map_patch_open: bool = False,
     map_patch_confident_only: bool = False,
+    on_outside: Callable[[Any], None] | None = None,
 ) -> ReplayResult:
     """Replay ``log`` (a path, or a time-ordered sequence of Scan / Odometry) against
     ``map_`` (a path or a Map). Initial pose: ``initial_pose``, else the first truth pose,
@@ -323,6 +324,8 @@ def replay(
         from icploc.outside import attach as attach_outside
 
         outside = attach_outside(loc, record=map_patch is not None)
+        if on_outside is not None:  # hooks on the monitor (benches/eval_partial.py)
+            on_outside(outside)
     n = len(scans)
     step = max(1, n // 200)
     got: list[Estimate] = []
