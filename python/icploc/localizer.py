@@ -732,6 +732,15 @@ class Localizer:
             if q.hit_measured
             else lc.verify_unmeasured_hit_ratio
         )
+        return self._explains(check, bar)
+
+    def _explains(self, check: FitCheck, bar: float) -> bool:
+        """The fit's evidence clears ``bar`` for its share of beams on walls, and the clauses
+        every verified or arbitrating fit shares: enough beams, the absolute floor
+        (``verify_min_hit_ratio``), the usual residual and, when the checker looks through
+        walls, the usual see-through share."""
+        lc = self.config.localizer
+        q = self.quality
         return (
             check.beams >= self.config.scan.min_points // 2
             and check.hit >= lc.verify_min_hit_ratio
@@ -761,17 +770,8 @@ class Localizer:
         if self._verified(at_z):
             return True
         ratio = lc.arbitration_hit_ratio
-        return (
-            ratio > 0.0
-            and at_z.beams >= self.config.scan.min_points // 2
-            and at_z.hit >= lc.verify_min_hit_ratio
-            and at_z.rms <= lc.verify_max_residual * self.quality.sigma
-            and at_z.hit >= ratio * at_pred.hit + lc.arbitration_margin
-            and (
-                not self.checker.see_through
-                or at_z.see_through
-                <= self.quality.see_through_reference + lc.verify_max_see_through
-            )
+        return ratio > 0.0 and self._explains(
+            at_z, ratio * at_pred.hit + lc.arbitration_margin
         )
 
     def _contradiction_bar(self) -> float:
