@@ -389,6 +389,7 @@ class Localizer:
         self._check_executor: Any = None
         self._elsewhere: tuple[Pose, Pose | None, int] | None = None
         self._lock_unconfirmed = False
+        self._recover_unconfirmed = False
         #: the kidnap checks' verdicts so far (at most 100): "", "unsure", "suspect"
         #: (elsewhere, to be re-checked), "elsewhere" (declared lost), "refuted" (a lock)
         self.kidnap_verdicts: list[str] = []
@@ -450,6 +451,7 @@ class Localizer:
         self._check_inflight = None  # a running check's verdict no longer applies
         self._elsewhere = None
         self._lock_unconfirmed = False
+        self._recover_unconfirmed = False
 
     def declare_lost(self) -> None:
         """Switch to ``lost`` now (e.g. a kidnapping known from outside): the pose is
@@ -1371,7 +1373,10 @@ class Localizer:
             v, strict = got
             if strict:
                 self._lock_unconfirmed = False
-                if v.verdict == "elsewhere":
+                recovering = self._recover_unconfirmed
+                self._recover_unconfirmed = False
+                if v.verdict == "elsewhere" or (recovering and not self._clear(v)):
+                    # a coasting recovery's check must come back clear ("unsure" is not)
                     self._note("refuted")
                     elsewhere = True
                 else:
@@ -1526,6 +1531,7 @@ class Localizer:
             motion = self.calibration.apply(between(self._lost_odom, odom))
         self._lost_odom = odom
         step = RecoveryStep("searching")
+        view = None
         if pts.shape[0] >= self.config.scan.min_points:
             view = RecoveryView(
                 pose=pred,
@@ -1565,14 +1571,24 @@ class Localizer:
             # again for a verified lock the dead reckoning agrees with that already beat
             # every rival of a whole-map search of this episode (the tracker's rivals: a
             # kidnapping's true place among them; ~0.3-0.7 s a lock on the 5 cm grids)
-            sig = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
-            meant = sig <= self.config.localizer.coast_sigma_xy  # not an unknown pose
+            # the dead-reckoned pose says something: the recovery's own window test (its
+            # search window is not the whole map); a recovery without one: the covariance
+            # is not the unknown one (a pose refuted or never given)
+            win = getattr(self.recovery, "window", None)
+            if win is not None and view is not None:
+                meant = win(view) is not None
+            else:
+                meant = float(pred_cov[0, 0] + pred_cov[1, 1]) < 1e-3 * _UNKNOWN_VAR_XY
             skip = agrees and meant and step.verified and step.rivals_searched
             v = None if skip else self._run_check(pts, lock_pose, odom, True)
             strict_pending = not skip and v is None and self._check_inflight is not None
             if v is not None and v.verdict == "elsewhere":
                 self._note("refuted")
                 refuted = True
+                lock_pose = None
+            elif v is not None and not self._clear(v):
+                # a distinct pose fits as well (a periodic building's next office): the
+                # lock is not told from it, no jump and no promise; still lost
                 lock_pose = None
         if lock_pose is not None and res is not None:
             inflight = self._check_inflight
@@ -1624,9 +1640,13 @@ class Localizer:
                 # in a row: the local search around it has found the way back. Checked
                 # like any lock (no distinct pose anywhere clearly better), then the
                 # localizer tracks again from there, ``degraded`` until it verifies.
+                # Only a clear verdict confirms: "unsure" (the check's search found no
+                # pose it could rank) is no evidence the dead reckoning led to the right
+                # one of several alike places (a periodic building: the next office)
                 v = self._run_check(pts, pred, odom, True)
-                if v is not None and v.verdict == "elsewhere":
-                    self._note("refuted")
+                if v is not None and not self._clear(v):
+                    if v.verdict == "elsewhere":
+                        self._note("refuted")
                     self._coast_streak = 0
                 else:
                     inflight = self._check_inflight
@@ -1635,6 +1655,7 @@ class Localizer:
                     if pending:
                         self._check_inflight = inflight
                         self._lock_unconfirmed = True
+                        self._recover_unconfirmed = True
                     return Estimate(
                         stamp=scan.stamp,
                         pose=self.pose,
@@ -1714,11 +1735,41 @@ class Localizer:
         at_pred = self.checker.check(pts, pred)
         if at_z.hit < at_pred.hit:
             return pred, pred_cov, False
+        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > g.max_translation_jump and not (
+            self._verified(at_z) and self._strict_clear(pts, z)
+        ):
+            # past the tracking jump cap the reported pose moves only to a fit that
+            # verifies and that no distinct pose anywhere rivals (a strict check, inline
+            # only: with background checks such a move waits for a recovery's lock)
+            return pred, pred_cov, False
         if nis > self._chi2_accept:
             R = R * (nis / self._chi2_accept)
         self._coast_inlier_ratio = float(res.inlier_ratio)
         pose, cov = fuse(pred, pred_cov, z, R)
         return pose, cov, True
+
+    def _strict_clear(self, pts: NDArray[np.float64], pose: Pose) -> bool:
+        """An inline strict global check of ``pose`` says no distinct pose rivals it
+        (verdict ``""``); False for any other verdict, a recovery without checks, and with
+        ``localizer.lost_check: background`` (no verdict now)."""
+        fn = getattr(self.recovery, "check_pose", None)
+        if fn is None or self.config.localizer.lost_check == "background":
+            return False
+        try:
+            v: CheckVerdict = fn(self.index, pts, pose, True)
+        except Exception:  # noqa: BLE001 - a failed check is no evidence
+            return False
+        return self._clear(v)
+
+    def _clear(self, v: CheckVerdict) -> bool:
+        """A strict check's verdict that clears a pose the localizer reached by itself (not a
+        recovery's lock): ``""`` and no distinct rival, or every one trailing by the
+        tracker's dominance margin (a periodic building's next office fits as well as the
+        right one: a rival not beaten). ``"unsure"`` does not clear."""
+        if v.verdict != "":
+            return False
+        dom = self.config.relocalize.dominance
+        return v.pose is None or v.best < (1.0 - dom) * v.here
 
     # -- start refinement: a thin wrapper of icploc.startrefine (--refine-start) ----------
     def refine_start(self, config: Any = None, **kw: Any) -> Any:
@@ -1780,9 +1831,13 @@ def _largest_position_variance(cov: NDArray[np.float64]) -> float:
     return 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
 
 
+#: the position variance (x + y) of a pose that says nothing
+_UNKNOWN_VAR_XY = 2e6
+
+
 def _unknown_covariance() -> NDArray[np.float64]:
     """The covariance of a pose that says nothing (no initial pose, a place refuted)."""
-    return np.diag([1e6, 1e6, math.pi**2])
+    return np.diag([0.5 * _UNKNOWN_VAR_XY, 0.5 * _UNKNOWN_VAR_XY, math.pi**2])
 
 
 def _chi2_3(p: float) -> float:

@@ -73,11 +73,12 @@ class RecoveryStep:
     #: than a lock needs) that the localizer's verification did not accept: the localizer
     #: resumes there ``degraded``, never ``tracking``, until its own fits verify
     verified: bool = True
-    #: True: the lock's hypothesis dominated every rival of a whole-map search made in this
-    #: lost episode, within ``relocalize.full_search_every`` throttle periods (the tracker
-    #: carried those rivals since and the lock beat them all): a verified lock the dead
-    #: reckoning agrees with then needs no fresh whole-map check (the localizer's strict
-    #: check of a lock, :meth:`icploc.localizer.Localizer._update_lost`)
+    #: True: a whole-map search ran in this lost episode within
+    #: ``relocalize.full_search_every`` throttle periods and the lock's hypothesis leads
+    #: the rivals the tracker still carries from it (rivals it pruned since were dropped,
+    #: not beaten): a verified lock the dead reckoning agrees with, for a dead-reckoned
+    #: pose that says something, then gets no fresh whole-map check (the localizer's
+    #: strict check of a lock, :meth:`icploc.localizer.Localizer._update_lost`)
     rivals_searched: bool = False
 
 
