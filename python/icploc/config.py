@@ -590,7 +590,9 @@ class LocalizerSection(Section):
     coast_jump_sigmas: float = _f(
         3.0,
         "... and a coasting fit may move the pose by up to this many of those sigmas (at least "
-        "gating.max_translation_jump): a fit from a dead reckoning 2 m off lies 2 m away",
+        "gating.max_translation_jump; beyond that jump only a fit that verifies and that a strict "
+        "check clears, no rival within the dominance margin): a fit from a dead reckoning 2 m "
+        "off lies 2 m away",
         "sigmas",
         ge=0,
     )
