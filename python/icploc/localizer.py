@@ -1568,12 +1568,12 @@ class Localizer:
             # clearly better (inline on this scan, or on the worker thread: then the
             # pose is not promised until the verdict is back). Locks are rare; a wrong
             # local one after a kidnapping is not (the dead reckoning led there). Not
-            # again for a verified lock the dead reckoning agrees with that already beat
-            # every rival of a whole-map search of this episode (the tracker's rivals: a
-            # kidnapping's true place among them; ~0.3-0.7 s a lock on the 5 cm grids)
-            # the dead-reckoned pose says something: the recovery's own window test (its
-            # search window is not the whole map); a recovery without one: the covariance
-            # is not the unknown one (a pose refuted or never given)
+            # again for a verified lock that the dead reckoning agrees with, where that
+            # dead reckoning says something, and that came after a recent whole-map search
+            # of this episode (the tracker's rivals: a kidnapping's true place among them;
+            # ~0.3-0.7 s a lock on the 5 cm grids). "Says something": the recovery's own
+            # window test (its search window is not the whole map); for a recovery without
+            # one, the covariance is not the unknown one (a pose refuted or never given)
             win = getattr(self.recovery, "window", None)
             if win is not None and view is not None:
                 meant = win(view) is not None
@@ -1722,7 +1722,8 @@ class Localizer:
         # long stretch the map barely shows: freiburg-campus 5 cm, a fit 1.7 m from a dead
         # reckoning 1.7 m off was refused by the tracking jump cap and the pose ran 6.7 m off)
         cap = max(g.max_translation_jump, lc.coast_jump_sigmas * sig)
-        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > cap or abs(
+        jump = math.hypot(z[0] - pred[0], z[1] - pred[1])
+        if jump > cap or abs(
             wrap_angle(z[2] - pred[2])
         ) > math.radians(g.max_rotation_jump_deg):
             return pred, pred_cov, False
@@ -1735,7 +1736,7 @@ class Localizer:
         at_pred = self.checker.check(pts, pred)
         if at_z.hit < at_pred.hit:
             return pred, pred_cov, False
-        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > g.max_translation_jump and not (
+        if jump > g.max_translation_jump and not (
             self._verified(at_z) and self._strict_clear(pts, z)
         ):
             # past the tracking jump cap the reported pose moves only to a fit that
