@@ -65,6 +65,7 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
             out = replay(log_path, map_path, config=config, initial_pose=tuple(float(v) for v in ref[0]))
         finally:
             quality.stop()
+        moved = 0.0
         for k, e in enumerate(out.estimates):
             r = ref[k]
             err = np.array([e.pose[0] - r[0], e.pose[1] - r[1], wrap_angle(e.pose[2] - r[2])])
@@ -109,6 +110,16 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
                 row["sigma"], row["hit_ref"], row["hit_measured"] = quality.seen[k]
             if k in quality.fits:
                 row["hit_fit"], row["hit_pred"], row["fit_verified"] = quality.fits[k]
+            if k in quality.coasts:
+                # while lost: how far the coasting fit moved the pose from the dead reckoning
+                row["coast_fused"], row["coast_move"] = quality.coasts[k]
+            # while lost: how far the coasting fits moved the pose from the dead reckoning since
+            # the localizer was declared lost, summed (0: the dead-reckoned continuation)
+            if e.status.value == "lost":
+                moved += row.get("coast_move", 0.0) if row.get("coast_fused") else 0.0
+                row["coast_total"] = moved
+            else:
+                moved = 0.0
             rows.append(row)
     return rows
 
@@ -144,12 +155,24 @@ class _record_quality:
                 fits[len(seen)] = (float(at_z.hit), float(at_pred.hit), bool(loc._verified(at_z)))
             return est
 
+        #: per lost scan that tried a coasting fit: (fused, distance the pose moved)
+        self.coasts: dict[int, tuple[bool, float]] = {}
+        self._orig_coast = Localizer._coast
+        orig_coast, coasts = self._orig_coast, self.coasts
+
+        def coast(loc: Any, pts: Any, pred: Any, *a: Any, **kw: Any) -> Any:
+            out = orig_coast(loc, pts, pred, *a, **kw)
+            coasts[len(seen)] = (bool(out[2]), float(math.hypot(out[0][0] - pred[0], out[0][1] - pred[1])))
+            return out
+
         Localizer.update = update  # type: ignore[method-assign]
         Localizer._update_tracking = update_tracking  # type: ignore[method-assign]
+        Localizer._coast = coast  # type: ignore[method-assign]
 
     def stop(self) -> None:
         self._cls.update = self._orig  # type: ignore[method-assign]
         self._cls._update_tracking = self._orig_tr  # type: ignore[method-assign]
+        self._cls._coast = self._orig_coast  # type: ignore[method-assign]
 
 
 def describe(rows: list[dict], label: str) -> str:
@@ -162,6 +185,12 @@ def describe(rows: list[dict], label: str) -> str:
     ]
     st = Counter(r["status"] for r in rows)
     lines.append("status: " + ", ".join(f"{k} {v}" for k, v in sorted(st.items())))
+    far = [r for r in rows if r["status"] == "lost" and r["err"] > 5.0]
+    if far:
+        lines.append(
+            f"lost > 5 m off: {len(far)} (coasting fits moved the pose > 1 m since lost on "
+            f"{sum(1 for r in far if r.get('coast_total', 0.0) > 1.0)}; the rest dead-reckoned)"
+        )
     tail = [r for r in rows if r["err"] >= p95]
     lines.append("at or above p95: " + ", ".join(f"{k} {v}" for k, v in Counter(f"{r['status']}/{r['reason'] or '-'}" for r in tail).most_common()))
     acc = [r for r in rows if r["accepted"] and "meas_nees" in r and r["reason"] not in LOCK_REASONS]

@@ -10,6 +10,7 @@ import pytest
 from icploc import MapIndex
 from icploc import sim as worlds
 from icploc.config import LocalizerConfig
+from icploc.fitcheck import FitCheck
 from icploc.fusion import mahalanobis2
 from icploc.localizer import (
     Localizer,
@@ -308,6 +309,57 @@ def test_a_fit_explaining_several_times_the_predictions_share_is_taken_against_t
     else:
         assert (e.accepted, e.reason) == (False, "inconsistent")
         assert math.hypot(e.x, e.y) < 0.01  # the prediction stands
+
+
+@pytest.mark.parametrize("max_jump", [0.6, 0.1])
+def test_the_share_ratio_arbitration_takes_only_a_fit_near_the_prediction(
+    lab: worlds.World, lab_index: MapIndex, max_jump: float
+) -> None:
+    """The same crowded-lab fit as above moves the pose 0.22 m: taken with the default
+    ``arbitration_ratio_max_jump`` (0.6 m), refused (the prediction stands) when the bound is
+    below that move. freiburg-079 on its partial map: wrong fits 0.7-0.8 m from the
+    prediction, at 0.61-0.63 of the beams on walls against its 0.24, were taken."""
+    cfg = LocalizerConfig.from_dict(
+        {"localizer": {**NOISY["localizer"], "arbitration_ratio_max_jump": max_jump}}
+    )
+    loc = Localizer(lab_index, cfg, initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    truth = (0.2, 0.1, 0.0)
+    e = loc.update(scan_at(_crowded_lab(), truth, 0.5), (0.0, 0.0, 0.0))
+    assert e.measurement is not None
+    jump = math.hypot(e.measurement[0], e.measurement[1])
+    assert 0.1 < jump < 0.6
+    if max_jump > jump:
+        assert (e.accepted, e.reason) == (True, "odometry_off")
+    else:
+        assert (e.accepted, e.reason) == (False, "inconsistent")
+        assert math.hypot(e.x, e.y) < 0.01
+
+
+def test_outweighs_by_share_ratio_is_bounded_by_the_move_and_a_verified_fit_is_not(
+    lab: worlds.World, lab_index: MapIndex
+) -> None:
+    """The rule on constructed evidence (freiburg-079's numbers): a fit at 0.63 of the beams
+    on walls, the prediction at 0.24, on a map whose verified fits show nearly all (the fit
+    does not verify)."""
+    loc = Localizer(lab_index, LocalizerConfig.from_dict(NOISY), initial_pose=(0.0, 0.0, 0.0))
+    for k in range(5):
+        loc.update(scan_at(lab, (0.0, 0.0, 0.0), 0.1 * k), (0.0, 0.0, 0.0))
+    assert loc.quality.hit_measured
+    sigma = loc.quality.sigma
+    fit = FitCheck(hit=0.63, see_through=0.0, rms=sigma, beams=300)
+    pred = FitCheck(hit=0.24, see_through=0.0, rms=sigma, beams=300)
+    assert not loc._verified(fit)
+    bound = loc.config.localizer.arbitration_ratio_max_jump
+    assert loc._outweighs(fit, pred, 0.3)
+    assert loc._outweighs(fit, pred, bound)
+    assert not loc._outweighs(fit, pred, 0.78)
+    # a verified fit is taken however far (the chi-square inflation bound still applies)
+    good = FitCheck(hit=0.99, see_through=0.0, rms=sigma, beams=300)
+    assert loc._verified(good) and loc._outweighs(good, pred, 0.78)
+    # and without a clear lead over the prediction nothing is
+    assert not loc._outweighs(fit, FitCheck(0.6, 0.0, sigma, 300), 0.3)
 
 
 def test_a_fit_explaining_less_than_twice_the_predictions_share_is_still_refused(

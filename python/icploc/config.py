@@ -524,6 +524,16 @@ class LocalizerSection(Section):
         "x prediction's share",
         ge=0,
     )
+    arbitration_ratio_max_jump: float = _f(
+        0.6,
+        "... and that share-ratio arbitration (a fit that does not verify) only for a fit at "
+        "most this far from the prediction: on the real cells the right ones moved the pose "
+        "0.14-0.54 m (a prediction tens of centimetres off), while wrong ones 0.7-0.9 m off, "
+        "at 0.55-0.63 hit share, turned it by 5-9 degrees as well (freiburg-079 on its "
+        "partial map, csail 10 cm bad)",
+        "m",
+        ge=0,
+    )
     consistent_rejections: int = _f(
         3, "... or when this many rejected scan poses in a row agree with each other", "scans", gt=0
     )

@@ -755,24 +755,30 @@ class Localizer:
             )
         )
 
-    def _outweighs(self, at_z: FitCheck, at_pred: FitCheck) -> bool:
+    def _outweighs(self, at_z: FitCheck, at_pred: FitCheck, jump: float) -> bool:
         """The map arbitrates for a fit that fails the chi-square test: the fit explains
         clearly more of the scan than the prediction (``arbitration_margin``), and either
-        verifies, or shows the verification's absolute floor of beams on walls at the usual
-        residual and ``arbitration_hit_ratio`` times the prediction's share. In a place
+        verifies, or lies at most ``arbitration_ratio_max_jump`` from the prediction
+        (``jump``, m) and shows the verification's absolute floor of beams on walls at the
+        usual residual and ``arbitration_hit_ratio`` times the prediction's share. In a place
         the map covers by half (another pass, clutter) right fits stay under the usual
         share while a prediction tens of centimetres off explains a fifth of the scan: on
         intel, aces and acapulco such fits (3-5 cm off, 0.46-0.56 of the beams on walls
         against the prediction's 0.17-0.23) were refused scan after scan, the dead
-        reckoning ran 35-60 cm off and the pose was lost. The pose it takes is not
-        promised (``odometry_off`` must settle, :meth:`_settle`)."""
+        reckoning ran 35-60 cm off and the pose was lost. Those fits moved the pose at most
+        0.54 m; a fit that half explains a scan farther off is as often a wrong place the
+        map also covers by half (freiburg-079 on its partial map: fits 1.0 and 1.2 m from
+        the reference, 0.78 and 0.69 m from the prediction, turning it by 9 and 5 degrees,
+        at 0.63 and 0.61 of the beams on walls against the prediction's 0.24 while the
+        reference pose showed 0.27 and 0.62). The pose it takes is not promised
+        (``odometry_off`` must settle, :meth:`_settle`)."""
         lc = self.config.localizer
         if at_z.hit < at_pred.hit + lc.arbitration_margin:
             return False
         if self._verified(at_z):
             return True
         ratio = lc.arbitration_hit_ratio
-        return ratio > 0.0 and self._explains(
+        return ratio > 0.0 and jump <= lc.arbitration_ratio_max_jump and self._explains(
             at_z, ratio * at_pred.hit + lc.arbitration_margin
         )
 
@@ -918,7 +924,7 @@ class Localizer:
                     at_pred = self.checker.check(pts, pred)
                     if (
                         nis <= lc.arbitration_max_inflation * self._chi2_accept
-                        and self._outweighs(at_z, at_pred)
+                        and self._outweighs(at_z, at_pred, jump)
                     ):
                         accepted = True
                         reason = Reason.ODOMETRY_OFF
@@ -1766,7 +1772,18 @@ class Localizer:
         """A strict check's verdict that clears a pose the localizer reached by itself (not a
         recovery's lock): ``""`` and no distinct rival, or every one trailing by the
         tracker's dominance margin (a periodic building's next office fits as well as the
-        right one: a rival not beaten). ``"unsure"`` does not clear."""
+        right one: a rival not beaten). ``"unsure"`` (the best distinct pose the search
+        found is no good fit) clears only when that pose trails the checked one by the lead
+        the tracker asks of a leader over every rival to lock (its dominance margin at the
+        checked pose's score, :meth:`icploc.relocalize.Relocalizer._margin`): a place the
+        map covers by half, where the right pose scores 0.48 and the best elsewhere 0.31
+        (freiburg-campus 5 cm, bad odometry: the right coasting fit was refused and the
+        dead reckoning ran 6.9 m off), not a tie of two poor fits (an unsure check with no
+        rival ranked carries no scores and does not clear)."""
+        if v.verdict == "unsure":
+            c = self.config.relocalize
+            margin = c.dominance + c.dominance_slope * max(0.0, c.clean_score - v.here)
+            return v.here > 0.0 and v.best < (1.0 - margin) * v.here
         if v.verdict != "":
             return False
         dom = self.config.relocalize.dominance
