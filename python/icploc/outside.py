@@ -93,8 +93,10 @@ class OutsideConfig:
     #: mapped cells of a grid are grown by this much before the test [m] (pose error, a
     #: wall seen from the other side)
     margin: float = 0.2
-    #: cell size of the mapped-area mask of a map without a grid [m]
+    #: cell size of the mapped-area mask of a map without a grid [m] (coarser when the
+    #: mask would have more than ``max_mask_cells`` cells: a map kilometres wide)
     resolution: float = 0.1
+    max_mask_cells: int = 16_000_000
     #: the re-entry watch also tries poses within this many sigmas of the dead-reckoned
     #: one (at most ``probe_radius`` metres): a drifted pose must not hide the map
     probe_sigmas: float = 3.0
@@ -148,6 +150,8 @@ class OutsideConfig:
                 "outside: lead_out_scans and lead_in_scans must be >= 0, got "
                 f"{self.lead_out_scans}, {self.lead_in_scans}"
             )
+        if self.max_mask_cells < 1:
+            raise ValueError(f"outside: max_mask_cells must be >= 1, got {self.max_mask_cells}")
         if self.reentry_starts < 1 or self.reentry_verify < 1 or self.reentry_max_probes < 1:
             raise ValueError(
                 "outside: reentry_starts, reentry_verify and reentry_max_probes must be >= 1"
@@ -205,7 +209,8 @@ class MappedArea:
         pts = np.asarray(index.points, dtype=np.float64).reshape(-1, 2)
         if pts.shape[0] == 0:
             raise ValueError("outside: the map holds no points")
-        res = cfg.resolution
+        span = pts.max(axis=0) - pts.min(axis=0) + 2.0 * cfg.reach
+        res = max(cfg.resolution, math.sqrt(float(span[0] * span[1]) / cfg.max_mask_cells))
         lo = np.floor((pts.min(axis=0) - cfg.reach) / res) * res - res
         hi = pts.max(axis=0) + cfg.reach + res
         w, h = (int(math.ceil(v)) + 1 for v in (hi - lo) / res)
