@@ -6,6 +6,9 @@ or points: far from every wall) while the localizer still believes its pose, the
 left the mapped area. Matching there would pull the pose onto whatever walls happen to be
 near, so :class:`OutsideMonitor` takes over the scan instead:
 
+* **when**: only once the localizer has been ``tracking`` since the monitor was attached
+  (a pose verified on the map left it; a wrong initial pose whose scan lands off the map
+  is lost and searched for, as without the monitor).
 * **outside**: no scan matching and no global search; the pose is the odometry
   prediction (calibrated by :mod:`icploc.calibration`, its covariance grown by the motion
   model each scan). Status ``degraded`` (``lost`` once the covariance is wider than
@@ -503,6 +506,10 @@ class OutsideMonitor:
         #: the recovery searching)
         self.state = "inside"
         self.stretches: list[Stretch] = []
+        #: a scan has been ``tracking`` since the monitor was attached: only a pose that
+        #: was verified on the map can leave it (a wrong initial pose whose scan lands off
+        #: the map is lost, and the localizer's recovery searches, as without the monitor)
+        self._verified = False
         self.last_share = float("nan")
         self._below = 0
         self._above = 0
@@ -558,7 +565,7 @@ class OutsideMonitor:
         if self.state == "inside" and self._lead_dr is not None:
             self._lead_dr = compose(self._lead_dr, step)
         if self.state == "inside":
-            if not known or share < cfg.enter_share:
+            if not known or share < cfg.enter_share or not self._verified:
                 return None
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
                 return None
@@ -653,6 +660,7 @@ class OutsideMonitor:
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
         if self.state == "inside" and est.status is Status.TRACKING:
+            self._verified = True
             self._tracked = self._since = est.pose
             self._since_m = 0.0
             self._gap = []
