@@ -329,7 +329,7 @@ def replay(
     # default); ``partial_map`` True / False forces it on / off; a map patch needs it
     if partial_map is False and map_patch is None:
         loc.outside = None
-    elif loc.outside is None:
+    elif loc.outside is None and (partial_map or map_patch is not None):
         from icploc.outside import attach as attach_outside
 
         attach_outside(loc)
