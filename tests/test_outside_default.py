@@ -38,6 +38,18 @@ def test_the_default_config_turns_the_outside_state_on() -> None:
     assert isinstance(loc.outside, OutsideMonitor)
 
 
+def test_a_map_of_lines_gets_no_monitor_by_default_but_on_request() -> None:
+    # a map of lines does not say where it ends (the glass lab's beams end beyond it)
+    from icploc.localizer import Localizer
+    from icploc.maps import Map
+    from icploc.outside import OutsideMonitor, attach
+
+    m = Map.from_lines(np.array([[0.0, 0.0, 4.0, 0.0], [4.0, 0.0, 4.0, 4.0]]))
+    loc = Localizer(m, initial_pose=(1.0, 1.0, 0.0))
+    assert loc.outside is None
+    assert isinstance(attach(loc), OutsideMonitor)
+
+
 def test_outside_enabled_false_leaves_the_localizer_without_a_monitor() -> None:
     from icploc.localizer import Localizer
 

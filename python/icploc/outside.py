@@ -61,6 +61,8 @@ __all__ = [
     "OutsideMonitor",
     "Stretch",
     "attach",
+    "attach_default",
+    "knows_unknown",
     "stretch_lines",
 ]
 
@@ -880,6 +882,23 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
             f"{s.distance:.1f} m coasted, sigma up to {s.max_sigma_xy:.2f} m; {back}"
         )
     return out
+
+
+def knows_unknown(map_: Any) -> bool:
+    """The map says where it knows nothing: a grid with free space (a map_server grid's
+    unknown cells). A map of lines or points does not say where it ends."""
+    return getattr(map_, "grid", None) is not None and getattr(map_, "free", None) is not None
+
+
+def attach_default(loc: Localizer) -> OutsideMonitor | None:
+    """What a :class:`~icploc.localizer.Localizer` does with ``outside.enabled`` (the
+    default): attach the monitor when its map marks unknown space (:func:`knows_unknown`),
+    else nothing. On a map of lines the mapped area is only "within ``reach`` of a wall":
+    in the simulated glass lab (``icploc.sim.lab``) beams through the glass end beyond it
+    and the monitor coasted the robot standing in the middle of the map; such maps get the
+    monitor only on request (:func:`attach`, ``replay(partial_map=True)``,
+    ``--partial-map``)."""
+    return attach(loc) if knows_unknown(loc.map) else None
 
 
 def attach(
