@@ -36,9 +36,10 @@ What is done (reusing benches/eval_real.py, seeded):
   ``.sigma.pgm``); and the same scans drawn as the patch is but at their reference poses
   (the drawing's and the measure's own ceiling: the gap to it is the patch's pose error).
 
-Methods: ``icploc`` (``replay(..., partial_map=True)``), ``icploc-plain`` (the default
-replay, partial map: its first half is the control of "inside the map", the same map
-without the outside-the-map state), ``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
+Methods: ``icploc`` (``replay(..., partial_map=True)``: the default, with a map patch),
+``icploc-plain`` (``replay(..., partial_map=False)``, partial map: its first half is the
+control of "inside the map", the same map without the outside-the-map state),
+``icploc-full`` (default replay, full map), ``mrpt`` (pf-localization,
 partial map; as eval_real runs it). Writes ``benches/results/partial.md`` / ``.json``.
 """
 
@@ -137,7 +138,7 @@ def run_icploc(
     log_path: Path,
     map_yaml: Path,
     pose: tuple[float, float, float],
-    partial: bool,
+    partial: bool | None,
     patch: Path | None = None,
     ref: NDArray[np.float64] | None = None,
 ) -> dict:
@@ -349,7 +350,9 @@ def evaluate(
                         log_path,
                         maps["full" if m == "icploc-full" else "partial"],
                         pose,
-                        m == "icploc",
+                        # icploc-full: the default replay (its outside-the-map state on
+                        # by default); icploc-plain: turned off
+                        {"icploc": True, "icploc-plain": False}.get(m),
                         patch,
                         ref[keep] if m == "icploc" else None,
                     )

@@ -93,12 +93,16 @@ def partial_run(seed: int = 0, resolution: float = 0.05) -> tuple[PartialRun, ob
 def localized(seed: int = 0, monitor: bool = True) -> tuple[PartialRun, object, list, object]:
     """The run localized against its partial map from the true start (cached per test
     session): (run, map, estimates, the localizer's outside monitor or None)."""
+    from icploc.config import LocalizerConfig
     from icploc.localizer import Localizer, run
-    from icploc.outside import attach
 
     r, m = partial_run(seed)
-    loc = Localizer(m, initial_pose=tuple(r.truth[0]))
-    mon = attach(loc, record=True) if monitor else None
+    # the default config attaches the monitor; without it: outside.enabled false
+    cfg = LocalizerConfig.from_dict({"outside": {"enabled": monitor}})
+    loc = Localizer(m, cfg, initial_pose=tuple(r.truth[0]))
+    mon = loc.outside
+    if mon is not None:
+        mon.record = True
     ests = run(loc, r.items)
     return r, m, ests, mon
 

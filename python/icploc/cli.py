@@ -264,10 +264,10 @@ def replay(
     ] = False,
     refine_start: RefineStartOption = False,
     partial_map: Annotated[
-        bool, Option("--partial-map", help="The map may not cover the run: coast on odometry where the scan is outside it (reason outside_map, mapped 0)")
-    ] = False,
+        bool | None, Option("--partial-map/--no-partial-map", help="Where the scan is outside the map, coast on odometry (reason outside_map, mapped 0, never tracking). On by default (config outside.enabled); --no-partial-map turns it off, --partial-map turns it on over a config that disables it")
+    ] = None,
     map_patch: Annotated[
-        Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; implies --partial-map); merge it with 'icploc map merge'")
+        Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; needs the outside-the-map state, on by default); merge it with 'icploc map merge'")
     ] = None,
     map_patch_open: Annotated[
         bool, Option("--map-patch-open", help="Also draw the stretches the run never brought back into the map (their poses are unchecked dead reckoning)")
@@ -289,6 +289,8 @@ def replay(
         raise BadUsage(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
     if confident_only and map_patch is None:
         raise BadUsage("needs --map-patch", param_hint="--confident-only")
+    if partial_map is False and map_patch is not None:
+        raise BadUsage("the map patch needs the outside-the-map state", param_hint="--no-partial-map")
     cfg = _load_config(config)
     pose = _pose_option(initial_pose)
     kw: dict[str, Any] = dict(

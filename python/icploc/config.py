@@ -12,6 +12,7 @@ Sections (the keys of a YAML config file)::
     global_search: the global search both run (icploc.GlobalLocalizer; the core's defaults)
     recovery:   the local recovery around the dead-reckoned pose
     kidnap:     when a global kidnap check runs while tracking
+    outside:    the outside-the-map state (icploc.outside; on by default)
 
 ``LocalizerConfig.from_yaml(path)`` reads a (possibly partial) YAML file over the defaults.
 Every section validates at construction (and on assignment, and in :meth:`Section.replace`):
@@ -51,6 +52,7 @@ __all__ = [
     "LocalizerConfig",
     "LocalizerSection",
     "MapSection",
+    "OutsideSection",
     "RecoverySection",
     "RelocalizeSection",
     "ScanSection",
@@ -902,6 +904,23 @@ class KidnapSection(Section):
     )
 
 
+class OutsideSection(Section):
+    """The outside-the-map state (icploc.outside): a scan whose beams mostly end where the
+    map knows nothing, seen from a pose still believed, is coasted on the odometry (never
+    tracking, reason outside_map, mapped 0) instead of matched against whatever walls are
+    near; its other settings: icploc.outside.OutsideConfig."""
+
+    section: ClassVar[str] = "outside"
+
+    enabled: bool = _f(
+        True,
+        "every Localizer on a map that marks unknown space (a map_server grid) gets the "
+        "outside-the-map monitor (icploc replay --no-partial-map, "
+        "replay(partial_map=False) turn it off); without it a run that leaves the map matches "
+        "the unmapped part against wrong walls and a global lock there can be reported tracking",
+    )
+
+
 _SECTIONS: tuple[type[Section], ...] = (
     IcpSection,
     ScanSection,
@@ -912,6 +931,7 @@ _SECTIONS: tuple[type[Section], ...] = (
     GlobalSearchSection,
     RecoverySection,
     KidnapSection,
+    OutsideSection,
 )
 
 
@@ -934,6 +954,7 @@ class LocalizerConfig(LazyModel):
     global_search: GlobalSearchSection = _field(default_factory=GlobalSearchSection)
     recovery: RecoverySection = _field(default_factory=RecoverySection)
     kidnap: KidnapSection = _field(default_factory=KidnapSection)
+    outside: OutsideSection = _field(default_factory=OutsideSection)
 
     @field_validator("*", mode="before")
     @classmethod

@@ -396,7 +396,8 @@ class Localizer:
         #: hook: called after every update with (scan, points, estimate), returns the
         #: estimate to report (:mod:`icploc.startrefine` while it refines the start)
         self.review: Callable[[Scan, NDArray[np.float64], Estimate], Estimate] | None = None
-        #: the outside-the-map monitor (:func:`icploc.outside.attach`), None: off
+        #: the outside-the-map monitor (:func:`icploc.outside.attach`; attached below on a
+        #: map with unknown space unless ``outside.enabled`` is false), None: off
         self.outside: Any = None
         pose = initial_pose if initial_pose is not None else lc.initial_pose
         self.pose: Pose
@@ -408,6 +409,10 @@ class Localizer:
             self.pose = (0.0, 0.0, 0.0)
             self.covariance = _unknown_covariance()
             self.status = Status.LOST
+        if self.config.outside.enabled:  # icploc.outside: on a map with unknown space
+            from icploc.outside import attach_default
+
+            attach_default(self)
 
     # -- state -----------------------------------------------------------------------------
     def reset(

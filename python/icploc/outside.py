@@ -6,6 +6,9 @@ or points: far from every wall) while the localizer still believes its pose, the
 left the mapped area. Matching there would pull the pose onto whatever walls happen to be
 near, so :class:`OutsideMonitor` takes over the scan instead:
 
+* **when**: only once the localizer has been ``tracking`` since the monitor was attached
+  (a pose verified on the map left it; a wrong initial pose whose scan lands off the map
+  is lost and searched for, as without the monitor).
 * **outside**: no scan matching and no global search; the pose is the odometry
   prediction (calibrated by :mod:`icploc.calibration`, its covariance grown by the motion
   model each scan). Status ``degraded`` (``lost`` once the covariance is wider than
@@ -58,6 +61,8 @@ __all__ = [
     "OutsideMonitor",
     "Stretch",
     "attach",
+    "attach_default",
+    "knows_unknown",
     "stretch_lines",
 ]
 
@@ -80,6 +85,17 @@ class OutsideConfig:
 
     #: share of a scan's beams on unmapped space (at the predicted pose) that means outside
     enter_share: float = 0.5
+    #: ... after a scan with at least this share (a streak that begins from a scan nearly
+    #: all on the map is a pose gone wrong at once, not the map's edge: a kidnapped robot.
+    #: At a streak's start, measured: benches/global_bench.py's kidnaps 0.00-0.08; the real
+    #: partial maps' exits, benches/eval_partial.py, 0.17 and up)
+    rise_share: float = 0.12
+    #: ... for this many scans in a row (the scans before the last are localized as
+    #: usual): a map made from another pass has gaps a scan wide. On the real-data
+    #: benchmark's full maps (benches/eval_real.py, 60 folds of the tuned set) 1 began a
+    #: stretch of 2-3 scans on 9 folds (p95 up to +1.8 cm, a max +30 cm after the re-entry
+    #: search), 2 on 4 (all freiburg-101's third fold, a place only it saw), 3 on 3
+    enter_scans: int = 2
     #: a lost localizer's dead-reckoned pose still counts (outside the map may begin lost:
     #: the scan half unmapped contradicts the pose) while its sigma is at most this [m]
     lost_sigma: float = 1.0
@@ -93,8 +109,10 @@ class OutsideConfig:
     #: mapped cells of a grid are grown by this much before the test [m] (pose error, a
     #: wall seen from the other side)
     margin: float = 0.2
-    #: cell size of the mapped-area mask of a map without a grid [m]
+    #: cell size of the mapped-area mask of a map without a grid [m] (coarser when the
+    #: mask would have more than ``max_mask_cells`` cells: a map kilometres wide)
     resolution: float = 0.1
+    max_mask_cells: int = 16_000_000
     #: the re-entry watch also tries poses within this many sigmas of the dead-reckoned
     #: one (at most ``probe_radius`` metres): a drifted pose must not hide the map
     probe_sigmas: float = 3.0
@@ -139,6 +157,12 @@ class OutsideConfig:
                 "outside: need 0 < exit_share < enter_share <= 1, got "
                 f"exit_share={self.exit_share}, enter_share={self.enter_share}"
             )
+        if not 0.0 <= self.rise_share <= self.enter_share:
+            raise ValueError(
+                f"outside: need 0 <= rise_share <= enter_share, got {self.rise_share}"
+            )
+        if self.enter_scans < 1:
+            raise ValueError(f"outside: enter_scans must be >= 1, got {self.enter_scans}")
         if self.confirm_scans < 1:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
         if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
@@ -148,6 +172,8 @@ class OutsideConfig:
                 "outside: lead_out_scans and lead_in_scans must be >= 0, got "
                 f"{self.lead_out_scans}, {self.lead_in_scans}"
             )
+        if self.max_mask_cells < 1:
+            raise ValueError(f"outside: max_mask_cells must be >= 1, got {self.max_mask_cells}")
         if self.reentry_starts < 1 or self.reentry_verify < 1 or self.reentry_max_probes < 1:
             raise ValueError(
                 "outside: reentry_starts, reentry_verify and reentry_max_probes must be >= 1"
@@ -163,20 +189,26 @@ class OutsideConfig:
 
 
 def _dilate(mask: NDArray[np.bool_], r: int) -> NDArray[np.bool_]:
-    """``mask`` grown by a (2r+1)-square (box sums over cumulative sums)."""
+    """``mask`` grown by a (2r+1)-square: per axis, ORs of shifted copies, the window
+    doubling each step (a map_server grid of 25 M cells in ~0.2 s: sums over cumulative
+    sums took 4-7 s, now that every Localizer builds its mapped area)."""
     if r <= 0:
-        return mask.copy()
-    out = mask.astype(np.int32)
+        return np.array(mask, dtype=bool)
+    # padded by r: a window shifted past the edge still carries what lies inside it
+    out = np.pad(np.asarray(mask, dtype=bool), r)
     for axis in (0, 1):
-        c = np.cumsum(out, axis=axis)
         n = out.shape[axis]
-        pad_shape = list(out.shape)
-        pad_shape[axis] = 1
-        c = np.concatenate([np.zeros(pad_shape, dtype=c.dtype), c], axis=axis)
-        hi = np.clip(np.arange(n) + r + 1, 0, n)
-        lo = np.clip(np.arange(n) - r, 0, n)
-        out = np.take(c, hi, axis=axis) - np.take(c, lo, axis=axis)
-    return out > 0
+        half = 0  # out is the OR over offsets -half..half along this axis
+        while half < r:
+            s = min(2 * half + 1, r - half)
+            src = out.copy()
+            lo = [slice(None)] * 2
+            hi = [slice(None)] * 2
+            lo[axis], hi[axis] = slice(s, None), slice(None, n - s)
+            out[tuple(lo)] |= src[tuple(hi)]
+            out[tuple(hi)] |= src[tuple(lo)]
+            half += s
+    return out[r:-r, r:-r]
 
 
 @dataclass
@@ -205,7 +237,8 @@ class MappedArea:
         pts = np.asarray(index.points, dtype=np.float64).reshape(-1, 2)
         if pts.shape[0] == 0:
             raise ValueError("outside: the map holds no points")
-        res = cfg.resolution
+        span = pts.max(axis=0) - pts.min(axis=0) + 2.0 * cfg.reach
+        res = max(cfg.resolution, math.sqrt(float(span[0] * span[1]) / cfg.max_mask_cells))
         lo = np.floor((pts.min(axis=0) - cfg.reach) / res) * res - res
         hi = pts.max(axis=0) + cfg.reach + res
         w, h = (int(math.ceil(v)) + 1 for v in (hi - lo) / res)
@@ -498,7 +531,20 @@ class OutsideMonitor:
         #: the recovery searching)
         self.state = "inside"
         self.stretches: list[Stretch] = []
+        #: a scan has been ``tracking`` since the monitor was attached: only a pose that
+        #: was verified on the map can leave it (a wrong initial pose whose scan lands off
+        #: the map is lost, and the localizer's recovery searches, as without the monitor)
+        self._verified = False
+        #: scans in a row that would begin a stretch (``enter_scans``), the last believed
+        #: pose before the first of them, and the dead reckoning from it
+        self._entering = 0
+        self._streak_exit: Pose | None = None
+        self._streak_dr: Pose = (0.0, 0.0, 0.0)
         self.last_share = float("nan")
+        #: the share of the scan before (``rise_share``), and whether the share jumped
+        #: there from a scan on the map (no stretch begins until it falls again)
+        self._prev_share = float("nan")
+        self._sudden = False
         self._below = 0
         self._above = 0
         self._fallback: Any = None  #: the localizer's own recovery while re-entering
@@ -539,6 +585,7 @@ class OutsideMonitor:
         from icploc.se2 import between, compose
 
         share = self.area.unmapped_share(pts, pred)
+        self._prev_share = self.last_share
         self.last_share = share
         cfg = self.config
         k = loc.scans_processed
@@ -553,12 +600,34 @@ class OutsideMonitor:
         if self.state == "inside" and self._lead_dr is not None:
             self._lead_dr = compose(self._lead_dr, step)
         if self.state == "inside":
-            if not known or share < cfg.enter_share:
+            if not known or share < cfg.enter_share or not self._verified:
+                self._entering = 0
+                self._sudden = False
                 return None
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
+                self._entering = 0
                 return None
+            if self._entering == 0 and (self._sudden or not self._prev_share >= cfg.rise_share):
+                # from a scan nearly all on the map to one mostly off it in one step: not
+                # the edge of the map, which a robot drives towards, but a pose that went
+                # wrong at once (a robot carried elsewhere); the localizer's own checks and
+                # recovery deal with it, until the scan is back on the map
+                self._sudden = True
+                return None
+            # the stretch begins at the streak's first scan: its later ones coast from the
+            # dead reckoning since (the scans before the last were matched as usual, maybe
+            # against the wrong walls; with enter_scans 1 this is the prediction itself)
+            if self._entering == 0:
+                self._streak_exit, self._streak_dr = self._last_pose, pred
+            else:
+                self._streak_dr = compose(self._streak_dr, step)
+            self._entering += 1
+            if self._entering < cfg.enter_scans:
+                return None
+            self._entering = 0
+            pred = self._streak_dr
             self._lead_left, self._lead_dr = 0, None
-            exit_pose = self._last_pose if self._last_pose else pred
+            exit_pose = self._streak_exit if self._streak_exit else pred
             self._dr = pred
             if (
                 self._tracked is not None
@@ -647,7 +716,8 @@ class OutsideMonitor:
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
-        if self.state == "inside" and est.status is Status.TRACKING:
+        if self.state == "inside" and est.status is Status.TRACKING and not self._entering:
+            self._verified = True
             self._tracked = self._since = est.pose
             self._since_m = 0.0
             self._gap = []
@@ -812,6 +882,23 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
             f"{s.distance:.1f} m coasted, sigma up to {s.max_sigma_xy:.2f} m; {back}"
         )
     return out
+
+
+def knows_unknown(map_: Any) -> bool:
+    """The map says where it knows nothing: a grid with free space (a map_server grid's
+    unknown cells). A map of lines or points does not say where it ends."""
+    return getattr(map_, "grid", None) is not None and getattr(map_, "free", None) is not None
+
+
+def attach_default(loc: Localizer) -> OutsideMonitor | None:
+    """What a :class:`~icploc.localizer.Localizer` does with ``outside.enabled`` (the
+    default): attach the monitor when its map marks unknown space (:func:`knows_unknown`),
+    else nothing. On a map of lines the mapped area is only "within ``reach`` of a wall":
+    in the simulated glass lab (``icploc.sim.lab``) beams through the glass end beyond it
+    and the monitor coasted the robot standing in the middle of the map; such maps get the
+    monitor only on request (:func:`attach`, ``replay(partial_map=True)``,
+    ``--partial-map``)."""
+    return attach(loc) if knows_unknown(loc.map) else None
 
 
 def attach(

@@ -196,7 +196,7 @@ def replay(
     inputs: Sequence[str | Path] = (),
     on_localizer: Callable[[Localizer], None] | None = None,
     map_cache: bool | None = None,
-    partial_map: bool = False,
+    partial_map: bool | None = None,
     map_patch: str | Path | None = None,
     map_patch_open: bool = False,
     map_patch_confident_only: bool = False,
@@ -212,7 +212,13 @@ def replay(
     ``out`` (TUM) and ``estimates`` (CSV, :data:`icploc.trajectory.ESTIMATE_COLUMNS`) are
     written row by row as the replay goes. ``strict``: a malformed line or an impossible
     reading in the log is an error instead of being skipped and counted. ``inputs``: more
-    files the run reads (a config file) that no output may overwrite. Raises
+    files the run reads (a config file) that no output may overwrite.
+
+    ``partial_map``: the outside-the-map state (:mod:`icploc.outside`: a scan outside the
+    map coasts on the odometry, reason ``outside_map``, ``mapped`` False, never
+    ``tracking``). None (default): the config's ``outside.enabled`` (true by default; the
+    :class:`Localizer` attaches it); True / False: on / off whatever the config says.
+    ``map_patch`` needs it and turns it on. Raises
     :class:`icploc.outputs.OutputError` before any work for an unusable output path."""
     from icploc.outputs import check_outputs, map_inputs
     from icploc.trajectory import EstimatesWriter, TumWriter
@@ -319,11 +325,17 @@ def replay(
         attach(loc)
     if on_localizer is not None:  # hooks: icploc.mcap_export (--mcap)
         on_localizer(loc)
-    outside = None
-    if partial_map or map_patch is not None:
+    # the outside-the-map state: the Localizer's own (config ``outside.enabled``, on by
+    # default); ``partial_map`` True / False forces it on / off; a map patch needs it
+    if partial_map is False and map_patch is None:
+        loc.outside = None
+    elif loc.outside is None and (partial_map or map_patch is not None):
         from icploc.outside import attach as attach_outside
 
-        outside = attach_outside(loc, record=map_patch is not None)
+        attach_outside(loc)
+    outside = loc.outside
+    if outside is not None:
+        outside.record = map_patch is not None
         if on_outside is not None:  # hooks on the monitor (benches/eval_partial.py)
             on_outside(outside)
     n = len(scans)
