@@ -524,7 +524,9 @@ impl ClosestGrid {
         if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD as f64 && fy < MAX_CELL_COORD as f64) {
             return None;
         }
-        let (gx, gy) = (fx as u64, fy as u64);
+        // through i64: the same truncation for these (non-negative, below 2³⁶) values,
+        // one instruction on x86-64 where a saturating cast to u64 takes about ten
+        let (gx, gy) = (fx as i64 as u64, fy as i64 as u64);
         if let Some([x0, y0, w, h]) = self.full {
             let (x, y) = (gx.wrapping_sub(x0), gy.wrapping_sub(y0));
             if !(x < w && y < h) {
