@@ -505,7 +505,9 @@ struct Workspace {
     /// indices of the coarse stages' subsample of the scan
     coarse: Vec<u32>,
     /// the closest map point of every scan point in the last ICP call's last pass over the
-    /// whole scan, and the pose of that pass (`None`: its last pass saw a subsample)
+    /// whole scan, and the pose of that pass (`None`: its last pass saw a subsample);
+    /// [`UNKNOWN`] for a point with no map point within the grid's reach (its exact answer
+    /// is asked only when needed, [`Workspace::resolve_nn`])
     nn: Vec<u32>,
     nn_pose: Option<Pose2>,
     /// the scan's farthest range (m), for the shift of a step at its far end
@@ -513,6 +515,21 @@ struct Workspace {
     /// [`gather`]'s queries and their answers
     queries: Vec<[f64; 2]>,
     answers: Vec<(f64, u32)>,
+}
+
+/// See [`Workspace::nn`].
+const UNKNOWN: u32 = u32::MAX;
+
+impl Workspace {
+    /// The exact answers (the index's own) for the points of the last pass whose closest
+    /// map point [`gather`] left [`UNKNOWN`], at that pass's moved points.
+    fn resolve_nn(&mut self, index: &MapIndex) {
+        for (j, q) in self.nn.iter_mut().zip(&self.moved) {
+            if *j == UNKNOWN {
+                *j = index.correspondence(*q).1 as u32;
+            }
+        }
+    }
 }
 
 /// The fit of `r`, the result of the last [`align_plain`] call with `ws` on `scan`: from
@@ -524,12 +541,13 @@ fn assessed(
     index: &MapIndex,
     r: &IcpResult,
     cfg: &IcpConfig,
-    ws: &Workspace,
+    ws: &mut Workspace,
 ) -> Fit {
     if let Some(p) = ws.nn_pose {
         let shift = (r.pose.x - p.x).hypot(r.pose.y - p.y)
             + wrap_angle(r.pose.theta - p.theta).abs() * ws.reach;
         if shift <= window::REUSE_SHIFT && ws.nn.len() == scan.len() {
+            ws.resolve_nn(index);
             return assess_with(scan, index, r.pose, cfg, &ws.nn);
         }
     }
@@ -1665,7 +1683,13 @@ fn gather(
         queries.push(q);
     }
     answers.resize(queries.len(), (0.0, 0));
-    index.correspondences(queries, answers);
+    // a threshold within the grid's reach rejects every point farther than the reach: no
+    // exact answer for those (their closest point stays unknown until a fit needs it)
+    if thr2 <= crate::index::CACHE_REACH * crate::index::CACHE_REACH {
+        index.correspondences_within_reach(queries, answers);
+    } else {
+        index.correspondences(queries, answers);
+    }
     for (i, &(d2, j)) in ids.zip(answers.iter()) {
         nn[i] = j;
         if d2 <= thr2 {

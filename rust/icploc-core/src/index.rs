@@ -376,6 +376,30 @@ impl MapIndex {
         }
     }
 
+    /// [`MapIndex::correspondences`] for a caller that rejects every answer farther than
+    /// [`CACHE_REACH`] (ICP's threshold passes): a query outside the grid's tiles — no map
+    /// point within `CACHE_REACH`, whose exact answer the k-d tree would give — gets
+    /// `(f64::INFINITY, u32::MAX)` instead; every other answer is the same. Without a
+    /// grid: the same as `correspondences`.
+    #[inline]
+    pub(crate) fn correspondences_within_reach(&self, qs: &[[f64; 2]], out: &mut [(f64, u32)]) {
+        assert_eq!(qs.len(), out.len(), "one answer per query");
+        let Some(c) = &self.cache else {
+            return self.correspondences(qs, out);
+        };
+        for (q, o) in qs.iter().zip(out.iter_mut()) {
+            o.1 = c.lookup(*q).map_or(u32::MAX, |j| j as u32);
+        }
+        for (q, o) in qs.iter().zip(out.iter_mut()) {
+            o.0 = if o.1 != u32::MAX {
+                let p = self.points[o.1 as usize];
+                (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1])
+            } else {
+                f64::INFINITY
+            };
+        }
+    }
+
     #[inline]
     pub fn len(&self) -> usize {
         self.points.len()
