@@ -53,7 +53,10 @@ fn main() {
         });
     }
     // ONLY=k: case k alone (for a profile of one case)
-    if let Some(k) = std::env::var("ONLY").ok().and_then(|s| s.parse::<usize>().ok()) {
+    if let Some(k) = std::env::var("ONLY")
+        .ok()
+        .and_then(|s| s.parse::<usize>().ok())
+    {
         cs = vec![cs.swap_remove(k)];
     }
     // DUMP=1: every case's result, bit for bit (to compare builds)
