@@ -361,9 +361,7 @@ impl MapIndex {
             }
             return;
         };
-        for (q, o) in qs.iter().zip(out.iter_mut()) {
-            o.1 = c.lookup(*q).map_or(u32::MAX, |j| j as u32);
-        }
+        c.lookup_into(qs, out);
         for (q, o) in qs.iter().zip(out.iter_mut()) {
             *o = if o.1 != u32::MAX {
                 let p = self.points[o.1 as usize];
@@ -387,9 +385,7 @@ impl MapIndex {
         let Some(c) = &self.cache else {
             return self.correspondences(qs, out);
         };
-        for (q, o) in qs.iter().zip(out.iter_mut()) {
-            o.1 = c.lookup(*q).map_or(u32::MAX, |j| j as u32);
-        }
+        c.lookup_into(qs, out);
         for (q, o) in qs.iter().zip(out.iter_mut()) {
             o.0 = if o.1 != u32::MAX {
                 let p = self.points[o.1 as usize];
