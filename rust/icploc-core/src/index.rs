@@ -722,6 +722,42 @@ mod tests {
         }
     }
 
+    /// The batch look-up for ICP's threshold passes: every answer within the grid's reach
+    /// is the plain batch's; a query it leaves unanswered has no map point within the reach
+    /// (exact distance beyond `CACHE_REACH`). Without a grid: the plain batch's answers.
+    #[test]
+    fn look_ups_within_reach_answer_every_query_within_it() {
+        let mut rng = crate::testkit::Rng::new(37);
+        let (pts, built) = built_walls(&mut rng);
+        let plain = MapIndex::new(pts, None).unwrap();
+        let mut qs: Vec<[f64; 2]> = (0..2000)
+            .map(|_| [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)])
+            .collect();
+        qs.extend((0..300).map(|_| [rng.range(-40.0, 40.0), rng.range(-40.0, 40.0)]));
+        let (mut unanswered, mut far) = (0usize, 0usize);
+        for idx in [&built, &plain] {
+            let mut all = vec![(0.0, 0u32); qs.len()];
+            let mut near = vec![(0.0, 0u32); qs.len()];
+            idx.correspondences(&qs, &mut all);
+            idx.correspondences_within_reach(&qs, &mut near);
+            for (q, (a, b)) in qs.iter().zip(all.iter().zip(&near)) {
+                let exact = idx.nearest(*q).0;
+                far += (exact > CACHE_REACH * CACHE_REACH) as usize;
+                if b.1 == u32::MAX {
+                    unanswered += 1;
+                    assert!(idx.cache.is_some(), "query {q:?} unanswered without a grid");
+                    assert_eq!(b.0, f64::INFINITY, "query {q:?}");
+                    assert!(exact > CACHE_REACH * CACHE_REACH, "query {q:?}: {exact}");
+                } else {
+                    assert_eq!(a, b, "query {q:?}");
+                }
+            }
+        }
+        // the far queries exist, and the grid leaves most of them to no one
+        assert!(far > 400, "{far} far queries");
+        assert!(unanswered > 200, "{unanswered} unanswered");
+    }
+
     #[test]
     fn saved_grid_cells_rebuild_the_same_index() {
         let mut rng = crate::testkit::Rng::new(21);

@@ -451,4 +451,43 @@ mod tests {
         );
         assert_eq!((c[0].y, c[0].theta), (slid.y, slid.theta));
     }
+
+    #[test]
+    fn one_pass_over_points_and_their_part_gives_the_two_lists() {
+        // the corridor above: the candidates of the points and of a flagged part of them
+        // (every third point) from one pass are those of two separate calls, bit for bit
+        let mut segs = rectangle(20.0, 2.0);
+        for x in [4.0, 8.0, 12.0, 16.0] {
+            segs.push([x, 0.0, x, 0.5]);
+            segs.push([x, 1.5, x, 2.0]);
+        }
+        let (p, n) = sample_segments(&segs, 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let truth = Pose2::new(9.3, 1.0, 0.0);
+        let scan = make_scan(&segs, truth, 361, 8.0, 0.01, 0.0, &mut Rng::new(5));
+        let flags: Vec<bool> = (0..scan.len()).map(|i| i % 3 == 0).collect();
+        let part: Vec<[f64; 2]> = scan
+            .iter()
+            .zip(&flags)
+            .filter(|(_, &f)| f)
+            .map(|(p, _)| *p)
+            .collect();
+        for slid in [Pose2::new(9.7, 1.0, 0.0), Pose2::new(8.1, 1.02, 0.01)] {
+            let range = (-1.25, 1.25);
+            let (all, some) =
+                slide_candidates_of(&idx, &scan, Some(&flags), slid, [1.0, 0.0], range, 0.02);
+            assert!(!all.is_empty() && !some.is_empty());
+            assert_eq!(
+                all,
+                slide_candidates(&idx, &scan, slid, [1.0, 0.0], range, 0.02)
+            );
+            assert_eq!(
+                some,
+                slide_candidates(&idx, &part, slid, [1.0, 0.0], range, 0.02)
+            );
+        }
+    }
 }
