@@ -52,6 +52,13 @@ fn main() {
             matches!(r.start, StartPath::Plain | StartPath::Prior)
         });
     }
+    // ONLY=k: case k alone (for a profile of one case)
+    if let Some(k) = std::env::var("ONLY")
+        .ok()
+        .and_then(|s| s.parse::<usize>().ok())
+    {
+        cs = vec![cs.swap_remove(k)];
+    }
     // DUMP=1: every case's result, bit for bit (to compare builds)
     if std::env::var_os("DUMP").is_some() {
         for (k, c) in cs.iter().enumerate() {
@@ -161,6 +168,20 @@ fn main() {
             its[its.len() / 2],
             its[its.len() * 95 / 100]
         );
+    }
+    // TIMES=1: each case's fastest time and path, fastest first (what the median is made of)
+    if std::env::var_os("TIMES").is_some() {
+        let mut order: Vec<usize> = (0..cs.len()).collect();
+        order.sort_by_key(|&k| times[k]);
+        for (rank, &k) in order.iter().enumerate() {
+            let r = align(&cs[k].scan, &idx, cs[k].initial, &cfg).unwrap();
+            println!(
+                "{rank} case {k}: {:?} {} ({} iterations)",
+                times[k],
+                r.start.as_str(),
+                r.iterations
+            );
+        }
     }
     times.sort();
     println!(

@@ -769,7 +769,7 @@ fn child_sums(f: &LikelihoodField, level: usize, offs: &[(i32, i32)], i: i32, j:
 
 /// One heading's cell offsets as the coarse search reads them: the offsets, the same as
 /// row-major index offsets in a grid `w` wide, and their bounding box.
-struct Shifts<'a> {
+pub(crate) struct Shifts<'a> {
     offs: &'a [(i32, i32)],
     lin: Vec<isize>,
     /// (min x, min y, max x, max y) of `offs`
@@ -777,7 +777,7 @@ struct Shifts<'a> {
 }
 
 impl<'a> Shifts<'a> {
-    fn new(offs: &'a [(i32, i32)], w: usize) -> Self {
+    pub(crate) fn new(offs: &'a [(i32, i32)], w: usize) -> Self {
         let lin = offs
             .iter()
             .map(|&(x, y)| y as isize * w as isize + x as isize)
@@ -798,7 +798,13 @@ impl<'a> Shifts<'a> {
 /// [`child_sums`] with one test per node instead of one per point where all four cells of
 /// every point lie inside the grid (most nodes of a large map): the same sums.
 #[inline]
-fn child_sums_shifted(f: &LikelihoodField, level: usize, sh: &Shifts, i: i32, j: i32) -> [u32; 4] {
+pub(crate) fn child_sums_shifted(
+    f: &LikelihoodField,
+    level: usize,
+    sh: &Shifts,
+    i: i32,
+    j: i32,
+) -> [u32; 4] {
     let s = 1i32 << level;
     let [x0, y0, x1, y1] = sh.bbox;
     let (w, h) = (f.w as i32, f.h as i32);

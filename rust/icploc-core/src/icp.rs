@@ -505,7 +505,9 @@ struct Workspace {
     /// indices of the coarse stages' subsample of the scan
     coarse: Vec<u32>,
     /// the closest map point of every scan point in the last ICP call's last pass over the
-    /// whole scan, and the pose of that pass (`None`: its last pass saw a subsample)
+    /// whole scan, and the pose of that pass (`None`: its last pass saw a subsample);
+    /// [`UNKNOWN`] for a point with no map point within the grid's reach (its exact answer
+    /// is asked only when needed, [`Workspace::resolve_nn`])
     nn: Vec<u32>,
     nn_pose: Option<Pose2>,
     /// the scan's farthest range (m), for the shift of a step at its far end
@@ -513,6 +515,21 @@ struct Workspace {
     /// [`gather`]'s queries and their answers
     queries: Vec<[f64; 2]>,
     answers: Vec<(f64, u32)>,
+}
+
+/// See [`Workspace::nn`].
+const UNKNOWN: u32 = u32::MAX;
+
+impl Workspace {
+    /// The exact answers (the index's own) for the points of the last pass whose closest
+    /// map point [`gather`] left [`UNKNOWN`], at that pass's moved points.
+    fn resolve_nn(&mut self, index: &MapIndex) {
+        for (j, q) in self.nn.iter_mut().zip(&self.moved) {
+            if *j == UNKNOWN {
+                *j = index.correspondence(*q).1 as u32;
+            }
+        }
+    }
 }
 
 /// The fit of `r`, the result of the last [`align_plain`] call with `ws` on `scan`: from
@@ -524,12 +541,13 @@ fn assessed(
     index: &MapIndex,
     r: &IcpResult,
     cfg: &IcpConfig,
-    ws: &Workspace,
+    ws: &mut Workspace,
 ) -> Fit {
     if let Some(p) = ws.nn_pose {
         let shift = (r.pose.x - p.x).hypot(r.pose.y - p.y)
             + wrap_angle(r.pose.theta - p.theta).abs() * ws.reach;
         if shift <= window::REUSE_SHIFT && ws.nn.len() == scan.len() {
+            ws.resolve_nn(index);
             return assess_with(scan, index, r.pose, cfg, &ws.nn);
         }
     }
@@ -929,10 +947,28 @@ fn slide_or_polish(
         -cfg.window_position - SLIDE_REACH - along,
         cfg.window_position + SLIDE_REACH - along,
     );
-    let even = window::subsample(scan, scan.len().div_ceil(SLIDE_POINTS), 3);
-    let mut cands = local::slide_candidates(index, &even, r.pose, dir, range, cfg.expected_noise);
-    let telling = slide_points(scan, index, r.pose, dir, cfg);
-    for c in local::slide_candidates(index, &telling, r.pose, dir, range, cfg.expected_noise) {
+    let (telling, picked) = slide_points(scan, index, r.pose, dir, cfg);
+    // the even subsample is the picked part of the telling points (in scan order) unless
+    // it has fewer than 3 points (then it is the whole scan): both lists from one pass
+    let (mut cands, told) = if picked.iter().filter(|&&b| b).count() >= 3 {
+        let (telling_cands, even_cands) = local::slide_candidates_of(
+            index,
+            &telling,
+            Some(&picked),
+            r.pose,
+            dir,
+            range,
+            cfg.expected_noise,
+        );
+        (even_cands, telling_cands)
+    } else {
+        let even = window::subsample(scan, scan.len().div_ceil(SLIDE_POINTS), 3);
+        (
+            local::slide_candidates(index, &even, r.pose, dir, range, cfg.expected_noise),
+            local::slide_candidates(index, &telling, r.pose, dir, range, cfg.expected_noise),
+        )
+    };
+    for c in told {
         if cands
             .iter()
             .all(|o| (o.x - c.x).hypot(o.y - c.y) > local::SLIDE_STEP * 1.5)
@@ -980,33 +1016,37 @@ fn slide_or_polish(
 /// furniture ends are what tell the places along a corridor apart — at a wrong place their
 /// returns lie off the map — and a subsample keeps few of them (on the clinic a place
 /// 1.3 m along the corridor from the truth scored within 0.2 % of it on 64 points, 2 %
-/// below it on the whole scan).
+/// below it on the whole scan). With them, a flag per point: in the even subsample.
 fn slide_points(
     scan: &[[f64; 2]],
     index: &MapIndex,
     pose: Pose2,
     dir: [f64; 2],
     cfg: &IcpConfig,
-) -> Vec<[f64; 2]> {
+) -> (Vec<[f64; 2]>, Vec<bool>) {
     let stride = scan.len().div_ceil(SLIDE_POINTS);
     let normals = index.normals();
     let near = 3.0 * cfg.expected_noise + 2.0 * index.spacing();
-    let mut out: Vec<[f64; 2]> = scan
-        .iter()
-        .filter(|p| {
-            if window::picked(p, stride) {
-                return true;
-            }
-            let (d2, j) = index.correspondence(pose.transform(**p));
-            let n = normals[j];
-            d2 > near * near || (n[0] * dir[0] + n[1] * dir[1]).abs() >= SLIDE_ACROSS_COS
-        })
-        .copied()
-        .collect();
+    let mut out = Vec::new();
+    let mut picked = Vec::new();
+    for p in scan {
+        if window::picked(p, stride) {
+            out.push(*p);
+            picked.push(true);
+            continue;
+        }
+        let (d2, j) = index.correspondence(pose.transform(*p));
+        let n = normals[j];
+        if d2 > near * near || (n[0] * dir[0] + n[1] * dir[1]).abs() >= SLIDE_ACROSS_COS {
+            out.push(*p);
+            picked.push(false);
+        }
+    }
     if out.len() < 3 {
         out = scan.to_vec();
+        picked = scan.iter().map(|p| window::picked(p, stride)).collect();
     }
-    out
+    (out, picked)
 }
 
 /// See [`slide_points`]: cos 60°.
@@ -1643,7 +1683,13 @@ fn gather(
         queries.push(q);
     }
     answers.resize(queries.len(), (0.0, 0));
-    index.correspondences(queries, answers);
+    // a threshold within the grid's reach rejects every point farther than the reach: no
+    // exact answer for those (their closest point stays unknown until a fit needs it)
+    if thr2 <= crate::index::CACHE_REACH * crate::index::CACHE_REACH {
+        index.correspondences_within_reach(queries, answers);
+    } else {
+        index.correspondences(queries, answers);
+    }
     for (i, &(d2, j)) in ids.zip(answers.iter()) {
         nn[i] = j;
         if d2 <= thr2 {

@@ -361,9 +361,7 @@ impl MapIndex {
             }
             return;
         };
-        for (q, o) in qs.iter().zip(out.iter_mut()) {
-            o.1 = c.lookup(*q).map_or(u32::MAX, |j| j as u32);
-        }
+        c.lookup_into(qs, out);
         for (q, o) in qs.iter().zip(out.iter_mut()) {
             *o = if o.1 != u32::MAX {
                 let p = self.points[o.1 as usize];
@@ -372,6 +370,28 @@ impl MapIndex {
             } else {
                 let (d2, j) = self.nearest(*q);
                 (d2, j as u32)
+            };
+        }
+    }
+
+    /// [`MapIndex::correspondences`] for a caller that rejects every answer farther than
+    /// [`CACHE_REACH`] (ICP's threshold passes): a query outside the grid's tiles — no map
+    /// point within `CACHE_REACH`, whose exact answer the k-d tree would give — gets
+    /// `(f64::INFINITY, u32::MAX)` instead; every other answer is the same. Without a
+    /// grid: the same as `correspondences`.
+    #[inline]
+    pub(crate) fn correspondences_within_reach(&self, qs: &[[f64; 2]], out: &mut [(f64, u32)]) {
+        assert_eq!(qs.len(), out.len(), "one answer per query");
+        let Some(c) = &self.cache else {
+            return self.correspondences(qs, out);
+        };
+        c.lookup_into(qs, out);
+        for (q, o) in qs.iter().zip(out.iter_mut()) {
+            o.0 = if o.1 != u32::MAX {
+                let p = self.points[o.1 as usize];
+                (p[0] - q[0]) * (p[0] - q[0]) + (p[1] - q[1]) * (p[1] - q[1])
+            } else {
+                f64::INFINITY
             };
         }
     }
@@ -700,6 +720,42 @@ mod tests {
                 assert!(d2 == e2 || (d2.is_nan() && e2.is_nan()), "query {q:?}");
             }
         }
+    }
+
+    /// The batch look-up for ICP's threshold passes: every answer within the grid's reach
+    /// is the plain batch's; a query it leaves unanswered has no map point within the reach
+    /// (exact distance beyond `CACHE_REACH`). Without a grid: the plain batch's answers.
+    #[test]
+    fn look_ups_within_reach_answer_every_query_within_it() {
+        let mut rng = crate::testkit::Rng::new(37);
+        let (pts, built) = built_walls(&mut rng);
+        let plain = MapIndex::new(pts, None).unwrap();
+        let mut qs: Vec<[f64; 2]> = (0..2000)
+            .map(|_| [rng.range(-3.0, 8.0), rng.range(-3.0, 8.0)])
+            .collect();
+        qs.extend((0..300).map(|_| [rng.range(-40.0, 40.0), rng.range(-40.0, 40.0)]));
+        let (mut unanswered, mut far) = (0usize, 0usize);
+        for idx in [&built, &plain] {
+            let mut all = vec![(0.0, 0u32); qs.len()];
+            let mut near = vec![(0.0, 0u32); qs.len()];
+            idx.correspondences(&qs, &mut all);
+            idx.correspondences_within_reach(&qs, &mut near);
+            for (q, (a, b)) in qs.iter().zip(all.iter().zip(&near)) {
+                let exact = idx.nearest(*q).0;
+                far += (exact > CACHE_REACH * CACHE_REACH) as usize;
+                if b.1 == u32::MAX {
+                    unanswered += 1;
+                    assert!(idx.cache.is_some(), "query {q:?} unanswered without a grid");
+                    assert_eq!(b.0, f64::INFINITY, "query {q:?}");
+                    assert!(exact > CACHE_REACH * CACHE_REACH, "query {q:?}: {exact}");
+                } else {
+                    assert_eq!(a, b, "query {q:?}");
+                }
+            }
+        }
+        // the far queries exist, and the grid leaves most of them to no one
+        assert!(far > 400, "{far} far queries");
+        assert!(unanswered > 200, "{unanswered} unanswered");
     }
 
     #[test]

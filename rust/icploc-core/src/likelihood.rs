@@ -196,9 +196,12 @@ impl LikelihoodField {
         let y = (p[1] - self.y0) / self.res;
         // for x ≥ 0 the truncation is ⌊x⌋ (`f64::floor` is a libm call on baseline x86-64,
         // and this is the see-through check's inner loop); NaN and negatives fail the test,
-        // +∞ saturates beyond the grid
-        if x >= 0.0 && y >= 0.0 && (x as usize) < self.w && (y as usize) < self.h {
-            Some(self.dist[y as usize * self.w + x as usize] as f64)
+        // +∞ saturates beyond the grid (through i64: the same truncation for x ≥ 0, a
+        // value at or above 2⁶³ saturating beyond the grid too, in fewer instructions than
+        // a saturating cast to usize)
+        let (xi, yi) = (x as i64 as usize, y as i64 as usize);
+        if x >= 0.0 && y >= 0.0 && xi < self.w && yi < self.h {
+            Some(self.dist[yi * self.w + xi] as f64)
         } else {
             None
         }

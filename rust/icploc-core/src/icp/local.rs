@@ -233,39 +233,73 @@ pub(crate) fn slide_candidates(
     sub: &[[f64; 2]],
     pose: Pose2,
     dir: [f64; 2],
-    (t_lo, t_hi): (f64, f64),
+    range: (f64, f64),
     expected_noise: f64,
 ) -> Vec<Pose2> {
+    slide_candidates_of(index, sub, None, pose, dir, range, expected_noise).0
+}
+
+/// [`slide_candidates`] of `pts` and, with `part` (a flag per point), of the flagged
+/// points too (in their order in `pts`), from one look-up per point and offset: the same
+/// candidates as two calls, at the cost of one (the sums of each offset run over the
+/// points in their order either way). The second list is empty without `part`.
+pub(crate) fn slide_candidates_of(
+    index: &MapIndex,
+    pts: &[[f64; 2]],
+    part: Option<&[bool]>,
+    pose: Pose2,
+    dir: [f64; 2],
+    (t_lo, t_hi): (f64, f64),
+    expected_noise: f64,
+) -> (Vec<Pose2>, Vec<Pose2>) {
     let (k_lo, k_hi) = (
         (t_lo / SLIDE_STEP).ceil() as i64,
         (t_hi / SLIDE_STEP).floor() as i64,
     );
-    if k_hi <= k_lo || sub.is_empty() {
-        return Vec::new();
+    let in_part = |i: usize| part.is_some_and(|m| m[i]);
+    let part_len = (0..pts.len()).filter(|&i| in_part(i)).count();
+    if k_hi <= k_lo || pts.is_empty() {
+        return (Vec::new(), Vec::new());
     }
     let normals = index.normals();
     let sigma = expected_noise + 0.5 * SLIDE_STEP;
     let band = 3.0 * sigma;
     let near = 2.0 * index.spacing() + band;
     let inv2s2 = 1.0 / (2.0 * sigma * sigma);
-    let moved: Vec<[f64; 2]> = sub.iter().map(|p| pose.transform(*p)).collect();
-    let scores: Vec<f64> = (k_lo..=k_hi)
-        .map(|i| {
-            let t = i as f64 * SLIDE_STEP;
-            moved
-                .iter()
-                .map(|q| {
-                    let e = map_distance(
-                        index,
-                        normals,
-                        [q[0] + t * dir[0], q[1] + t * dir[1]],
-                        near * near,
-                    );
-                    (-e * e * inv2s2).exp()
-                })
-                .sum()
-        })
-        .collect();
+    let offsets: Vec<f64> = (k_lo..=k_hi).map(|i| i as f64 * SLIDE_STEP).collect();
+    // point by point, every offset of one point in turn (its look-ups lie along one
+    // short line: the same few grid tiles), each offset's sums in the points' order
+    let mut scores = vec![0.0f64; offsets.len()];
+    let mut part_scores = vec![0.0f64; if part_len > 0 { offsets.len() } else { 0 }];
+    for (i, p) in pts.iter().enumerate() {
+        let q = pose.transform(*p);
+        let flagged = in_part(i);
+        for (k, &t) in offsets.iter().enumerate() {
+            let e = map_distance(
+                index,
+                normals,
+                [q[0] + t * dir[0], q[1] + t * dir[1]],
+                near * near,
+            );
+            let v = (-e * e * inv2s2).exp();
+            scores[k] += v;
+            if flagged {
+                part_scores[k] += v;
+            }
+        }
+    }
+    let all = peaks_of(&scores, k_lo, pose, dir);
+    let some = if part_len > 0 {
+        peaks_of(&part_scores, k_lo, pose, dir)
+    } else {
+        Vec::new()
+    };
+    (all, some)
+}
+
+/// The candidates of [`slide_candidates`] from the scores of the offsets `k_lo`, `k_lo` + 1, …
+/// (× [`SLIDE_STEP`]).
+fn peaks_of(scores: &[f64], k_lo: i64, pose: Pose2, dir: [f64; 2]) -> Vec<Pose2> {
     let last = scores.len() - 1;
     // a place is a peak of its neighbourhood of ±`SLIDE_MIN_OFFSET` (the range noise and
     // people make ripples a step or two apart on the flank of one place; the places a fit
@@ -416,5 +450,44 @@ mod tests {
             c
         );
         assert_eq!((c[0].y, c[0].theta), (slid.y, slid.theta));
+    }
+
+    #[test]
+    fn one_pass_over_points_and_their_part_gives_the_two_lists() {
+        // the corridor above: the candidates of the points and of a flagged part of them
+        // (every third point) from one pass are those of two separate calls, bit for bit
+        let mut segs = rectangle(20.0, 2.0);
+        for x in [4.0, 8.0, 12.0, 16.0] {
+            segs.push([x, 0.0, x, 0.5]);
+            segs.push([x, 1.5, x, 2.0]);
+        }
+        let (p, n) = sample_segments(&segs, 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let truth = Pose2::new(9.3, 1.0, 0.0);
+        let scan = make_scan(&segs, truth, 361, 8.0, 0.01, 0.0, &mut Rng::new(5));
+        let flags: Vec<bool> = (0..scan.len()).map(|i| i % 3 == 0).collect();
+        let part: Vec<[f64; 2]> = scan
+            .iter()
+            .zip(&flags)
+            .filter(|(_, &f)| f)
+            .map(|(p, _)| *p)
+            .collect();
+        for slid in [Pose2::new(9.7, 1.0, 0.0), Pose2::new(8.1, 1.02, 0.01)] {
+            let range = (-1.25, 1.25);
+            let (all, some) =
+                slide_candidates_of(&idx, &scan, Some(&flags), slid, [1.0, 0.0], range, 0.02);
+            assert!(!all.is_empty() && !some.is_empty());
+            assert_eq!(
+                all,
+                slide_candidates(&idx, &scan, slid, [1.0, 0.0], range, 0.02)
+            );
+            assert_eq!(
+                some,
+                slide_candidates(&idx, &part, slid, [1.0, 0.0], range, 0.02)
+            );
+        }
     }
 }

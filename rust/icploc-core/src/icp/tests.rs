@@ -822,7 +822,7 @@ fn the_fit_from_the_icps_own_closest_points_is_the_fresh_fit() {
             let mut ws = Workspace::default();
             let r = align_plain(&c.scan, &idx, c.initial, &cfg, &mut ws);
             let fresh = assess(&c.scan, &idx, r.pose, &cfg);
-            let got = assessed(&c.scan, &idx, &r, &cfg, &ws);
+            let got = assessed(&c.scan, &idx, &r, &cfg, &mut ws);
             total += 1;
             let one = 1.0 / c.scan.len() as f64 + 1e-12;
             assert!(
@@ -835,6 +835,7 @@ fn the_fit_from_the_icps_own_closest_points_is_the_fresh_fit() {
             );
             // and exactly the stored pass's answer at that pass's pose
             if let Some(p) = ws.nn_pose {
+                ws.resolve_nn(&idx);
                 let at = window::assess_with(&c.scan, &idx, p, &cfg, &ws.nn);
                 let exact = assess(&c.scan, &idx, p, &cfg);
                 assert!(

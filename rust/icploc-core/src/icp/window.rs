@@ -11,6 +11,7 @@
 //!   [`crate::likelihood`]: exact best pose on the lattice (cells × heading step), plus the
 //!   best distinct alternative (the window's ambiguity).
 
+use crate::global::{child_sums_shifted, Shifts};
 use crate::icp::IcpConfig;
 use crate::index::MapIndex;
 use crate::likelihood::LikelihoodField;
@@ -593,6 +594,13 @@ impl<'a> Lattice<'a> {
                 n.a.abs() + n.b.abs(),
             )
         });
+        // each heading's offsets as row-major index offsets: a node's four children
+        // summed in one pass, one bounds test per node where they lie inside the grid
+        let shifts: Vec<Shifts> = self
+            .offsets
+            .iter()
+            .map(|o| Shifts::new(o, field.w))
+            .collect();
         let mut best = floor;
         let threshold = |b: u32| (((b as f64) * keep_ratio).ceil() as u32).max(floor);
         let mut leaves: Vec<Node> = Vec::new();
@@ -622,15 +630,16 @@ impl<'a> Lattice<'a> {
                 }
                 let lvl = n.level as usize - 1;
                 let s = 1i32 << lvl;
-                let offs = &self.offsets[n.k as usize];
+                // the bounds `field.sum` gives at (a, b) for each child, in this order
+                let sums = child_sums_shifted(field, lvl, &shifts[n.k as usize], n.a, n.b);
                 let mut kids = [n; 4];
                 let mut nkids = 0;
-                for (da, db) in [(0, 0), (s, 0), (0, s), (s, s)] {
+                for (c, (da, db)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate() {
                     let (a, b) = (n.a + da, n.b + db);
                     if a > wc || b > wc {
                         continue;
                     }
-                    let bound = field.sum(lvl, offs, a, b);
+                    let bound = sums[c];
                     if bound < thr {
                         continue;
                     }

@@ -524,7 +524,9 @@ impl ClosestGrid {
         if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD as f64 && fy < MAX_CELL_COORD as f64) {
             return None;
         }
-        let (gx, gy) = (fx as u64, fy as u64);
+        // through i64: the same truncation for these (non-negative, below 2³⁶) values,
+        // one instruction on x86-64 where a saturating cast to u64 takes about ten
+        let (gx, gy) = (fx as i64 as u64, fy as i64 as u64);
         if let Some([x0, y0, w, h]) = self.full {
             let (x, y) = (gx.wrapping_sub(x0), gy.wrapping_sub(y0));
             if !(x < w && y < h) {
@@ -538,6 +540,36 @@ impl ClosestGrid {
         let ly = (gy as usize) & (TILE - 1);
         let j = self.cell_at(s * TILE_CELLS + (ly << TILE_SHIFT) + lx);
         (j != NONE).then_some(j as usize)
+    }
+
+    /// [`ClosestGrid::lookup`] of each of `qs` into `out`'s second fields (`u32::MAX` for
+    /// none): over a full box of cells in memory, the layout's tests once for all queries.
+    #[inline]
+    pub(super) fn lookup_into(&self, qs: &[[f64; 2]], out: &mut [(f64, u32)]) {
+        match (self.full, &self.lazy) {
+            (Some([x0, y0, w, h]), None) => {
+                let cells = &self.cells[..];
+                let (bx, by) = (self.bx as f64, self.by as f64);
+                let max = MAX_CELL_COORD as f64;
+                for (q, o) in qs.iter().zip(out.iter_mut()) {
+                    let fx = q[0] * self.inv_res - bx;
+                    let fy = q[1] * self.inv_res - by;
+                    o.1 = NONE;
+                    if fx >= 0.0 && fy >= 0.0 && fx < max && fy < max {
+                        let x = (fx as i64 as u64).wrapping_sub(x0);
+                        let y = (fy as i64 as u64).wrapping_sub(y0);
+                        if x < w && y < h {
+                            o.1 = cells[(y * w + x) as usize];
+                        }
+                    }
+                }
+            }
+            _ => {
+                for (q, o) in qs.iter().zip(out.iter_mut()) {
+                    o.1 = self.lookup(*q).map_or(NONE, |j| j as u32);
+                }
+            }
+        }
     }
 
     pub(super) fn resolution(&self) -> f64 {
