@@ -7,8 +7,10 @@ default configuration, the same cached logs, maps and start poses as ``benches/e
 uses; run that once first so the cache holds them). Per cell it prints median / p95 / max
 position error and, for the scans at or above the p95, what the localizer did there: the
 status and reason, whether the scan match was accepted, how far the scan match itself and the
-odometry prediction were from the reference. It also prints the consistency of the
-covariances against the reference: the NEES (3 dof; mean 3 when a covariance is right) of the
+odometry prediction were from the reference; the CSV also holds the evidence at the
+reference pose itself on tracking scans (``hit_truth``, ``truth_verified``: whether the scan
+could verify there at all, i.e. whether the information to correct a drift was there). It
+also prints the consistency of the covariances against the reference: the NEES (3 dof; mean 3 when a covariance is right) of the
 scan match's covariance ``R`` on accepted fits, of the prediction's ``P`` and of the reported
 pose's covariance on tracking scans.
 """
@@ -60,7 +62,7 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
         sub = rl.read_flaser(log_path)
         loc = np.searchsorted(stamps, sub.stamps - 1e-4)
         ref = log.poses[loc]
-        quality = _record_quality()
+        quality = _record_quality(ref)
         try:
             out = replay(log_path, map_path, config=config, initial_pose=tuple(float(v) for v in ref[0]))
         finally:
@@ -110,6 +112,9 @@ def cell_rows(name: str, res: float, base: str, config: Any = None, cache: Path 
                 row["sigma"], row["hit_ref"], row["hit_measured"] = quality.seen[k]
             if k in quality.fits:
                 row["hit_fit"], row["hit_pred"], row["fit_verified"] = quality.fits[k]
+            if k in quality.truth:
+                # the evidence at the reference pose itself: whether the scan could verify here at all
+                row["hit_truth"], row["truth_verified"] = quality.truth[k]
             if k in quality.coasts:
                 # while lost: how far the coasting fit moved the pose from the dead reckoning
                 row["coast_fused"], row["coast_move"] = quality.coasts[k]
@@ -128,7 +133,7 @@ class _record_quality:
     """Records ``Localizer.quality`` (sigma, usual hit share, measured) after each update
     while active (the replay builds its own Localizer)."""
 
-    def __init__(self) -> None:
+    def __init__(self, ref: Any = None) -> None:
         from icploc.localizer import Localizer
 
         self.seen: list[tuple[float, float, bool]] = []
@@ -144,6 +149,10 @@ class _record_quality:
 
         #: per tracking scan: (hit share at the fit, at the prediction, whether the fit verified)
         self.fits: dict[int, tuple[float, float, bool]] = {}
+        #: per tracking scan, given the reference poses ``ref``: (hit share at the reference
+        #: pose, whether it verifies)
+        self.truth: dict[int, tuple[float, bool]] = {}
+        truth = self.truth
         self._orig_tr = Localizer._update_tracking
         orig_tr, fits = self._orig_tr, self.fits
 
@@ -153,6 +162,10 @@ class _record_quality:
                 at_z = loc.checker.check(pts, est.measurement)
                 at_pred = loc.checker.check(pts, pred)
                 fits[len(seen)] = (float(at_z.hit), float(at_pred.hit), bool(loc._verified(at_z)))
+            if ref is not None and len(seen) < len(ref):
+                r = tuple(float(v) for v in ref[len(seen)])
+                at_ref = loc.checker.check(pts, r)
+                truth[len(seen)] = (float(at_ref.hit), bool(loc._verified(at_ref)))
             return est
 
         #: per lost scan that tried a coasting fit: (fused, distance the pose moved)
