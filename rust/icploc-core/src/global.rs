@@ -796,7 +796,8 @@ impl<'a> Shifts<'a> {
 }
 
 /// [`child_sums`] with one test per node instead of one per point where all four cells of
-/// every point lie inside the grid (most nodes of a large map): the same sums.
+/// every point lie inside the grid (most nodes of a large map): the same sums (the core's
+/// window search reads these; [`child_sums_above`] with no threshold never exits early).
 #[inline]
 pub(crate) fn child_sums_shifted(
     f: &LikelihoodField,
@@ -805,24 +806,61 @@ pub(crate) fn child_sums_shifted(
     i: i32,
     j: i32,
 ) -> [u32; 4] {
+    child_sums_above(f, level, sh, i, j, u32::MAX, 0).expect("a floor of 0 is always met")
+}
+
+/// Scan points summed between two checks of [`child_sums_above`]'s early exit.
+const EXIT_CHUNK: usize = 16;
+
+/// [`child_sums`] of the node at (`i`, `j`) one level above `level` whose bound is `bound`,
+/// or `None` when every child's sum is below `thr` (the search drops them all). With one
+/// test per node instead of one per point where all four cells of every point lie inside
+/// the grid (most nodes of a large map), and there the early exit: the node's bound is,
+/// point by point, at least the largest of the four children's values (its pooled window
+/// covers theirs; inside the grid, where the pooling is exact, equal), so after the first
+/// points each child's sum is at most its partial sum plus what of the bound the largest
+/// values of those points have not used up; when that is below `thr` for all four, their
+/// sums are too. After the last point that remainder is 0 for a node's exact bound: then
+/// `None` exactly when all four sums are below `thr`.
+#[inline]
+fn child_sums_above(
+    f: &LikelihoodField,
+    level: usize,
+    sh: &Shifts,
+    i: i32,
+    j: i32,
+    bound: u32,
+    thr: u32,
+) -> Option<[u32; 4]> {
     let s = 1i32 << level;
     let [x0, y0, x1, y1] = sh.bbox;
     let (w, h) = (f.w as i32, f.h as i32);
     if sh.offs.is_empty() || i + x0 < 0 || j + y0 < 0 || i + x1 + s >= w || j + y1 + s >= h {
-        return child_sums(f, level, sh.offs, i, j);
+        let out = child_sums(f, level, sh.offs, i, j);
+        return (out[0].max(out[1]).max(out[2].max(out[3])) >= thr).then_some(out);
     }
     let g = &f.pooled[level];
     let base = j as isize * f.w as isize + i as isize;
     let (su, sw) = (s as usize, s as usize * f.w);
     let mut out = [0u32; 4];
-    for &l in &sh.lin {
-        let c = (base + l) as usize;
-        out[0] += g[c] as u32;
-        out[1] += g[c + su] as u32;
-        out[2] += g[c + sw] as u32;
-        out[3] += g[c + sw + su] as u32;
+    // the sum over the points so far of the largest of the four values
+    let mut used = 0u32;
+    for chunk in sh.lin.chunks(EXIT_CHUNK) {
+        for &l in chunk {
+            let c = (base + l) as usize;
+            let v = [g[c], g[c + su], g[c + sw], g[c + sw + su]];
+            out[0] += v[0] as u32;
+            out[1] += v[1] as u32;
+            out[2] += v[2] as u32;
+            out[3] += v[3] as u32;
+            used += v[0].max(v[1]).max(v[2].max(v[3])) as u32;
+        }
+        let top = out[0].max(out[1]).max(out[2].max(out[3]));
+        if top.saturating_add(bound.saturating_sub(used)) < thr {
+            return None;
+        }
     }
-    out
+    Some(out)
 }
 
 impl GlobalLocalizer {
@@ -898,8 +936,17 @@ impl GlobalLocalizer {
                         }
                         let lvl = n.level as usize - 1;
                         let s = 1i32 << lvl;
-                        let sums =
-                            child_sums_shifted(&self.field, lvl, &shifts[n.k as usize], n.i, n.j);
+                        // None: every child is below the threshold (scored, and dropped)
+                        let sums = child_sums_above(
+                            &self.field,
+                            lvl,
+                            &shifts[n.k as usize],
+                            n.i,
+                            n.j,
+                            n.bound,
+                            thr,
+                        )
+                        .unwrap_or([0; 4]);
                         let mut kids: [Node; 4] = [n; 4];
                         let mut nk = 0;
                         for (c, (a, b)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate()
@@ -1356,6 +1403,56 @@ mod tests {
         // a heading with no points sums to nothing
         let none = Shifts::new(&[], f.w);
         assert_eq!(child_sums_shifted(f, 2, &none, 5, 5), [0; 4]);
+    }
+
+    #[test]
+    fn child_sums_above_drop_a_node_exactly_when_every_child_is_below_the_threshold() {
+        let g = localizer(&office_segments(), 0.05);
+        let f = &g.field;
+        let (w, h) = (f.w as i32, f.h as i32);
+        let mut rng = Rng::new(13);
+        let (mut dropped, mut kept) = (0usize, 0usize);
+        for (n, spread) in [(96, 5.0), (96, 40.0), (40, 15.0), (7, 3.0)] {
+            let offs: Vec<(i32, i32)> = (0..n)
+                .map(|_| {
+                    (
+                        rng.range(-spread, spread) as i32,
+                        rng.range(-spread, spread) as i32,
+                    )
+                })
+                .collect();
+            let sh = Shifts::new(&offs, f.w);
+            for level in 0..f.levels() {
+                for _ in 0..200 {
+                    let (i, j) = (
+                        rng.range(-10.0, w as f64 + 10.0) as i32,
+                        rng.range(-10.0, h as f64 + 10.0) as i32,
+                    );
+                    // the node's bound as the search has it: its level's sum
+                    let bound = f.sum(level + 1, &offs, i, j);
+                    let want = child_sums(f, level, &offs, i, j);
+                    let top = *want.iter().max().unwrap();
+                    for thr in [0, top / 2, top, top + 1, top + 255, bound, bound + 1] {
+                        let got = child_sums_above(f, level, &sh, i, j, bound, thr);
+                        if top >= thr {
+                            assert_eq!(got, Some(want), "level {level} at ({i}, {j}) thr {thr}");
+                            kept += 1;
+                        } else {
+                            assert_eq!(got, None, "level {level} at ({i}, {j}) thr {thr}");
+                            dropped += 1;
+                        }
+                    }
+                    // a looser bound may keep a node whose children all fall short, never
+                    // change the sums
+                    let got = child_sums_above(f, level, &sh, i, j, bound.saturating_mul(2), top);
+                    assert_eq!(got, Some(want));
+                }
+            }
+        }
+        assert!(
+            dropped > 1000 && kept > 1000,
+            "dropped {dropped}, kept {kept}"
+        );
     }
 
     #[test]
