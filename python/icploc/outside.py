@@ -481,6 +481,10 @@ class Stretch:
     #: the re-lock's correction of the dead-reckoned pose (dx, dy, dtheta; map frame)
     correction: Pose | None = None
     lock_pose: Pose | None = None
+    #: the localizer was reset (:meth:`~icploc.localizer.Localizer.reset`, or declared
+    #: lost) before this scan while the stretch was open: it ended there, not back in the
+    #: map by a lock (None: not reset)
+    reset_at: int | None = None
     #: with ``record``: per scan (index, points in the robot frame, coasted pose)
     scans: list[tuple[int, NDArray[np.float64], Pose]] = field(default_factory=list, repr=False)
     #: with ``record``: the scans after the lock (inside the map: not in the patch), their
@@ -567,6 +571,9 @@ class OutsideMonitor:
         #: after a lock: scans still to record into the stretch's lead-out, their odometry
         self._lead_left = 0
         self._lead_dr: Pose | None = None
+        #: the localizer's scan index of the last :meth:`before` (a reset while that scan
+        #: is processed is the localizer's own, see :meth:`on_reset`)
+        self._k_in: int | None = None
 
     # -- the localizer's hook --------------------------------------------------------------
     def before(
@@ -584,6 +591,7 @@ class OutsideMonitor:
         from icploc.localizer import Status
         from icploc.se2 import between, compose
 
+        self._k_in = loc.scans_processed
         share = self.area.unmapped_share(pts, pred)
         self._prev_share = self.last_share
         self.last_share = share
@@ -640,6 +648,7 @@ class OutsideMonitor:
             else:
                 lead_in = []
             self._gap = []
+            self._last_odom = None  # the stretch's metres from its first scan on
             self.stretches.append(
                 Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model,
                         lead_in=lead_in)
@@ -739,6 +748,35 @@ class OutsideMonitor:
             if sig <= loc.config.localizer.lost_sigma_xy:
                 est = dataclasses.replace(est, status=Status.DEGRADED, reason=REENTERING)
         return est
+
+    def on_reset(self, loc: Localizer) -> None:
+        """Called by :meth:`~icploc.localizer.Localizer.reset` and
+        :meth:`~icploc.localizer.Localizer.declare_lost`. Between scans (a pose the user
+        knows, a kidnapping known from outside, a saved state restored) the monitor starts
+        over as if just attached: an open stretch ends there (:attr:`Stretch.reset_at`;
+        not back in the map, so not in a patch), the localizer gets its own recovery back,
+        and a stretch begins again only after a ``tracking`` scan. Before, a reset while
+        outside was coasted over from the next scan on (the pose given ignored, a declared
+        kidnapping never searched for). A reset while a scan is processed is the
+        localizer's own (a lock, this monitor's re-entry) and changes nothing here."""
+        if self._k_in is not None and loc.scans_processed == self._k_in:
+            return  # within an update: the localizer's or this monitor's own
+        if self.state != "inside" and self.stretches:
+            self.stretches[-1].reset_at = loc.scans_processed
+        self._restore(loc)
+        self.state = "inside"
+        self._verified = False
+        self._entering = 0
+        self._sudden = False
+        self._below = self._above = 0
+        self._reentry_start = None
+        self._dr = self._tracked = self._since = None
+        self._since_m = 0.0
+        self._gap = []
+        self._lead_left, self._lead_dr = 0, None
+        self._last_pose = None
+        self._last_odom = None
+        self.last_share = self._prev_share = float("nan")
 
     def _restore(self, loc: Localizer) -> None:
         """Give the localizer its own recovery back (after a re-entry)."""
@@ -875,6 +913,8 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
             f"scan(s), correction {math.hypot(s.correction[0], s.correction[1]):.2f} m "
             f"{math.degrees(s.correction[2]):+.1f} deg"
             if s.end is not None and s.correction is not None
+            else f"ended by a reset before scan {s.reset_at} (not back in the map)"
+            if s.reset_at is not None
             else "not back in the map at the end"
         )
         out.append(
