@@ -19,7 +19,16 @@ import numpy as np
 from icploc.sim import World, simulate  # the simulator (re-point here)
 from numpy.typing import NDArray
 
-__all__ = ["WING_BOX", "PartialRun", "building", "localized", "partial_run", "wall_distance"]
+__all__ = [
+    "WING_BOX",
+    "PartialRun",
+    "building",
+    "drive",
+    "go_on",
+    "localized",
+    "partial_run",
+    "wall_distance",
+]
 
 #: the wing (corridor beyond the door and its room): x0, y0, x1, y1
 WING_BOX = (14.0, -2.0, 30.0, 12.0)
@@ -105,6 +114,38 @@ def localized(seed: int = 0, monitor: bool = True) -> tuple[PartialRun, object, 
         mon.record = True
     ests = run(loc, r.items)
     return r, m, ests, mon
+
+
+@functools.lru_cache(maxsize=1)
+def _run0() -> tuple[PartialRun, object]:
+    return partial_run(0)
+
+
+def drive(until: str, record: bool = False, n: int = 3) -> tuple[PartialRun, object, int]:
+    """Seed 0's run localized from the true start with the default config, scan by scan
+    (each with its odometry), until the localizer's outside monitor is in state ``until``
+    (``inside``, ``outside``, ``reentering``) for the ``n``-th scan in a row: (run, the
+    localizer, the next scan's index). ``record``: the monitor records its stretches."""
+    from icploc.config import LocalizerConfig
+    from icploc.localizer import Localizer
+
+    run, m = _run0()
+    loc = Localizer(m, LocalizerConfig(), initial_pose=tuple(run.truth[0]))
+    mon = loc.outside
+    assert mon is not None
+    mon.record = record
+    streak = 0
+    for k in range(len(run.scans)):
+        loc.update(run.items[2 * k + 1], run.items[2 * k])
+        streak = streak + 1 if mon.state == until else 0
+        if streak == n:
+            return run, loc, k + 1
+    raise AssertionError(f"the monitor never was {until!r} for {n} scans")
+
+
+def go_on(run: PartialRun, loc: object, k: int, n: int) -> list:
+    """The estimates of scans ``k`` .. ``k + n - 1`` of ``run`` by ``loc``."""
+    return [loc.update(run.items[2 * i + 1], run.items[2 * i]) for i in range(k, k + n)]  # type: ignore[attr-defined]
 
 
 def wall_distance(world: World, xy: NDArray[np.float64]) -> NDArray[np.float64]:

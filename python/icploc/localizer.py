@@ -450,6 +450,8 @@ class Localizer:
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
+        if self.outside is not None:  # icploc.outside: a reset between scans ends a stretch
+            self.outside.on_reset(self)
 
     def _forget_checks(self) -> None:
         self._trigger.reset()
@@ -477,6 +479,8 @@ class Localizer:
         self._untracked = 0
         self._forget_checks()
         self.recovery.reset()
+        if self.outside is not None:  # icploc.outside: a reset between scans ends a stretch
+            self.outside.on_reset(self)
 
     @property
     def last_odometry(self) -> Pose | None:

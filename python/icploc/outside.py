@@ -481,7 +481,13 @@ class Stretch:
     #: the re-lock's correction of the dead-reckoned pose (dx, dy, dtheta; map frame)
     correction: Pose | None = None
     lock_pose: Pose | None = None
-    #: with ``record``: per scan (index, points in the robot frame, coasted pose)
+    #: the localizer was reset (:meth:`~icploc.localizer.Localizer.reset`, or declared
+    #: lost) before this scan while the stretch was open: it ended there, not back in the
+    #: map by a lock (None: not reset)
+    reset_at: int | None = None
+    #: with ``record``: per scan (index, points in the robot frame, coasted pose), from the
+    #: first of the ``enter_scans`` scans that began the stretch (those before
+    #: :attr:`start` were localized as usual; here their poses by odometry from the exit)
     scans: list[tuple[int, NDArray[np.float64], Pose]] = field(default_factory=list, repr=False)
     #: with ``record``: the scans after the lock (inside the map: not in the patch), their
     #: poses by odometry from the lock (they tie the lock to the mapped walls for the
@@ -540,6 +546,10 @@ class OutsideMonitor:
         self._entering = 0
         self._streak_exit: Pose | None = None
         self._streak_dr: Pose = (0.0, 0.0, 0.0)
+        #: with ``record``: the streak's scans before its last (localized as usual), their
+        #: points and poses by odometry from the streak's exit and from the last
+        #: ``tracking`` pose (None: more than ``exit_odometry`` since it)
+        self._streak_rec: list[tuple[int, NDArray[np.float64], Pose, Pose | None]] = []
         self.last_share = float("nan")
         #: the share of the scan before (``rise_share``), and whether the share jumped
         #: there from a scan on the map (no stretch begins until it falls again)
@@ -567,6 +577,9 @@ class OutsideMonitor:
         #: after a lock: scans still to record into the stretch's lead-out, their odometry
         self._lead_left = 0
         self._lead_dr: Pose | None = None
+        #: the localizer's scan index of the last :meth:`before` (a reset while that scan
+        #: is processed is the localizer's own, see :meth:`on_reset`)
+        self._k_in: int | None = None
 
     # -- the localizer's hook --------------------------------------------------------------
     def before(
@@ -584,6 +597,7 @@ class OutsideMonitor:
         from icploc.localizer import Status
         from icploc.se2 import between, compose
 
+        self._k_in = loc.scans_processed
         share = self.area.unmapped_share(pts, pred)
         self._prev_share = self.last_share
         self.last_share = share
@@ -619,10 +633,13 @@ class OutsideMonitor:
             # against the wrong walls; with enter_scans 1 this is the prediction itself)
             if self._entering == 0:
                 self._streak_exit, self._streak_dr = self._last_pose, pred
+                self._streak_rec = []
             else:
                 self._streak_dr = compose(self._streak_dr, step)
             self._entering += 1
             if self._entering < cfg.enter_scans:
+                if self.record:
+                    self._streak_rec.append((k, np.array(pts), self._streak_dr, self._since))
                 return None
             self._entering = 0
             pred = self._streak_dr
@@ -637,12 +654,26 @@ class OutsideMonitor:
                 # from the last tracking pose by odometry (not the degraded poses since)
                 exit_pose, self._dr = self._tracked, self._since
                 lead_in = self._gap or []
+                tracked = True
             else:
-                lead_in = []
+                lead_in, tracked = [], False
+            # the streak's earlier scans belong to the stretch's record (localized as
+            # usual, but mostly off the map all the same: with enter_scans 1 they were
+            # coasted and drawn; left out, the patch's chain crossed the exit without
+            # them: belgioioso's walls within 10 cm 54 -> 41 %), their poses by the
+            # odometry the stretch's own dead reckoning takes
+            streak = {i for i, _, _, _ in self._streak_rec}
+            lead_in = [g for g in lead_in if g[0] not in streak]
+            head = [
+                (i, q, since if tracked and since is not None else dr)
+                for i, q, dr, since in self._streak_rec
+            ]
+            self._streak_rec = []
             self._gap = []
+            self._last_odom = None  # the stretch's metres from its first scan on
             self.stretches.append(
                 Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model,
-                        lead_in=lead_in)
+                        lead_in=lead_in, scans=head)
             )  # fmt: skip
             self.state = "outside"
             self._below = 0
@@ -739,6 +770,36 @@ class OutsideMonitor:
             if sig <= loc.config.localizer.lost_sigma_xy:
                 est = dataclasses.replace(est, status=Status.DEGRADED, reason=REENTERING)
         return est
+
+    def on_reset(self, loc: Localizer) -> None:
+        """Called by :meth:`~icploc.localizer.Localizer.reset` and
+        :meth:`~icploc.localizer.Localizer.declare_lost`. Between scans (a pose the user
+        knows, a kidnapping known from outside, a saved state restored) the monitor starts
+        over as if just attached: an open stretch ends there (:attr:`Stretch.reset_at`;
+        not back in the map, so not in a patch), the localizer gets its own recovery back,
+        and a stretch begins again only after a ``tracking`` scan. Before, a reset while
+        outside was coasted over from the next scan on (the pose given ignored, a declared
+        kidnapping never searched for). A reset while a scan is processed is the
+        localizer's own (a lock, this monitor's re-entry) and changes nothing here."""
+        if self._k_in is not None and loc.scans_processed == self._k_in:
+            return  # within an update: the localizer's or this monitor's own
+        if self.state != "inside" and self.stretches:
+            self.stretches[-1].reset_at = loc.scans_processed
+        self._restore(loc)
+        self.state = "inside"
+        self._verified = False
+        self._entering = 0
+        self._streak_rec = []
+        self._sudden = False
+        self._below = self._above = 0
+        self._reentry_start = None
+        self._dr = self._tracked = self._since = None
+        self._since_m = 0.0
+        self._gap = []
+        self._lead_left, self._lead_dr = 0, None
+        self._last_pose = None
+        self._last_odom = None
+        self.last_share = self._prev_share = float("nan")
 
     def _restore(self, loc: Localizer) -> None:
         """Give the localizer its own recovery back (after a re-entry)."""
@@ -875,6 +936,8 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
             f"scan(s), correction {math.hypot(s.correction[0], s.correction[1]):.2f} m "
             f"{math.degrees(s.correction[2]):+.1f} deg"
             if s.end is not None and s.correction is not None
+            else f"ended by a reset before scan {s.reset_at} (not back in the map)"
+            if s.reset_at is not None
             else "not back in the map at the end"
         )
         out.append(
