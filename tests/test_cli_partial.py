@@ -44,7 +44,7 @@ def _replay(wing_log: dict, csv_path: Path, *extra: str) -> list[dict[str, str]]
         ["replay", str(wing_log["log"]), "--map", str(wing_log["map"]), "--no-progress",
          "--initial-pose", wing_log["pose"], "--estimates", str(csv_path), *extra],
     )  # fmt: skip
-    assert res.exit_code in (0, 3), res.output  # 3: more than --max-lost of the scans lost
+    assert res.exit_code == 0, res.output  # the run is never lost for long in this stretch
     return list(csv.DictReader(csv_path.read_text().splitlines()))
 
 

@@ -111,3 +111,60 @@ def test_a_coasting_fit_past_the_jump_cap_moves_the_pose_only_when_the_unsure_ch
         assert err < 0.1
     else:
         assert err > 1.5
+
+
+class _Locking(_Searching):
+    """A recovery whose every step locks at the truth (an ICP fit there) and whose strict
+    checks all answer ``verdict``."""
+
+    def __init__(self, verdict: CheckVerdict, result: Any) -> None:
+        super().__init__(verdict)
+        self.result = result
+
+    def recover(self, view: RecoveryView, points: Any) -> RecoveryStep:
+        return RecoveryStep("locked", lock=TRUTH, result=self.result)
+
+
+def _lock_once(verdict: CheckVerdict) -> tuple[float, Status, int]:
+    """Lost in the lab with the dead reckoning 1.7 m off, the recovery locks at the truth:
+    the reported pose's distance from the truth after one scan, its status, the strict
+    checks asked."""
+    from icploc import icp
+
+    loc = _loc()
+    angles = np.linspace(-math.pi / 2, math.pi / 2, 361)
+    r = LAB.ranges(TRUTH, angles, 8.0, 0.0, np.random.default_rng(0), 0.0)
+    ok = r < 8.0
+    pts = np.column_stack([r[ok] * np.cos(angles[ok]), r[ok] * np.sin(angles[ok])])
+    rec = _Locking(verdict, icp(pts, loc.index, TRUTH))
+    loc.recovery = rec
+    loc.declare_lost()
+    off = 1.7
+    loc.pose = (
+        TRUTH[0] + off * math.cos(TRUTH[2] + 2.5),
+        TRUTH[1] + off * math.sin(TRUTH[2] + 2.5),
+        TRUTH[2],
+    )
+    loc.covariance = np.diag([0.72, 0.72, 0.002])
+    e = loc.update(Scan(stamp=0.0, ranges=r, angles=angles, max_range=8.0))
+    return math.hypot(e.pose[0] - TRUTH[0], e.pose[1] - TRUTH[1]), e.status, rec.checks
+
+
+def test_a_recovery_lock_needs_a_clear_verdict_unsure_is_no_pass_even_with_the_lock_margin() -> (
+    None
+):
+    # the lock may be reported tracking on this very scan: an unsure check (the search
+    # ranked no good rival) does not clear it, though it would clear a coasting fit
+    unsure = CheckVerdict("unsure", here=0.48, best=0.31)
+    assert _loc()._clear(unsure) and not _loc()._clear(unsure, unsure_ok=False)
+    err, status, checks = _lock_once(unsure)
+    # the lock is refused and no promise made; the coasting fit past the jump cap then
+    # asks its own strict check, which that verdict clears: lost at the truth
+    assert checks == 2
+    assert status is Status.LOST and err < 0.05
+    err, status, checks = _lock_once(CheckVerdict(""))
+    assert checks == 1
+    assert status is Status.TRACKING and err < 0.05
+    # a rival within the lock margin: refused by both, the pose stays dead-reckoned
+    err, status, checks = _lock_once(CheckVerdict("unsure", here=0.48, best=0.40))
+    assert status is Status.LOST and err > 1.5

@@ -1601,9 +1601,10 @@ class Localizer:
                 self._note("refuted")
                 refuted = True
                 lock_pose = None
-            elif v is not None and not self._clear(v):
-                # a distinct pose fits as well (a periodic building's next office): the
-                # lock is not told from it, no jump and no promise; still lost
+            elif v is not None and not self._clear(v, unsure_ok=False):
+                # a distinct pose fits as well (a periodic building's next office), or the
+                # check could not rank one ("unsure"): the lock is not told from it, no
+                # jump and no promise; still lost
                 lock_pose = None
         if lock_pose is not None and res is not None:
             inflight = self._check_inflight
@@ -1765,8 +1766,9 @@ class Localizer:
         return pose, cov, True
 
     def _strict_clear(self, pts: NDArray[np.float64], pose: Pose) -> bool:
-        """An inline strict global check of ``pose`` says no distinct pose rivals it
-        (verdict ``""``); False for any other verdict, a recovery without checks, and with
+        """An inline strict global check of ``pose`` clears it (:meth:`_clear`: verdict
+        ``""`` with no distinct rival, or ``"unsure"`` with the best distinct pose trailing
+        by the lock margin); False otherwise, for a recovery without checks, and with
         ``localizer.lost_check: background`` (no verdict now)."""
         fn = getattr(self.recovery, "check_pose", None)
         if fn is None or self.config.localizer.lost_check == "background":
@@ -1777,11 +1779,13 @@ class Localizer:
             return False
         return self._clear(v)
 
-    def _clear(self, v: CheckVerdict) -> bool:
-        """A strict check's verdict that clears a pose the localizer reached by itself (not a
-        recovery's lock): ``""`` and no distinct rival, or every one trailing by the
-        tracker's dominance margin (a periodic building's next office fits as well as the
-        right one: a rival not beaten). ``"unsure"`` (the best distinct pose the search
+    def _clear(self, v: CheckVerdict, unsure_ok: bool = True) -> bool:
+        """A strict check's verdict that clears a pose: ``""`` and no distinct rival, or
+        every one trailing by the tracker's dominance margin (a periodic building's next
+        office fits as well as the right one: a rival not beaten). For a pose the localizer
+        reached by itself (``unsure_ok``: a coasting fit, the way back by dead reckoning; not
+        a recovery's lock, which may be reported ``tracking`` at once and needs ``""``),
+        ``"unsure"`` (the best distinct pose the search
         found is no good fit) clears only when that pose trails the checked one by the lead
         the tracker asks of a leader over every rival to lock (its dominance margin at the
         checked pose's score, :meth:`icploc.relocalize.Relocalizer._margin`): a place the
@@ -1790,6 +1794,8 @@ class Localizer:
         dead reckoning ran 6.9 m off), not a tie of two poor fits (an unsure check with no
         rival ranked carries no scores and does not clear)."""
         if v.verdict == "unsure":
+            if not unsure_ok:
+                return False
             c = self.config.relocalize
             margin = c.dominance + c.dominance_slope * max(0.0, c.clean_score - v.here)
             return v.here > 0.0 and v.best < (1.0 - margin) * v.here

@@ -286,10 +286,12 @@ def restore(localizer: Localizer, state: SavedState | str | Path) -> SavedStateC
     """Start ``localizer`` from a saved state, to be checked on the first scan (see the
     module doc). Returns the check (its ``verdict`` says what the first scan found)."""
     st = state if isinstance(state, SavedState) else load_state(state)
+    # the recovery as the reset leaves it (a reset while re-entering the map gives the
+    # localizer its own recovery back: icploc.outside.OutsideMonitor.on_reset)
+    localizer.reset(st.pose, st.covariance, Status.LOST)
     inner = localizer.recovery
     if isinstance(inner, SavedStateCheck):
         inner = inner.inner
-    localizer.reset(st.pose, st.covariance, Status.LOST)
     check = SavedStateCheck(localizer, inner)
     localizer.recovery = check
     return check
