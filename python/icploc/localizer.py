@@ -1578,6 +1578,7 @@ class Localizer:
                 lock_pose = step.lock  # elsewhere, and the scan pins it down: jump there
         refuted = False
         strict_pending = False
+        unsure_lock = False
         if lock_pose is not None and res is not None:
             # a stricter check of the lock: no distinct pose anywhere explains the scan
             # clearly better (inline on this scan, or on the worker thread: then the
@@ -1601,11 +1602,14 @@ class Localizer:
                 self._note("refuted")
                 refuted = True
                 lock_pose = None
-            elif v is not None and not self._clear(v, unsure_ok=False):
-                # a distinct pose fits as well (a periodic building's next office), or the
-                # check could not rank one ("unsure"): the lock is not told from it, no
-                # jump and no promise; still lost
+            elif v is not None and not self._clear(v):
+                # a distinct pose fits as well (a periodic building's next office): the
+                # lock is not told from it, no jump and no promise; still lost
                 lock_pose = None
+            elif v is not None and not self._clear(v, unsure_ok=False):
+                # "unsure", the best distinct pose trailing by the lock margin: the jump,
+                # but no promise until settle_scans verified scans (as an unverified lock)
+                unsure_lock = True
         if lock_pose is not None and res is not None:
             inflight = self._check_inflight
             self.reset(lock_pose, R, Status.TRACKING)
@@ -1613,9 +1617,9 @@ class Localizer:
                 self._check_inflight = inflight
                 self._lock_unconfirmed = True
             status = Status.TRACKING if self._confident(R) else Status.DEGRADED
-            if self._lock_unconfirmed or not step.verified:  # hook (lost2): no promise
+            if self._lock_unconfirmed or not step.verified or unsure_lock:  # hook (lost2)
                 status = Status.DEGRADED
-            if not step.verified:
+            if not step.verified or unsure_lock:
                 # a lock the verification refused: not tracking until settle_scans verified
                 # scans explain the scan as well as the map's usual share (as after a jump)
                 q = self.quality
@@ -1631,7 +1635,9 @@ class Localizer:
                 iterations=int(res.iterations),
                 time=time.perf_counter() - t0,
                 accepted=True,
-                reason=Reason.RELOCALIZED if step.verified else Reason.LOCK_UNVERIFIED,
+                reason=Reason.RELOCALIZED
+                if step.verified and not unsure_lock
+                else Reason.LOCK_UNVERIFIED,
                 degeneracy=float(res.degeneracy),
                 prediction=pred,
                 odometry=odom,
@@ -1783,8 +1789,9 @@ class Localizer:
         """A strict check's verdict that clears a pose: ``""`` and no distinct rival, or
         every one trailing by the tracker's dominance margin (a periodic building's next
         office fits as well as the right one: a rival not beaten). For a pose the localizer
-        reached by itself (``unsure_ok``: a coasting fit, the way back by dead reckoning; not
-        a recovery's lock, which may be reported ``tracking`` at once and needs ``""``),
+        reached by itself (``unsure_ok``: a coasting fit, the way back by dead reckoning; a
+        recovery's lock it clears only so far: the jump, ``degraded`` until settled, as a
+        lock the verification refused; ``tracking`` at once needs ``""``),
         ``"unsure"`` (the best distinct pose the search
         found is no good fit) clears only when that pose trails the checked one by the lead
         the tracker asks of a leader over every rival to lock (its dominance margin at the
