@@ -54,3 +54,27 @@ def test_without_the_rule_the_sudden_exit_is_tracked_falsely() -> None:
     assert mon is not None
     assert all(s.start > jump + 200 for s in mon.stretches)  # type: ignore[attr-defined]
     assert _false_tracking(err, ests) > 100
+
+
+def test_a_pose_found_away_from_the_odometry_after_the_jump_begins_no_stretch() -> None:
+    """A kidnapped robot's localizer relocalizes elsewhere: here its pose is moved 2 m (as a
+    recovery would) a few scans after the jump; the jump then never begins a stretch while
+    it lasts (scans that begin one at the door in the test above)."""
+    from icploc.config import LocalizerConfig
+    from icploc.localizer import Localizer
+    from icploc.outside import OutsideConfig
+
+    r, m, kept = sudden_exit_run(0)
+    jump = int(np.argmax(np.diff(np.asarray(kept)) > 1)) + 1
+    loc = Localizer(m, LocalizerConfig(), initial_pose=tuple(r.truth[0]))
+    mon = loc.outside
+    assert mon is not None
+    for i in range(jump + 5):
+        loc.update(r.items[2 * i + 1], r.items[2 * i])
+    assert not mon.stretches and mon.last_share >= OutsideConfig().enter_share
+    x, y, th = loc.pose
+    loc.pose = (x, y + 2.0, th)  # found 2 m away from the odometry since the jump
+    n = OutsideConfig().sudden_scans + 15
+    for i in range(jump + 5, jump + 5 + n):
+        loc.update(r.items[2 * i + 1], r.items[2 * i])
+    assert not mon.stretches
