@@ -27,6 +27,7 @@ __all__ = [
     "go_on",
     "localized",
     "partial_run",
+    "sudden_exit_run",
     "wall_distance",
 ]
 
@@ -114,6 +115,31 @@ def localized(seed: int = 0, monitor: bool = True) -> tuple[PartialRun, object, 
         mon.record = True
     ests = run(loc, r.items)
     return r, m, ests, mon
+
+
+def sudden_exit_run(seed: int = 0) -> tuple[PartialRun, object, list[int]]:
+    """The run with a sudden exit (``OutsideConfig.rise_share``'s blind spot): the map
+    ends sharply at the wing's door (every cell east of x = 14.1 m unknown: no corridor
+    seen through the door) and the robot's first drive into the wing has no scans from
+    x = 11 m to 13.9 m (a fast robot, a scanner that drops out at the doorway: the scan's
+    unmapped share jumps from 0.10 to 0.71 from one scan to the next). (run, the cut map,
+    the run's frame indices kept: scan ``i`` of the localizer is frame ``kept[i]``)."""
+    from icploc.maps import Map
+
+    r, m = partial_run(seed)
+    occ, free = np.array(m.grid, dtype=bool), np.array(m.free, dtype=bool)  # type: ignore[attr-defined]
+    xs = m.origin[0] + (np.arange(occ.shape[1]) + 0.5) * m.resolution  # type: ignore[attr-defined]
+    occ[:, xs > 14.1] = False
+    free[:, xs > 14.1] = False
+    cut = Map.from_grid(occ, m.resolution, m.origin, free=free, surface_offset=0.5)  # type: ignore[attr-defined]
+    t = r.truth
+    into = int(np.argmax(t[:, 0] > 14.5))  # the first time in the wing
+    gap0 = int(np.nonzero(t[:into, 0] < 11.0)[0][-1]) + 1
+    gap1 = int(np.argmax(t[:, 0] > 13.9))
+    kept = [i for i in range(len(r.scans)) if not gap0 <= i < gap1]
+    items = [x for i in kept for x in r.items[2 * i : 2 * i + 2]]
+    run = PartialRun(r.world, t[kept], items, [r.scans[i] for i in kept], r.map_scans)
+    return run, cut, kept
 
 
 @functools.lru_cache(maxsize=1)

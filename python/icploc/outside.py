@@ -90,6 +90,14 @@ class OutsideConfig:
     #: At a streak's start, measured: benches/global_bench.py's kidnaps 0.00-0.08; the real
     #: partial maps' exits, benches/eval_partial.py, 0.17 and up)
     rise_share: float = 0.12
+    #: ... unless the jump stays: after this many scans in a row at ``enter_share`` or more
+    #: since the jump, the localizer's pose all along within ``sudden_drift`` of the
+    #: odometry from the pose before it and no recovery lock, the streak begins (a sharp
+    #: map edge, a fast robot through a doorway into an unmapped hall: the scan jumps off
+    #: the map and stays there; a kidnapped robot's localizer relocalizes elsewhere, 19
+    #: of benches/global_bench.py's 20 lab kidnaps within 20 scans). 0: never
+    sudden_scans: int = 20
+    sudden_drift: float = 1.0
     #: ... for this many scans in a row (the scans before the last are localized as
     #: usual): a map made from another pass has gaps a scan wide. On the real-data
     #: benchmark's full maps (benches/eval_real.py, 60 folds of the tuned set) 1 began a
@@ -160,6 +168,11 @@ class OutsideConfig:
         if not 0.0 <= self.rise_share <= self.enter_share:
             raise ValueError(
                 f"outside: need 0 <= rise_share <= enter_share, got {self.rise_share}"
+            )
+        if self.sudden_scans < 0 or not (math.isfinite(self.sudden_drift) and self.sudden_drift > 0):
+            raise ValueError(
+                "outside: need sudden_scans >= 0 and sudden_drift > 0, got "
+                f"{self.sudden_scans}, {self.sudden_drift}"
             )
         if self.enter_scans < 1:
             raise ValueError(f"outside: enter_scans must be >= 1, got {self.enter_scans}")
@@ -555,6 +568,11 @@ class OutsideMonitor:
         #: there from a scan on the map (no stretch begins until it falls again)
         self._prev_share = float("nan")
         self._sudden = False
+        #: since the jump: scans at ``enter_share`` or more (-1: the localizer's pose left
+        #: the odometry from before the jump, or a recovery locked: no exit) and the
+        #: odometry from the pose before it
+        self._sudden_n = 0
+        self._sudden_dr: Pose = (0.0, 0.0, 0.0)
         self._below = 0
         self._above = 0
         self._fallback: Any = None  #: the localizer's own recovery while re-entering
@@ -625,9 +643,21 @@ class OutsideMonitor:
                 # from a scan nearly all on the map to one mostly off it in one step: not
                 # the edge of the map, which a robot drives towards, but a pose that went
                 # wrong at once (a robot carried elsewhere); the localizer's own checks and
-                # recovery deal with it, until the scan is back on the map
-                self._sudden = True
-                return None
+                # recovery deal with it, until the scan is back on the map; unless it stays
+                # off the map while the localizer, lost or not, stays on the odometry
+                # (``sudden_scans``): a sharp edge of the map, a fast robot
+                if not self._sudden:
+                    self._sudden, self._sudden_n, self._sudden_dr = True, 0, pred
+                elif self._sudden_n >= 0:
+                    self._sudden_dr = compose(self._sudden_dr, step)
+                    d = math.hypot(pred[0] - self._sudden_dr[0], pred[1] - self._sudden_dr[1])
+                    if d > cfg.sudden_drift:
+                        self._sudden_n = -1  # relocalized elsewhere: a kidnap, not an exit
+                if self._sudden_n >= 0:
+                    self._sudden_n += 1
+                if cfg.sudden_scans == 0 or self._sudden_n < cfg.sudden_scans:
+                    return None
+                self._sudden = False  # the jump stayed: the map's edge; the streak begins
             # the stretch begins at the streak's first scan: its later ones coast from the
             # dead reckoning since (the scans before the last were matched as usual, maybe
             # against the wrong walls; with enter_scans 1 this is the prediction itself)
@@ -745,6 +775,8 @@ class OutsideMonitor:
         elif self.state == "reentering" and self.record and self.stretches:
             dr = self._dr if self._dr is not None else est.pose
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
+        if self._sudden and self._sudden_n >= 0 and est.reason in LOCK_REASONS:
+            self._sudden_n = -1  # a recovery locked after the jump: a kidnap, not an exit
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
         if self.state == "inside" and est.status is Status.TRACKING and not self._entering:
@@ -790,7 +822,7 @@ class OutsideMonitor:
         self._verified = False
         self._entering = 0
         self._streak_rec = []
-        self._sudden = False
+        self._sudden, self._sudden_n = False, 0
         self._below = self._above = 0
         self._reentry_start = None
         self._dr = self._tracked = self._since = None
