@@ -173,7 +173,12 @@ def test_a_stretch_records_the_scans_between_its_exit_and_its_first_outside_scan
     _, _, ests, mon = localized()
     st = mon.stretches[0]
     ks = [k for k, _, _ in st.lead_in]
-    assert len(ks) >= 10 and ks == list(range(ks[0], st.start))
+    # the recorded scans begin with the streak that began the stretch (its first
+    # enter_scans - 1 scans were localized as usual, before start): the lead-in runs up to
+    # the first of them, no gap and no overlap
+    first = st.scans[0][0]
+    assert first == st.start - (OutsideConfig().enter_scans - 1)
+    assert len(ks) >= 10 and ks == list(range(ks[0], first))
     exit_k = ks[0] - 1
     assert ests[exit_k].status.value == "tracking" and ests[exit_k].pose == st.exit_pose
     assert all(e.status.value != "tracking" for e in ests[ks[0] : st.start])
