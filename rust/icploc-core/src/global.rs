@@ -1025,6 +1025,18 @@ mod tests {
     };
     use std::time::Instant;
 
+    /// `n` cell offsets drawn uniformly within +-`spread` cells
+    fn random_offsets(rng: &mut Rng, n: usize, spread: f64) -> Vec<(i32, i32)> {
+        (0..n)
+            .map(|_| {
+                (
+                    rng.range(-spread, spread) as i32,
+                    rng.range(-spread, spread) as i32,
+                )
+            })
+            .collect()
+    }
+
     fn localizer(segs: &[Segment], res: f64) -> GlobalLocalizer {
         let (p, n) = sample_segments(segs, 0.05);
         let idx = Arc::new(MapIndex::new(p, Some(n)).unwrap());
@@ -1373,14 +1385,7 @@ mod tests {
         let (w, h) = (f.w as i32, f.h as i32);
         let mut rng = Rng::new(11);
         for spread in [3.0, 20.0, 80.0] {
-            let offs: Vec<(i32, i32)> = (0..50)
-                .map(|_| {
-                    (
-                        rng.range(-spread, spread) as i32,
-                        rng.range(-spread, spread) as i32,
-                    )
-                })
-                .collect();
+            let offs = random_offsets(&mut rng, 50, spread);
             let sh = Shifts::new(&offs, f.w);
             for level in 0..f.levels() {
                 let s = 1i32 << level;
@@ -1413,14 +1418,7 @@ mod tests {
         let mut rng = Rng::new(13);
         let (mut dropped, mut kept) = (0usize, 0usize);
         for (n, spread) in [(96, 5.0), (96, 40.0), (40, 15.0), (7, 3.0)] {
-            let offs: Vec<(i32, i32)> = (0..n)
-                .map(|_| {
-                    (
-                        rng.range(-spread, spread) as i32,
-                        rng.range(-spread, spread) as i32,
-                    )
-                })
-                .collect();
+            let offs = random_offsets(&mut rng, n, spread);
             let sh = Shifts::new(&offs, f.w);
             for level in 0..f.levels() {
                 for _ in 0..200 {
