@@ -311,6 +311,9 @@ def replay(
 
     m = load_map(map_, map_cache)
     t1 = time.perf_counter()
+    if partial_map is False and map_patch is None and cfg.outside.enabled:
+        # off: the Localizer does not build the mapped area only for it to be dropped
+        cfg = cfg.replace(outside={"enabled": False})
     if cfg.scan.lasers:  # hook: several lasers merged into one scan (icploc.multilaser)
         from icploc.multilaser import localizer_config
 
@@ -326,10 +329,9 @@ def replay(
     if on_localizer is not None:  # hooks: icploc.mcap_export (--mcap)
         on_localizer(loc)
     # the outside-the-map state: the Localizer's own (config ``outside.enabled``, on by
-    # default); ``partial_map`` True / False forces it on / off; a map patch needs it
-    if partial_map is False and map_patch is None:
-        loc.outside = None
-    elif loc.outside is None and (partial_map or map_patch is not None):
+    # default; turned off above for ``partial_map`` False); ``partial_map`` True forces it
+    # on; a map patch needs it
+    if loc.outside is None and (partial_map or map_patch is not None):
         from icploc.outside import attach as attach_outside
 
         attach_outside(loc)

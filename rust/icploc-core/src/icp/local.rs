@@ -428,15 +428,21 @@ mod tests {
         assert_eq!(scan_directions(&scan), None);
     }
 
-    #[test]
-    fn a_slide_along_a_corridor_is_found() {
-        // a 20 m corridor, 2 m wide, with door frames (cross walls with 1 m openings)
-        // every 4 m: a fit 0.4 m along the corridor from the truth
+    /// a 20 m corridor, 2 m wide, with door frames (cross walls with 1 m openings) every 4 m
+    fn door_corridor() -> Vec<crate::raycast::Segment> {
         let mut segs = rectangle(20.0, 2.0);
         for x in [4.0, 8.0, 12.0, 16.0] {
             segs.push([x, 0.0, x, 0.5]);
             segs.push([x, 1.5, x, 2.0]);
         }
+        segs
+    }
+
+    #[test]
+    fn a_slide_along_a_corridor_is_found() {
+        // a 20 m corridor, 2 m wide, with door frames (cross walls with 1 m openings)
+        // every 4 m: a fit 0.4 m along the corridor from the truth
+        let segs = door_corridor();
         let (p, n) = sample_segments(&segs, 0.025);
         let idx = MapIndex::new(p, Some(n)).unwrap();
         let truth = Pose2::new(9.3, 1.0, 0.0);
@@ -456,11 +462,7 @@ mod tests {
     fn one_pass_over_points_and_their_part_gives_the_two_lists() {
         // the corridor above: the candidates of the points and of a flagged part of them
         // (every third point) from one pass are those of two separate calls, bit for bit
-        let mut segs = rectangle(20.0, 2.0);
-        for x in [4.0, 8.0, 12.0, 16.0] {
-            segs.push([x, 0.0, x, 0.5]);
-            segs.push([x, 1.5, x, 2.0]);
-        }
+        let segs = door_corridor();
         let (p, n) = sample_segments(&segs, 0.025);
         let idx = MapIndex::new(p, Some(n))
             .unwrap()
