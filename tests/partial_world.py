@@ -23,8 +23,11 @@ __all__ = [
     "WING_BOX",
     "PartialRun",
     "building",
+    "cached_run",
     "drive",
+    "errors",
     "go_on",
+    "half_known_grid",
     "localized",
     "partial_run",
     "sudden_exit_run",
@@ -143,8 +146,27 @@ def sudden_exit_run(seed: int = 0) -> tuple[PartialRun, object, list[int]]:
 
 
 @functools.lru_cache(maxsize=1)
-def _run0() -> tuple[PartialRun, object]:
+def cached_run() -> tuple[PartialRun, object]:
+    """Seed 0's run and map (:func:`partial_run`), built once per test session."""
     return partial_run(0)
+
+
+def errors(run: PartialRun, ests: list) -> NDArray[np.float64]:
+    """Per scan: the position error of ``ests`` against ``run``'s true poses [m]."""
+    p = np.array([e.pose for e in ests])
+    return np.hypot(p[:, 0] - run.truth[:, 0], p[:, 1] - run.truth[:, 1])
+
+
+def half_known_grid(unknown: bool = True) -> object:
+    """A 4 m x 4 m map_server-like grid at 10 cm: the left half observed (free, a wall at
+    x = 0.05), the right half unknown (``unknown`` False: free as well, every cell known)."""
+    from icploc.maps import Map
+
+    occ = np.zeros((40, 40), dtype=bool)
+    free = np.zeros((40, 40), dtype=bool)
+    occ[:, 0] = True
+    free[:, 1 : (20 if unknown else 40)] = True
+    return Map.from_grid(occ, 0.1, (0.0, 0.0, 0.0), free=free, fit=False)
 
 
 def drive(until: str, record: bool = False, n: int = 3) -> tuple[PartialRun, object, int]:
@@ -155,7 +177,7 @@ def drive(until: str, record: bool = False, n: int = 3) -> tuple[PartialRun, obj
     from icploc.config import LocalizerConfig
     from icploc.localizer import Localizer
 
-    run, m = _run0()
+    run, m = cached_run()
     loc = Localizer(m, LocalizerConfig(), initial_pose=tuple(run.truth[0]))
     mon = loc.outside
     assert mon is not None

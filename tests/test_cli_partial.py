@@ -84,3 +84,33 @@ def test_no_partial_map_with_a_map_patch_is_a_usage_error(wing_log: dict, tmp_pa
     )  # fmt: skip
     assert res.exit_code == 2
     assert "--no-partial-map" in res.output
+
+
+@pytest.mark.parametrize(
+    ("kw", "named"),
+    [
+        ({"partial_map": False, "map_patch": "p.yaml"}, "partial_map=False"),
+        ({"map_patch_open": True}, "map_patch_open needs map_patch"),
+        ({"map_patch_confident_only": True}, "map_patch_confident_only needs map_patch"),
+    ],
+)
+def test_the_api_refuses_what_the_cli_refuses_before_any_work(
+    tmp_path: Path, kw: dict, named: str
+) -> None:
+    from icploc.replay import replay
+
+    kw = {k: tmp_path / v if k == "map_patch" else v for k, v in kw.items()}
+    # neither the log nor the map exists: the refusal comes first
+    with pytest.raises(ValueError, match=named):
+        replay(tmp_path / "none.log", tmp_path / "none.yaml", **kw)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_map_patch_open_without_a_map_patch_is_a_usage_error(wing_log: dict) -> None:
+    res = runner.invoke(
+        app,
+        ["replay", str(wing_log["log"]), "--map", str(wing_log["map"]), "--no-progress",
+         "--map-patch-open"],
+    )  # fmt: skip
+    assert res.exit_code == 2
+    assert "--map-patch-open" in res.output

@@ -3,33 +3,16 @@ odometry, left again by a verified lock; on a simulated building whose map lacks
 
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
 import pytest
-from icploc.maps import Map
 from icploc.outside import MappedArea, OutsideConfig
-from partial_world import localized, partial_run
-
-
-@functools.lru_cache(maxsize=1)
-def partial_run_cached():  # type: ignore[no-untyped-def]
-    return partial_run()
-
-
-def _grid_map() -> Map:
-    # a 4 m x 4 m grid at 10 cm: the left half observed (free, a wall at x = 0.05), the
-    # right half unknown
-    occ = np.zeros((40, 40), dtype=bool)
-    free = np.zeros((40, 40), dtype=bool)
-    occ[:, 0] = True
-    free[:, 1:20] = True
-    return Map.from_grid(occ, 0.1, (0.0, 0.0, 0.0), free=free, fit=False)
+from partial_world import cached_run, errors, half_known_grid, localized
 
 
 def test_mapped_area_says_unknown_cells_and_beyond_the_grid_are_unmapped() -> None:
-    area = MappedArea.of(_grid_map(), None, OutsideConfig(margin=0.0))
+    area = MappedArea.of(half_known_grid(), None, OutsideConfig(margin=0.0))
     xy = np.array([[1.0, 2.0], [3.0, 2.0], [9.0, 2.0], [-5.0, 0.0]])
     assert area.unmapped(xy).tolist() == [False, True, True, True]
 
@@ -44,7 +27,7 @@ def test_mapped_area_of_a_point_map_reaches_a_metre_from_its_points() -> None:
 
 
 def test_unmapped_share_is_the_share_of_points_on_unmapped_space() -> None:
-    area = MappedArea.of(_grid_map(), None, OutsideConfig(margin=0.0))
+    area = MappedArea.of(half_known_grid(), None, OutsideConfig(margin=0.0))
     pts = np.array([[0.5, 0.0], [1.0, 0.0], [2.5, 0.0], [3.0, 0.0]])  # robot frame
     assert area.unmapped_share(pts, (0.0, 2.0, 0.0)) == pytest.approx(0.5)
 
@@ -57,15 +40,10 @@ def test_outside_config_refuses_an_exit_share_above_the_enter_share() -> None:
 # -- the simulated building whose map lacks a wing (slow: one run shared by the tests) --
 
 
-def _errors(run, ests) -> np.ndarray:  # type: ignore[no-untyped-def]
-    p = np.array([e.pose for e in ests])
-    return np.hypot(p[:, 0] - run.truth[:, 0], p[:, 1] - run.truth[:, 1])
-
-
 @pytest.mark.slow
 def test_no_scan_claims_tracking_more_than_half_a_metre_off() -> None:
     run, _, ests, _ = localized()
-    e = _errors(run, ests)
+    e = errors(run, ests)
     tracking = np.array([x.status.value == "tracking" for x in ests])
     assert int(np.sum(tracking & (e > 0.5))) == 0
 
@@ -133,7 +111,7 @@ def test_the_robot_comes_back_into_the_map_once_with_a_counted_reentry() -> None
 @pytest.mark.slow
 def test_after_reentry_the_hall_is_tracked_as_on_the_way_out() -> None:
     run, _, ests, mon = localized()
-    e = _errors(run, ests)
+    e = errors(run, ests)
     back = mon.stretches[0].end + 20
     assert float(np.percentile(e[back:], 95)) <= 0.10
 
@@ -171,7 +149,7 @@ def test_the_reference_observer_changes_no_estimate() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benches"))
     import eval_partial as ep
 
-    r, m = partial_run_cached()
+    r, m = cached_run()
     items = r.items[: 2 * 3100]  # to just past the re-entry lock (scan ~3057)
     got = []
     explained: dict[int, bool] = {}
@@ -195,7 +173,7 @@ def test_the_patch_lead_in_and_lead_out_come_from_the_typed_config() -> None:
     from icploc.outside import attach
 
     cfg = LocalizerConfig.from_dict({"map": {"patch_lead_in_scans": 7, "patch_lead_out_scans": 3}})
-    mon = attach(Localizer(_grid_map(), cfg, initial_pose=(1.0, 2.0, 0.0)))
+    mon = attach(Localizer(half_known_grid(), cfg, initial_pose=(1.0, 2.0, 0.0)))
     assert (mon.config.lead_in_scans, mon.config.lead_out_scans) == (7, 3)
     # one source of the defaults: the typed config's
     d = LocalizerConfig().map

@@ -14,19 +14,9 @@ import numpy as np
 import pytest
 from icploc.config import LocalizerConfig
 from icploc.errors import ConfigError
-from partial_world import partial_run
+from partial_world import errors, half_known_grid, partial_run
 
 SEED = 24
-
-
-def _grid_map():  # type: ignore[no-untyped-def]
-    from icploc.maps import Map
-
-    occ = np.zeros((40, 40), dtype=bool)
-    free = np.zeros((40, 40), dtype=bool)
-    occ[:, 0] = True
-    free[:, 1:20] = True
-    return Map.from_grid(occ, 0.1, (0.0, 0.0, 0.0), free=free, fit=False)
 
 
 def test_the_default_config_turns_the_outside_state_on() -> None:
@@ -34,8 +24,20 @@ def test_the_default_config_turns_the_outside_state_on() -> None:
     from icploc.outside import OutsideMonitor
 
     assert LocalizerConfig().outside.enabled is True
-    loc = Localizer(_grid_map(), initial_pose=(1.0, 2.0, 0.0))
+    loc = Localizer(half_known_grid(), initial_pose=(1.0, 2.0, 0.0))
     assert isinstance(loc.outside, OutsideMonitor)
+
+
+def test_a_grid_with_every_cell_known_gets_no_monitor_by_default_but_on_request() -> None:
+    # such a grid does not say where the map was not made (knows_unknown: unknown cells)
+    from icploc.localizer import Localizer
+    from icploc.outside import OutsideMonitor, attach, knows_unknown
+
+    full, half = half_known_grid(unknown=False), half_known_grid()
+    assert [knows_unknown(full), knows_unknown(half)] == [False, True]
+    loc = Localizer(full, initial_pose=(1.0, 2.0, 0.0))
+    assert loc.outside is None
+    assert isinstance(attach(loc), OutsideMonitor)
 
 
 def test_a_map_of_lines_gets_no_monitor_by_default_but_on_request() -> None:
@@ -54,7 +56,7 @@ def test_outside_enabled_false_leaves_the_localizer_without_a_monitor() -> None:
     from icploc.localizer import Localizer
 
     cfg = LocalizerConfig.from_dict({"outside": {"enabled": False}})
-    assert Localizer(_grid_map(), cfg, initial_pose=(1.0, 2.0, 0.0)).outside is None
+    assert Localizer(half_known_grid(), cfg, initial_pose=(1.0, 2.0, 0.0)).outside is None
 
 
 def test_outside_enabled_round_trips_through_yaml(tmp_path) -> None:  # type: ignore[no-untyped-def]
@@ -96,8 +98,7 @@ def test_the_default_api_reports_no_tracking_far_off_and_says_where_the_map_is_m
     r, m = partial_run(SEED)
     loc = Localizer(m, initial_pose=tuple(r.truth[0]))  # the default config, nothing attached
     ests = run(loc, r.items)
-    p = np.array([e.pose for e in ests])
-    err = np.hypot(p[:, 0] - r.truth[:, 0], p[:, 1] - r.truth[:, 1])
+    err = errors(r, ests)
     tracking = np.array([e.status.value == "tracking" for e in ests])
     mapped = np.array([e.mapped for e in ests])
     deep = r.truth[:, 0] > 21.5  # in the wing's room, away from the corridor

@@ -289,6 +289,8 @@ def replay(
         raise BadUsage(f"expected auto, stream or scan, got {odometry!r}", param_hint="--odometry")
     if confident_only and map_patch is None:
         raise BadUsage("needs --map-patch", param_hint="--confident-only")
+    if map_patch_open and map_patch is None:
+        raise BadUsage("needs --map-patch", param_hint="--map-patch-open")
     if partial_map is False and map_patch is not None:
         raise BadUsage("the map patch needs the outside-the-map state", param_hint="--no-partial-map")
     cfg = _load_config(config)

@@ -980,16 +980,23 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
 
 
 def knows_unknown(map_: Any) -> bool:
-    """The map says where it knows nothing: a grid with free space (a map_server grid's
-    unknown cells). A map of lines or points does not say where it ends."""
-    return getattr(map_, "grid", None) is not None and getattr(map_, "free", None) is not None
+    """The map says where it knows nothing: a grid with free space and at least one cell
+    neither free nor occupied (a map_server grid's unknown cells). A grid with every cell
+    known (an image thresholded to walls and free space) says nothing of where the map
+    was not made: a doorway onto an unmapped hall looks like free space, so only the
+    grid's bounds would be "unmapped" there. A map of lines or points does not say where
+    it ends either."""
+    grid, free = getattr(map_, "grid", None), getattr(map_, "free", None)
+    if grid is None or free is None:
+        return False
+    return not bool(np.logical_or(grid, free).all())
 
 
 def attach_default(loc: Localizer) -> OutsideMonitor | None:
     """What a :class:`~icploc.localizer.Localizer` does with ``outside.enabled`` (the
-    default): attach the monitor when its map marks unknown space (:func:`knows_unknown`),
-    else nothing. On a map of lines the mapped area is only "within ``reach`` of a wall":
-    in the simulated glass lab (``icploc.sim.lab``) beams through the glass end beyond it
+    default): attach the monitor when its map marks unknown space (:func:`knows_unknown`:
+    a grid with unknown cells), else nothing. On a map of lines the mapped area is only
+    "within ``reach`` of a wall": in the simulated glass lab (``icploc.sim.lab``) beams through the glass end beyond it
     and the monitor coasted the robot standing in the middle of the map; such maps get the
     monitor only on request (:func:`attach`, ``replay(partial_map=True)``,
     ``--partial-map``)."""

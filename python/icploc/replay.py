@@ -218,13 +218,25 @@ def replay(
     map coasts on the odometry, reason ``outside_map``, ``mapped`` False, never
     ``tracking``). None (default): the config's ``outside.enabled`` (true by default; the
     :class:`Localizer` attaches it); True / False: on / off whatever the config says.
-    ``map_patch`` needs it and turns it on. Raises
+    ``map_patch`` needs it and turns it on (with ``partial_map=False`` a ValueError, as
+    ``--no-partial-map --map-patch`` is a usage error; ``map_patch_open`` and
+    ``map_patch_confident_only`` need ``map_patch``). Raises
     :class:`icploc.outputs.OutputError` before any work for an unusable output path."""
     from icploc.outputs import check_outputs, map_inputs
     from icploc.trajectory import EstimatesWriter, TumWriter
 
     if odometry not in ("auto", "stream", "scan"):
         raise ValueError(f"odometry must be 'auto', 'stream' or 'scan', got {odometry!r}")
+    # the same refusals as ``icploc replay``'s usage errors (--no-partial-map with
+    # --map-patch; --map-patch-open / --confident-only without --map-patch)
+    if partial_map is False and map_patch is not None:
+        raise ValueError(
+            "map_patch needs the outside-the-map state, which partial_map=False turns off "
+            "(leave partial_map None or True)"
+        )
+    if map_patch is None and (map_patch_open or map_patch_confident_only):
+        which = "map_patch_open" if map_patch_open else "map_patch_confident_only"
+        raise ValueError(f"{which} needs map_patch (it changes only what the patch draws)")
     ins: list[str | Path] = [*inputs]
     if isinstance(log, (str, Path)):
         ins.append(log)
@@ -311,7 +323,7 @@ def replay(
 
     m = load_map(map_, map_cache)
     t1 = time.perf_counter()
-    if partial_map is False and map_patch is None and cfg.outside.enabled:
+    if partial_map is False and cfg.outside.enabled:
         # off: the Localizer does not build the mapped area only for it to be dropped
         cfg = cfg.replace(outside={"enabled": False})
     if cfg.scan.lasers:  # hook: several lasers merged into one scan (icploc.multilaser)
