@@ -70,6 +70,9 @@ __all__ = [
 REASON = Reason.OUTSIDE_MAP
 #: ... and of a scan back on the map, dead-reckoned while the re-entry search runs
 REENTERING = Reason.REENTERING
+#: ... and of a scan matched inside the map but mostly off it at the pose found (the
+#: scans before a stretch begins): degraded, never ``tracking``
+LEAVING = Reason.LEAVING_MAP
 
 
 def _map_default(key: str) -> int:
@@ -777,6 +780,17 @@ class OutsideMonitor:
             self.stretches[-1].scans.append((loc.scans_processed, np.array(pts), dr))
         if self._sudden and self._sudden_n >= 0 and est.reason in LOCK_REASONS:
             self._sudden_n = -1  # a recovery locked after the jump: a kidnap, not an exit
+        if (
+            self.state == "inside"
+            and est.status is Status.TRACKING
+            and self._verified
+            and self.last_share >= self.config.enter_share
+            and self.area.unmapped_share(pts, est.pose) >= self.config.enter_share
+        ):
+            # mostly off the map at the pose found too: the scans before a stretch begins
+            # (enter_scans, the sudden exit's wait) are matched as usual, but a pose that
+            # most beams cannot check is not promised
+            est = dataclasses.replace(est, status=Status.DEGRADED, reason=LEAVING)
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
         if self.state == "inside" and est.status is Status.TRACKING and not self._entering:

@@ -82,6 +82,10 @@ class Reason(_StrEnum):
     OUTSIDE_MAP = "outside_map"
     #: back on the map, dead-reckoned while the re-entry search runs
     REENTERING = "reentering"
+    #: the scan, matched as usual, still lies mostly outside the mapped area at the pose
+    #: found (the scans before a stretch outside it begins: ``outside.enter_scans``, the
+    #: sudden exit's wait): not promised (``--partial-map``)
+    LEAVING_MAP = "leaving_map"
     #: the start pose is being refined from stationary scans
     REFINING_START = "refining_start"
 

@@ -1,0 +1,85 @@
+"""The scans before a stretch outside the map begins (``OutsideConfig.enter_scans``, the
+sudden exit's wait) are matched by the localizer as usual; one it would call ``tracking``
+while most of its beams end off the map at the pose found is reported ``degraded``, reason
+``leaving_map`` (the review: the first outside scan of a stretch could be ``tracking``).
+
+The monitor's hooks are driven here scan by scan as the Localizer calls them, on the
+half-known grid of tests/partial_world.py (observed for x < 2 m, unknown beyond), with
+the localizer's ``tracking`` estimates given: the simulated partial building never gets
+there (its localizer is lost before a scan is half off the map), the real logs' partial
+maps do (benches/eval_partial.py)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from icploc.localizer import Estimate, Localizer, Status
+from icploc.messages import Scan
+from icploc.outside import OutsideConfig
+from partial_world import half_known_grid
+
+POSE = (1.0, 2.0, 0.0)
+
+
+def _points(x: float) -> np.ndarray:
+    """60 robot-frame points on a line ``x`` metres ahead (the map frame's x = 1 + x)."""
+    return np.column_stack([np.full(60, x), np.linspace(-1.5, 1.5, 60)])
+
+
+def _feed(loc: Localizer, pts: np.ndarray, pose: tuple[float, float, float] = POSE) -> Estimate:
+    """One scan through the monitor's hooks, the localizer's fit ``tracking`` at ``pose``
+    (the prediction: ``POSE``)."""
+    mon = loc.outside
+    t0 = time.perf_counter()
+    cov = np.diag([1e-4, 1e-4, 1e-5])
+    scan = Scan(float(loc.scans_processed), np.ones(3), np.zeros(3))
+    got = mon.before(loc, scan, pts, POSE, cov, None, t0)
+    if got is None:
+        got = Estimate(scan.stamp, pose, cov, Status.TRACKING, 0.9, 5, 0.0)
+    est = mon.after(loc, got, pts)
+    loc._counters.scans += 1  # as Localizer.update counts its scans
+    return est
+
+
+def _localizer() -> Localizer:
+    loc = Localizer(half_known_grid(), initial_pose=POSE)
+    assert loc.outside is not None
+    assert _feed(loc, _points(-0.5)).status is Status.TRACKING  # on the map: verified
+    return loc
+
+
+def test_the_first_scan_of_a_stretch_is_not_reported_tracking() -> None:
+    loc = _localizer()
+    mon = loc.outside
+    # the robot drives towards the map's edge: a third of the beams off the map, then all
+    assert _feed(loc, _points(0.6)).status is Status.TRACKING  # share 0.0: x = 1.6 m
+    mid = _feed(loc, np.vstack([_points(-0.5), _points(2.5)[:30]]))  # a third off
+    assert (mid.status, mid.reason) == (Status.TRACKING, "")
+    first = _feed(loc, _points(2.5))  # all off: the streak's first scan, matched as usual
+    assert (first.status, first.reason, first.mapped) == (Status.DEGRADED, "leaving_map", True)
+    assert mon.state == "inside" and not mon.stretches
+    second = _feed(loc, _points(2.5))  # enter_scans = 2: the stretch begins, coasted
+    assert OutsideConfig().enter_scans == 2
+    assert (second.status, second.reason, second.mapped) == (
+        Status.DEGRADED,
+        "outside_map",
+        False,
+    )
+    assert [s.start for s in mon.stretches] == [loc.scans_processed - 1]
+
+
+def test_a_sudden_jump_off_the_map_is_not_reported_tracking_while_it_waits() -> None:
+    loc = _localizer()
+    first = _feed(loc, _points(2.5))  # from all on the map to all off: the sudden wait
+    assert (first.status, first.reason) == (Status.DEGRADED, "leaving_map")
+    assert not loc.outside.stretches
+
+
+def test_a_fit_that_lands_the_scan_on_the_map_stays_tracking() -> None:
+    # mostly off the map at the prediction, on it at the pose the localizer found
+    loc = _localizer()
+    _feed(loc, np.vstack([_points(-0.5), _points(2.5)[:30]]))
+    est = _feed(loc, _points(1.5), pose=(-0.2, 2.0, 0.0))
+    assert loc.outside.last_share >= OutsideConfig().enter_share
+    assert (est.status, est.reason) == (Status.TRACKING, "")
