@@ -1265,7 +1265,11 @@ def in_patch(st: Stretch, include_open: bool = False) -> bool:
     in the map is dead reckoning nothing checked (real logs: aces' last stretch 35 cm off
     at its median scan, freiburg-101's 24 cm; leaving them out: aces 76 -> 80 %,
     freiburg-101 42 -> 53 % of the patch's walls within 10 cm), so it is drawn only with
-    ``include_open``."""
+    ``include_open``. A stretch that was a kidnap (:attr:`Stretch.jumped`: begun by a jump
+    off the map, locked beyond its dead reckoning's uncertainty) never is: its poses are
+    the dead reckoning of a place the robot was not."""
+    if st.jumped:
+        return False
     return bool(st.scans) and (include_open or (st.lock_pose is not None and st.correction is not None))
 
 

@@ -101,6 +101,18 @@ class OutsideConfig:
     #: of benches/global_bench.py's 20 lab kidnaps within 20 scans). 0: never
     sudden_scans: int = 20
     sudden_drift: float = 1.0
+    #: a stretch the sudden rule began whose re-entry lock lies farther than
+    #: ``jump_sigmas`` times its widest coasted position sigma (and at least ``jump_min``
+    #: metres) from its dead reckoning was no drive off the map: the scan jumped off it
+    #: because the robot was carried elsewhere (a kidnap its localizer did not relocalize
+    #: within ``sudden_scans``). Said so in the summary (:attr:`Stretch.jumped`) and left
+    #: out of a map patch (its poses are the dead reckoning of a place the robot was not).
+    #: Real dead reckoning errs far beyond its sigma (benches/eval_partial.py's 33 gradual
+    #: stretches: up to 19 sigma, intel's 1.5 m at 0.08 m), so the floor: of those 33 and
+    #: the simulated sudden exit (tests/partial_world.py: 1.65 m at sigma 0.81) none would
+    #: count as a kidnap, whose correction is the metres the robot was carried
+    jump_sigmas: float = 3.0
+    jump_min: float = 2.0
     #: ... for this many scans in a row (the scans before the last are localized as
     #: usual): a map made from another pass has gaps a scan wide. On the real-data
     #: benchmark's full maps (benches/eval_real.py, 60 folds of the tuned set) 1 began a
@@ -196,7 +208,7 @@ class OutsideConfig:
             )
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
                   "probe_min_radius", "reentry_step", "reentry_heading_step",
-                  "exit_odometry"):  # fmt: skip
+                  "exit_odometry", "jump_sigmas", "jump_min"):  # fmt: skip
             v = getattr(self, k)
             positive = k in ("resolution", "reentry_step", "reentry_heading_step")
             if not (math.isfinite(v) and v >= 0.0) or (positive and v <= 0.0):
@@ -496,6 +508,13 @@ class Stretch:
     max_sigma_xy: float = 0.0  #: the widest coasted position sigma
     #: the re-lock's correction of the dead-reckoned pose (dx, dy, dtheta; map frame)
     correction: Pose | None = None
+    #: begun by the sudden rule (``OutsideConfig.sudden_scans``: the scan jumped off the
+    #: map in one scan and stayed there): a sharp map edge, or a kidnapped robot
+    sudden: bool = False
+    #: a sudden stretch whose lock lies beyond its dead reckoning's uncertainty
+    #: (``OutsideConfig.jump_sigmas``, ``jump_min``): the robot was carried elsewhere, not
+    #: driven off the map; not in a map patch
+    jumped: bool = False
     lock_pose: Pose | None = None
     #: the localizer was reset (:meth:`~icploc.localizer.Localizer.reset`, or declared
     #: lost) before this scan while the stretch was open: it ended there, not back in the
@@ -566,6 +585,8 @@ class OutsideMonitor:
         #: points and poses by odometry from the streak's exit and from the last
         #: ``tracking`` pose (None: more than ``exit_odometry`` since it)
         self._streak_rec: list[tuple[int, NDArray[np.float64], Pose, Pose | None]] = []
+        #: the streak began by the sudden rule (its stretch: :attr:`Stretch.sudden`)
+        self._streak_sudden = False
         self.last_share = float("nan")
         #: the share of the scan before (``rise_share``), and whether the share jumped
         #: there from a scan on the map (no stretch begins until it falls again)
@@ -642,6 +663,7 @@ class OutsideMonitor:
             if loc.status is Status.LOST and not _believed(pred_cov, cfg.lost_sigma):
                 self._entering = 0
                 return None
+            sudden_start = False
             if self._entering == 0 and (self._sudden or not self._prev_share >= cfg.rise_share):
                 # from a scan nearly all on the map to one mostly off it in one step: not
                 # the edge of the map, which a robot drives towards, but a pose that went
@@ -661,12 +683,14 @@ class OutsideMonitor:
                 if cfg.sudden_scans == 0 or self._sudden_n < cfg.sudden_scans:
                     return None
                 self._sudden = False  # the jump stayed: the map's edge; the streak begins
+                sudden_start = True
             # the stretch begins at the streak's first scan: its later ones coast from the
             # dead reckoning since (the scans before the last were matched as usual, maybe
             # against the wrong walls; with enter_scans 1 this is the prediction itself)
             if self._entering == 0:
                 self._streak_exit, self._streak_dr = self._last_pose, pred
                 self._streak_rec = []
+                self._streak_sudden = sudden_start
             else:
                 self._streak_dr = compose(self._streak_dr, step)
             self._entering += 1
@@ -706,7 +730,7 @@ class OutsideMonitor:
             self._last_odom = None  # the stretch's metres from its first scan on
             self.stretches.append(
                 Stretch(k, float(scan.stamp), exit_pose, exit_motion=loc.motion_model,
-                        lead_in=lead_in, scans=head)
+                        lead_in=lead_in, scans=head, sudden=self._streak_sudden)
             )  # fmt: skip
             self.state = "outside"
             self._below = 0
@@ -763,6 +787,9 @@ class OutsideMonitor:
                 est.pose[1] - pred[1],
                 math.remainder(est.pose[2] - pred[2], 2 * math.pi),
             )
+            cfg = self.config
+            off = math.hypot(st.correction[0], st.correction[1])
+            st.jumped = st.sudden and off > max(cfg.jump_min, cfg.jump_sigmas * st.max_sigma_xy)
             if self.record:
                 st.scans.append((k, np.array(pts), est.pose))
             self.state = "inside"
@@ -926,7 +953,13 @@ class OutsideMonitor:
         for i, s in enumerate(self.stretches, 1):
             if not s.scans or in_patch(s):
                 continue
-            if include_open:
+            if s.jumped:
+                res.notes.append(
+                    f"map patch: stretch {i} left out: a kidnap rather than a drive off the map "
+                    "(it began with a jump off the map and locked beyond its dead reckoning's "
+                    "uncertainty)"
+                )
+            elif include_open:
                 res.notes.append(
                     f"map patch: stretch {i} drawn although not back in the map (--map-patch-open): "
                     "its poses are dead reckoning nothing checked"
@@ -972,9 +1005,11 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
         return ["outside the map: never"]
     n = sum(s.outside_scans for s in stretches)
     share = n / scans if scans else 0.0
+    jumps = sum(1 for s in stretches if s.jumped)
     out = [
         f"outside the map: {len(stretches)} stretch(es), {n} scans ({share:.1%}) coasted on "
         "odometry (reason outside_map, mapped 0 in the estimates CSV)"
+        + (f"; {jumps} of them a kidnap rather than a drive off the map" if jumps else "")
     ]
     for i, s in enumerate(stretches, 1):
         back = (
@@ -986,9 +1021,18 @@ def stretch_lines(stretches: list[Stretch], scans: int) -> list[str]:
             if s.reset_at is not None
             else "not back in the map at the end"
         )
+        why = ""
+        if s.jumped:
+            why = (
+                "; it began with a jump off the map and locked beyond its dead reckoning's "
+                "uncertainty: a robot carried elsewhere (a kidnap) rather than driven off the "
+                "map, not in a map patch"
+            )
+        elif s.sudden:
+            why = "; it began with a jump off the map (a sharp map edge, or a kidnap)"
         out.append(
             f"  {i}: scans {s.start}.. (t={s.start_stamp:.2f}), {s.outside_scans} outside, "
-            f"{s.distance:.1f} m coasted, sigma up to {s.max_sigma_xy:.2f} m; {back}"
+            f"{s.distance:.1f} m coasted, sigma up to {s.max_sigma_xy:.2f} m; {back}{why}"
         )
     return out
 
