@@ -270,7 +270,7 @@ def replay(
         Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; needs the outside-the-map state, on by default); merge it with 'icploc map merge'")
     ] = None,
     map_patch_open: Annotated[
-        bool, Option("--map-patch-open", help="Also draw the stretches the run never brought back into the map (their poses are unchecked dead reckoning)")
+        bool, Option("--map-patch-open", help="With --map-patch: also draw the stretches the run never brought back into the map (their poses are unchecked dead reckoning)")
     ] = False,
     confident_only: Annotated[
         bool, Option("--confident-only", help="In the --map-patch, leave unknown the wall cells whose walls are less sure than 5 cm (sigma from the pose graph), so a merged map keeps what it knew there")

@@ -811,6 +811,7 @@ class OutsideMonitor:
             self.state == "inside"
             and est.status is Status.TRACKING
             and self._verified
+            and est.reason not in LOCK_REASONS  # a lock: the recovery's strict check
             and self.last_share >= self.config.enter_share
             and self.area.unmapped_share(pts, est.pose) >= self.config.enter_share
         ):
