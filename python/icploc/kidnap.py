@@ -42,7 +42,7 @@ class CheckVerdict:
     convincing pose anywhere: a crowd, an unmapped place) or ``"elsewhere"`` (``pose``, a
     distinct place, explains it much better); ``here`` / ``best``: the scores of the tracked
     pose and of the search's best pose (``"unsure"``: the best the check's floored search
-    kept, below the confirming minimum like any the plain search would have found)."""
+    kept, below the confirming minimum; 0 when no place reached its floor)."""
 
     verdict: str
     pose: Pose | None = None

@@ -765,8 +765,13 @@ class GlobalRelocalization:
         verdict, those scoring at least the confirming minimum (``strict``: and above
         the tracked pose); its coarse floor is that score times ``_COARSE_PER_FINE`` (a
         coarse score is, as measured, well above a refined pose's score), so it prunes much of
-        the tree where nothing fits well (a crowd, a poorly mapped place) and returns
-        the same candidates above the floor. ``floored=False``: the plain search."""
+        the tree where nothing fits well (a crowd, a poorly mapped place). A floored
+        tracking check that finds no distinct pose above its floor decides from that one
+        search (no second, lower one): ``""`` when the tracked place itself reached the
+        floor (a candidate near ``tracked``) or ``tracked`` is a good fit, the only place
+        at the confirming level; ``"unsure"`` when no place, the tracked one included,
+        reached it. ``floored=False``: the plain search (and its verdicts: ``""`` for no
+        distinct pose among its leaves, within ``accept_ratio`` of its best)."""
         if not self.ready(index):
             return CheckVerdict("unsure")
         rel = self.relocalizer
@@ -786,16 +791,15 @@ class GlobalRelocalization:
         found = rel.glob.search(pts, rel.region, rel.heading, min_score=floor).candidates
         cands = [c for c in found if rel.glob.distinct(here.pose, c.pose)]
         if not cands and floor is not None and not strict:
-            # "" (no distinct pose at all) or "unsure" (none good) is told by the plain
-            # search's leaves, every leaf within accept_ratio of its best: the floored
-            # search kept them all if its floor is at most that; otherwise search again
-            # down to there (the plain search's leaves exactly, its best leaf now known)
-            top = max((c.coarse_score for c in found), default=0.0)
-            below = self.global_search.accept_ratio * top
-            if floor > below:
-                again = None if below <= self.global_search.min_score else below
-                found = rel.glob.search(pts, rel.region, rel.heading, min_score=again).candidates
-                cands = [c for c in found if rel.glob.distinct(here.pose, c.pose)]
+            # nothing elsewhere comes near the confirming minimum, so no verdict can be
+            # "elsewhere"; whether the tracked place is the one place at that level (its
+            # usual share re-based by the trigger) or none is (the trigger backs off) is
+            # told by what this search found near it. (The plain search's leaves, down to
+            # accept_ratio x its best, told it before at 2-4x this search's cost on the
+            # large held-out maps: benches/results/speed.md.)
+            if found or rel._good(s_here, here.inlier_ratio, here.see_through):
+                return CheckVerdict("", here=s_here, best=s_here)
+            return CheckVerdict("unsure", here=s_here, best=0.0)
         if not cands:
             return CheckVerdict("", here=s_here, best=s_here)
         best = max(cands, key=rel._score)
