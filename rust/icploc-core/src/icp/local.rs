@@ -51,7 +51,15 @@ fn smooth(h: &[f64]) -> Vec<f32> {
     for (i, o) in out.iter_mut().enumerate() {
         for d in 0..=2 * SMOOTH_BINS {
             let w = (SMOOTH_BINS + 1 - SMOOTH_BINS.abs_diff(d)) as f64;
-            *o += w * h[(i + n + d - SMOOTH_BINS) % n];
+            // (i + n + d − SMOOTH_BINS) mod n, without the division
+            let k = i + n + d - SMOOTH_BINS;
+            *o += w * h[if k >= 2 * n {
+                k - 2 * n
+            } else if k >= n {
+                k - n
+            } else {
+                k
+            }];
         }
     }
     let total: f64 = out.iter().sum();
@@ -63,7 +71,10 @@ fn smooth(h: &[f64]) -> Vec<f32> {
 
 #[inline]
 fn bin_of(angle: f64) -> usize {
-    let a = angle.rem_euclid(PI);
+    // `angle.rem_euclid(PI)`, without the remainder's division when |angle| < π (whose
+    // remainder is the angle itself: the same value)
+    let r = if angle.abs() < PI { angle } else { angle % PI };
+    let a = if r < 0.0 { r + PI } else { r };
     ((a / PI * DIRECTION_BINS as f64) as usize).min(DIRECTION_BINS - 1)
 }
 
