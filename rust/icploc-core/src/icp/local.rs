@@ -16,7 +16,7 @@
 
 use std::f64::consts::PI;
 
-use crate::icp::window::map_distance;
+use crate::icp::window::{add_exp, map_distance, NEGLIGIBLE_EXP};
 use crate::index::MapIndex;
 use crate::se2::{wrap_angle, Pose2};
 
@@ -292,10 +292,16 @@ pub(crate) fn slide_candidates_of(
                 [q[0] + t * dir[0], q[1] + t * dir[1]],
                 near * near,
             );
-            let v = (-e * e * inv2s2).exp();
-            scores[k] += v;
+            // the term is skipped only where it cannot change the sums (see `add_exp`)
+            let x = -e * e * inv2s2;
             if flagged {
-                part_scores[k] += v;
+                if !(x < NEGLIGIBLE_EXP && scores[k] >= 1.0 && part_scores[k] >= 1.0) {
+                    let v = x.exp();
+                    scores[k] += v;
+                    part_scores[k] += v;
+                }
+            } else {
+                scores[k] = add_exp(scores[k], x);
             }
         }
     }
