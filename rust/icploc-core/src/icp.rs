@@ -1514,8 +1514,10 @@ fn align_plain(
                 }
             }
             Some(nrm) => {
-                let mut h = Matrix3::<f64>::zeros();
-                let mut g = Vector3::<f64>::zeros();
+                // H = Σ w·J·Jᵀ by its six distinct terms (each the product J_a·J_b·w of
+                // the full outer product, summed in the same order: the same H)
+                let mut hs = [0.0f64; 6];
+                let mut gs = [0.0f64; 3];
                 let mut sum = 0.0;
                 for pr in &ws.pairs {
                     let q = ws.moved[pr.i as usize];
@@ -1523,12 +1525,24 @@ fn align_plain(
                     let nv = nrm[pr.j as usize];
                     let r = nv[0] * (q[0] - x[0]) + nv[1] * (q[1] - x[1]);
                     let dq = [q[0] - pose.x, q[1] - pose.y];
-                    let jac = Vector3::new(nv[0], nv[1], nv[1] * dq[0] - nv[0] * dq[1]);
+                    let jac = [nv[0], nv[1], nv[1] * dq[0] - nv[0] * dq[1]];
                     let w = robust_weight(cfg.robust, cfg.robust_scale, r);
-                    h += jac * jac.transpose() * w;
-                    g += jac * (w * r);
+                    hs[0] += jac[0] * jac[0] * w;
+                    hs[1] += jac[0] * jac[1] * w;
+                    hs[2] += jac[0] * jac[2] * w;
+                    hs[3] += jac[1] * jac[1] * w;
+                    hs[4] += jac[1] * jac[2] * w;
+                    hs[5] += jac[2] * jac[2] * w;
+                    let wr = w * r;
+                    gs[0] += jac[0] * wr;
+                    gs[1] += jac[1] * wr;
+                    gs[2] += jac[2] * wr;
                     sum += r * r;
                 }
+                let h = Matrix3::new(
+                    hs[0], hs[1], hs[2], hs[1], hs[3], hs[4], hs[2], hs[4], hs[5],
+                );
+                let g = Vector3::new(gs[0], gs[1], gs[2]);
                 let m = sum / ws.pairs.len() as f64;
                 let step = solve_step(&h, &g, thr);
                 (

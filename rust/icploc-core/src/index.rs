@@ -8,6 +8,7 @@ use kiddo::SquaredEuclidean;
 use rayon::prelude::*;
 
 mod closest_grid;
+mod hugepages;
 pub mod objects;
 pub mod runs;
 

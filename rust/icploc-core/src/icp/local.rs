@@ -16,7 +16,7 @@
 
 use std::f64::consts::PI;
 
-use crate::icp::window::map_distance;
+use crate::icp::window::{add_exp, map_distance, NEGLIGIBLE_EXP};
 use crate::index::MapIndex;
 use crate::se2::{wrap_angle, Pose2};
 
@@ -51,7 +51,15 @@ fn smooth(h: &[f64]) -> Vec<f32> {
     for (i, o) in out.iter_mut().enumerate() {
         for d in 0..=2 * SMOOTH_BINS {
             let w = (SMOOTH_BINS + 1 - SMOOTH_BINS.abs_diff(d)) as f64;
-            *o += w * h[(i + n + d - SMOOTH_BINS) % n];
+            // (i + n + d − SMOOTH_BINS) mod n, without the division
+            let k = i + n + d - SMOOTH_BINS;
+            *o += w * h[if k >= 2 * n {
+                k - 2 * n
+            } else if k >= n {
+                k - n
+            } else {
+                k
+            }];
         }
     }
     let total: f64 = out.iter().sum();
@@ -63,7 +71,10 @@ fn smooth(h: &[f64]) -> Vec<f32> {
 
 #[inline]
 fn bin_of(angle: f64) -> usize {
-    let a = angle.rem_euclid(PI);
+    // `angle.rem_euclid(PI)`, without the remainder's division when |angle| < π (whose
+    // remainder is the angle itself: the same value)
+    let r = if angle.abs() < PI { angle } else { angle % PI };
+    let a = if r < 0.0 { r + PI } else { r };
     ((a / PI * DIRECTION_BINS as f64) as usize).min(DIRECTION_BINS - 1)
 }
 
@@ -281,10 +292,16 @@ pub(crate) fn slide_candidates_of(
                 [q[0] + t * dir[0], q[1] + t * dir[1]],
                 near * near,
             );
-            let v = (-e * e * inv2s2).exp();
-            scores[k] += v;
+            // the term is skipped only where it cannot change the sums (see `add_exp`)
+            let x = -e * e * inv2s2;
             if flagged {
-                part_scores[k] += v;
+                if !(x < NEGLIGIBLE_EXP && scores[k] >= 1.0 && part_scores[k] >= 1.0) {
+                    let v = x.exp();
+                    scores[k] += v;
+                    part_scores[k] += v;
+                }
+            } else {
+                scores[k] = add_exp(scores[k], x);
             }
         }
     }

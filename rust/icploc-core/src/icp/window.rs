@@ -94,6 +94,22 @@ pub struct Fit {
     pub score: f64,
 }
 
+/// `acc + exp(x)` for a sum of non-negative terms `acc`, without the exponential when it
+/// cannot change the sum: for `acc` ≥ 1 and `x` < −37, exp(x) < 2⁻⁵³ is under half an ulp
+/// of `acc`, so the rounded sum is `acc` itself. The same sum, bit for bit, as adding every
+/// term (a fit score's far outliers cost a comparison, not a library call).
+#[inline(always)]
+pub(crate) fn add_exp(acc: f64, x: f64) -> f64 {
+    if x < NEGLIGIBLE_EXP && acc >= 1.0 {
+        acc
+    } else {
+        acc + x.exp()
+    }
+}
+
+/// See [`add_exp`]: exp(−37) ≈ 8.5e-17 < 2⁻⁵³ ≈ 1.1e-16.
+pub(crate) const NEGLIGIBLE_EXP: f64 = -37.0;
+
 /// Distance from the map-frame point `q` to the map: point-to-line through the nearest
 /// map point when it is near (a sparsely sampled wall is a line, not its samples).
 #[inline]
@@ -154,7 +170,7 @@ pub(crate) fn assess_with(
         } else {
             d2.sqrt()
         };
-        lik += (-e * e * inv2s2).exp();
+        lik = add_exp(lik, -e * e * inv2s2);
         if e <= band {
             inl += 1;
             sq += e * e;
@@ -200,7 +216,7 @@ pub(crate) fn distances(
     for p in scan {
         let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
         let e = map_distance(index, normals, q, near * near);
-        lik += (-e * e * inv2s2).exp();
+        lik = add_exp(lik, -e * e * inv2s2);
         if e <= band {
             inl += 1;
             sq += e * e;

@@ -27,7 +27,7 @@
 use std::borrow::Cow;
 use std::collections::HashSet;
 
-use super::runs;
+use super::{hugepages, runs};
 
 /// Version of the cells' computation and storage order: saved cells are valid only for
 /// the version that made them (bump on any change to either).
@@ -437,6 +437,7 @@ impl ClosestGrid {
                     return Ok(Err(format!("cell {i} names point {} of {n}", cells[i])));
                 }
                 grid.cells = cells;
+                hugepages::collapse(&mut grid.cells);
                 grid.full = full.map(|_| b);
                 return Ok(Ok(grid));
             }
@@ -475,7 +476,7 @@ impl ClosestGrid {
                 }
                 let boxed = fill_box(points, bx, by, res, b, Some(&exists));
                 let cw = w as usize * TILE;
-                let mut cells = vec![NONE; keys.len() * TILE_CELLS];
+                let mut cells = hugepages::filled(keys.len() * TILE_CELLS, NONE);
                 for (tile, &t) in cells.chunks_exact_mut(TILE_CELLS).zip(&keys) {
                     let sx = ((t & 0xFFFF_FFFF) - tx0) as usize;
                     let sy = ((t >> 32) - ty0) as usize;
@@ -487,12 +488,12 @@ impl ClosestGrid {
                 grid.cells = cells;
             }
             _ => {
-                grid.cells = vec![NONE; keys.len() * TILE_CELLS];
+                grid.cells = hugepages::filled(keys.len() * TILE_CELLS, NONE);
                 grid.fill(points, &keys);
                 if let Some([tx0, ty0, w, h]) = full {
                     // tile-major → row-major over the box
                     let (cw, ch) = (w as usize * TILE, h as usize * TILE);
-                    let mut rm = vec![NONE; cw * ch];
+                    let mut rm = hugepages::filled(cw * ch, NONE);
                     for (s, tile) in grid.cells.chunks_exact(TILE_CELLS).enumerate() {
                         let (sx, sy) = (s % w as usize, s / w as usize);
                         for ly in 0..TILE {
@@ -945,7 +946,7 @@ fn fill_box(
     };
     let cx = centres(x0, w, bx);
     let cy = centres(y0, h, by);
-    let mut cells = vec![NONE; w * h];
+    let mut cells = hugepages::filled(w * h, NONE);
     // seeds: every point is tried exactly on the 3 × 3 cells around its own
     for (j, p) in points.iter().enumerate() {
         let gx = (floor_i64(p[0] / res) - bx) as u64;
