@@ -631,6 +631,21 @@ class LocalizerSection(Section):
         "while lost: the dead reckoning is corrected by scan fits consistent with it (the "
         "chi-square gate, explaining the scan at least as well); the status stays lost",
     )
+    coast_min_hit_ratio: float = _f(
+        0.25,
+        "a coasting fit needs at least this share of beams on walls (and lost_hit_fraction "
+        "of the usual); under verify_min_hit_ratio its hits must fit within crowd_residual "
+        "and it must beat the dead reckoning's share by arbitration_margin",
+        ge=0,
+        le=1,
+    )
+    coast_heading_seeds: int = _f(
+        2,
+        "while coasting, a fit from the dead reckoning that does not pass is retried from it "
+        "turned by 1..this many times max(2 heading sigmas, 3 deg) either way; 0: off",
+        "seeds a side",
+        ge=0,
+    )
     coast_sigma_xy: float = _f(
         8.0,
         "lost_coasting goes on while the dead-reckoned position's sigma is at most this (past "
