@@ -1805,12 +1805,19 @@ class Localizer:
                 for sign in (-1.0, 1.0):
                     seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * k * d))
                     alt = self._coast_fit(pts, pred, pred_cov, seed, sig)
-                    if alt is not None and (best is None or alt[2] > best[2]):
+                    if alt is not None and (best is None or alt[2].hit > best[2].hit):
                         best = alt
             got = best
         if got is None:
             return pred, pred_cov, False
-        pose, cov, _hit, inlier_ratio = got
+        pose, cov, at_z, inlier_ratio, z = got
+        if math.hypot(z[0] - pred[0], z[1] - pred[1]) > self.config.gating.max_translation_jump and not (
+            self._verified(at_z) and self._strict_clear(pts, z)
+        ):
+            # past the tracking jump cap the reported pose moves only to a fit that
+            # verifies and that no distinct pose anywhere rivals (a strict check, inline
+            # only: with background checks such a move waits for a recovery's lock)
+            return pred, pred_cov, False
         self._coast_inlier_ratio = inlier_ratio
         return pose, cov, True
 
@@ -1821,11 +1828,12 @@ class Localizer:
         pred_cov: NDArray[np.float64],
         seed: Pose,
         sig: float,
-    ) -> tuple[Pose, NDArray[np.float64], float, float] | None:
+    ) -> tuple[Pose, NDArray[np.float64], FitCheck, float, Pose] | None:
         """One coasting fit from ``seed`` judged against the dead reckoning ``pred``
-        (:meth:`_coast`): the fused pose, its covariance, the fit's hit share and inlier
-        ratio; None when it is not consistent with the dead reckoning or explains the
-        scan less well than it."""
+        (:meth:`_coast`): the fused pose, its covariance, the fit's evidence, its inlier
+        ratio and the fit's pose; None when it is not consistent with the dead reckoning
+        or explains the scan less well than it (the strict check a move past the jump cap
+        needs is the caller's, once for the fit it takes)."""
         lc = self.config.localizer
         g = self.config.gating
         res = self._run_icp(pts, seed, pred_cov)
@@ -1864,17 +1872,10 @@ class Localizer:
             # hits fit as tightly as usual and it explains clearly more than the dead
             # reckoning (chance hits of a wrong place scatter over the hit distance)
             return None
-        if jump > g.max_translation_jump and not (
-            self._verified(at_z) and self._strict_clear(pts, z)
-        ):
-            # past the tracking jump cap the reported pose moves only to a fit that
-            # verifies and that no distinct pose anywhere rivals (a strict check, inline
-            # only: with background checks such a move waits for a recovery's lock)
-            return None
         if nis > self._chi2_accept:
             R = R * (nis / self._chi2_accept)
         pose, cov = fuse(pred, pred_cov, z, R)
-        return pose, cov, at_z.hit, float(res.inlier_ratio)
+        return pose, cov, at_z, float(res.inlier_ratio), z
 
     def _strict_clear(self, pts: NDArray[np.float64], pose: Pose) -> bool:
         """An inline strict global check of ``pose`` clears it (:meth:`_clear`: verdict
