@@ -1791,7 +1791,7 @@ class Localizer:
         if pts.shape[0] < self.config.scan.min_points or not sig <= lc.coast_sigma_xy:
             return pred, pred_cov, False
         got = self._coast_fit(pts, pred, pred_cov, pred, sig)
-        if got is None and lc.coast_heading_seeds:
+        if (got is None or got[5]) and lc.coast_heading_seeds:
             # the dead reckoning's heading is what carries it off while lost (odometry off
             # in a turn: freiburg-campus 10 cm bad, 0.13-0.18 rad, the pose ran 4.5 m off
             # over 20 scans; orebro 5 cm, 0.15-0.22 rad, 1.4-3 m), and from a heading that
@@ -1800,7 +1800,10 @@ class Localizer:
             # as the fit from it is; the one explaining most of the scan
             sth = math.sqrt(max(float(pred_cov[2, 2]), 0.0))
             d = max(_HEADING_RETRY_SIGMAS * sth, math.radians(_HEADING_RETRY_MIN_DEG))
-            best = None
+            # (also when the fit from the dead reckoning passed only as a weak one, under
+            # the usual share: the minimum next to a wrong dead reckoning can half explain
+            # the scan while a turned seed finds the place explaining most of it)
+            best = got
             for k in range(1, lc.coast_heading_seeds + 1):
                 for sign in (-1.0, 1.0):
                     seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * k * d))
@@ -1810,7 +1813,7 @@ class Localizer:
             got = best
         if got is None:
             return pred, pred_cov, False
-        pose, cov, at_z, inlier_ratio, z = got
+        pose, cov, at_z, inlier_ratio, z, _weak = got
         if math.hypot(z[0] - pred[0], z[1] - pred[1]) > self.config.gating.max_translation_jump and not (
             self._verified(at_z) and self._strict_clear(pts, z)
         ):
@@ -1828,16 +1831,17 @@ class Localizer:
         pred_cov: NDArray[np.float64],
         seed: Pose,
         sig: float,
-    ) -> tuple[Pose, NDArray[np.float64], FitCheck, float, Pose] | None:
+    ) -> tuple[Pose, NDArray[np.float64], FitCheck, float, Pose, bool] | None:
         """One coasting fit from ``seed`` judged against the dead reckoning ``pred``
         (:meth:`_coast`): the fused pose, its covariance, the fit's evidence, its inlier
-        ratio and the fit's pose; None when it is not consistent with the dead reckoning
+        ratio, the fit's pose and whether it passed only as a weak fit (under the usual
+        share, taken for its tight hits); None when it is not consistent with the dead reckoning
         or explains the scan less well than it (the strict check a move past the jump cap
         needs is the caller's, once for the fit it takes)."""
         lc = self.config.localizer
         g = self.config.gating
         res = self._run_icp(pts, seed, pred_cov)
-        if res is None or res.inlier_ratio < lc.recover_inlier_ratio:
+        if res is None or res.inlier_ratio < min(lc.recover_inlier_ratio, lc.coast_min_hit_ratio):
             return None
         m = self._measurement(res)
         if m is None:
@@ -1862,7 +1866,8 @@ class Localizer:
         if at_z.hit < at_pred.hit:
             return None
         floor = max(lc.verify_min_hit_ratio, lc.lost_hit_fraction * self.quality.hit_reference)
-        if at_z.hit < floor and not (
+        weak = at_z.hit < floor or float(res.inlier_ratio) < lc.recover_inlier_ratio
+        if weak and not (
             at_z.rms <= lc.verify_max_residual * self.quality.sigma
             and at_z.hit >= at_pred.hit + lc.arbitration_margin
         ):
@@ -1875,7 +1880,7 @@ class Localizer:
         if nis > self._chi2_accept:
             R = R * (nis / self._chi2_accept)
         pose, cov = fuse(pred, pred_cov, z, R)
-        return pose, cov, at_z, float(res.inlier_ratio), z
+        return pose, cov, at_z, float(res.inlier_ratio), z, weak
 
     def _strict_clear(self, pts: NDArray[np.float64], pose: Pose) -> bool:
         """An inline strict global check of ``pose`` clears it (:meth:`_clear`: verdict
