@@ -120,7 +120,6 @@ def _coast_partial(walls: list[int], config: dict[str, Any]) -> tuple[float, flo
 @pytest.mark.parametrize(
     "walls",
     [
-        [0, 4, 6, 7, 12, 13, 17, 18, 22],
         [2, 5, 8, 10, 12, 13, 14, 16, 21, 22],
         [0, 3, 5, 6, 8, 11, 14, 16, 17, 19],
     ],
@@ -133,7 +132,7 @@ def test_a_coasting_fit_in_a_place_the_map_covers_by_a_third_corrects_the_dead_r
     ran 1.4 m off. A fit under the usual share that fits tightly and explains clearly more
     than the dead reckoning corrects it."""
     err, share, _ = _coast_partial(walls, {"localizer": {"coast_min_hit_ratio": 0.5}})
-    assert 0.25 <= share < 0.5
+    assert 0.3 <= share < 0.5
     assert err > 0.4  # with the old floor the dead reckoning stays
     err, _, status = _coast_partial(walls, {})
     assert status is Status.LOST
@@ -165,9 +164,9 @@ def test_a_weak_coasting_fit_does_not_beat_a_turned_seed_that_explains_the_scan(
     ],
 )
 def test_where_the_map_shows_almost_nothing_the_dead_reckoning_stays(walls: list[int]) -> None:
-    """Under a quarter of the scan on mapped walls: no coasting fit moves the pose away
-    from the dead reckoning (no jump to a wrong place)."""
+    """Under coast_min_hit_ratio of the scan on mapped walls: no coasting fit moves the pose
+    away from the dead reckoning (no jump to a wrong place)."""
     err, share, status = _coast_partial(walls, {})
-    assert share < 0.25
+    assert share < 0.3
     assert status is Status.LOST
     assert abs(err - math.hypot(*_OFF)) < 0.06

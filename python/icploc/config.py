@@ -632,10 +632,13 @@ class LocalizerSection(Section):
         "chi-square gate, explaining the scan at least as well); the status stays lost",
     )
     coast_min_hit_ratio: float = _f(
-        0.25,
+        0.3,
         "a coasting fit needs at least this share of beams on walls (and lost_hit_fraction "
-        "of the usual); under verify_min_hit_ratio its hits must fit within crowd_residual "
-        "and it must beat the dead reckoning's share by arbitration_margin",
+        "of the usual); under verify_min_hit_ratio its hits must fit within "
+        "verify_max_residual and it must beat the dead reckoning's share by "
+        "arbitration_margin, and such a weak fit is no step towards tracking (at 0.25 one "
+        "in a wing the map does not hold moved the dead reckoning farther off and a "
+        "relocalization 8 m off followed: tests/partial_world.py's sudden exit)",
         ge=0,
         le=1,
     )
