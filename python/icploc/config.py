@@ -511,6 +511,45 @@ class LocalizerSection(Section):
         ge=0,
         le=1,
     )
+    step_retry_scales: tuple[float, ...] = _f(
+        (0.0, 0.5, 1.5),
+        "a fit that does not verify is retried (as from the heading-turned predictions) "
+        "from the last pose moved on by this scan's odometry step times each of these "
+        "(odometry off by a share of one step: a slip, a stop); the retry that verifies "
+        "and explains clearly more of the scan replaces the fit; empty: off",
+        "x step",
+    )
+    step_retry_min_turn_deg: float = _f(
+        20.0,
+        "... only for a step that turned at least this much (wheels slip in a turn; on a "
+        "straight step a seed moved along the travel finds the corridor's next alike "
+        "place: aces and csail 10 cm, fits 0.7-0.8 m off explaining more than the right "
+        "pose)",
+        "deg",
+        ge=0,
+    )
+    step_retry_max_offset: float = _f(
+        0.6,
+        "... only seeds at most this far from the prediction (a seed a metre off on a 2 m "
+        "step found a wrong place explaining more than the right one: intel 5 cm, bad base)",
+        "m",
+        ge=0,
+    )
+    step_retry_margin: float = _f(
+        0.02,
+        "... a step seed's fit replaces the fit when it verifies and its hit share beats "
+        "the fit's by this",
+        ge=0,
+        le=1,
+    )
+    unverified_worse_margin: float = _f(
+        0.05,
+        "a fit the chi-square test admits that does not verify and whose hit share is more "
+        "than this below the prediction's is not fused (the prediction stands, "
+        "inconsistent); 0: off",
+        ge=0,
+        le=1,
+    )
     arbitration_max_inflation: float = _f(
         16.0,
         "... and the disagreement is at most this many times the accept quantile",
@@ -592,6 +631,24 @@ class LocalizerSection(Section):
         "while lost: the dead reckoning is corrected by scan fits consistent with it (the "
         "chi-square gate, explaining the scan at least as well); the status stays lost",
     )
+    coast_min_hit_ratio: float = _f(
+        0.3,
+        "a coasting fit needs at least this share of beams on walls (and lost_hit_fraction "
+        "of the usual); under verify_min_hit_ratio its hits must fit within "
+        "verify_max_residual and it must beat the dead reckoning's share by "
+        "arbitration_margin, and such a weak fit is no step towards tracking (at 0.25 one "
+        "in a wing the map does not hold moved the dead reckoning farther off and a "
+        "relocalization 8 m off followed: tests/partial_world.py's sudden exit)",
+        ge=0,
+        le=1,
+    )
+    coast_heading_seeds: int = _f(
+        2,
+        "while coasting, a fit from the dead reckoning that does not pass is retried from it "
+        "turned by 1..this many times max(2 heading sigmas, 3 deg) either way; 0: off",
+        "seeds a side",
+        ge=0,
+    )
     coast_sigma_xy: float = _f(
         8.0,
         "lost_coasting goes on while the dead-reckoned position's sigma is at most this (past "
@@ -647,6 +704,7 @@ class LocalizerSection(Section):
     )
 
     _pose = field_validator("initial_pose", mode="before")(_tuple)
+    _step_scales = field_validator("step_retry_scales", mode="before")(_tuple)
 
     @model_validator(mode="after")
     def _check(self) -> LocalizerSection:
