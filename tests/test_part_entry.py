@@ -67,6 +67,7 @@ def test_the_first_scan_of_a_stretch_is_not_reported_tracking() -> None:
         False,
     )
     assert [s.start for s in mon.stretches] == [loc.scans_processed - 1]
+    assert mon.stretches[0].sudden is False  # the share rose scan by scan: no jump
 
 
 def test_a_sudden_jump_off_the_map_is_not_reported_tracking_while_it_waits() -> None:

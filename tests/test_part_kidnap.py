@@ -14,13 +14,14 @@ from icploc.outside import Stretch, stretch_lines
 from partial_world import half_known_grid, sudden_exit_run
 
 
-def _locked(sudden: bool, off: float) -> Stretch:
-    """A stretch re-entering (its dead reckoning at (1, 2, 0), coasted with sigma up to
-    0.1 m) through the monitor's lock: the localizer's recovery locks ``off`` metres east
-    of the dead reckoning."""
+def _locked(sudden: bool, off: float, sigma: float = 0.1, distance: float = 0.0) -> Stretch:
+    """A stretch re-entering (its dead reckoning at (1, 2, 0), coasted ``distance`` metres
+    with sigma up to ``sigma``) through the monitor's lock: the localizer's recovery locks
+    ``off`` metres east of the dead reckoning."""
     loc = Localizer(half_known_grid(), initial_pose=(1.0, 2.0, 0.0))
     mon = loc.outside
-    st = Stretch(3, 0.3, (1.0, 2.0, 0.0), max_sigma_xy=0.1, sudden=sudden, outside_scans=3)
+    st = Stretch(3, 0.3, (1.0, 2.0, 0.0), max_sigma_xy=sigma, sudden=sudden, outside_scans=3,
+                 distance=distance)  # fmt: skip
     st.scans.append((3, np.zeros((30, 2)), (1.0, 2.0, 0.0)))
     mon.stretches.append(st)
     mon.state, mon._dr, mon._reentry_start = "reentering", (1.0, 2.0, 0.0), 5
@@ -45,6 +46,20 @@ def test_a_sudden_stretch_locked_near_its_dead_reckoning_is_drawn() -> None:
     st = _locked(sudden=True, off=1.5)  # 15 sigma but within jump_min: dead reckoning's error
     assert (st.jumped, in_patch(st)) == (False, True)
     assert "began with a jump off the map (a sharp map edge, or a kidnap)" in stretch_lines([st], 10)[1]
+
+
+def test_a_wide_coasted_sigma_raises_the_kidnap_floor() -> None:
+    # 2.5 m is beyond jump_min (2 m) but within 3 sigma of a dead reckoning coasted with
+    # sigma 1 m: its error, not a jump
+    assert _locked(sudden=True, off=2.5, sigma=1.0).jumped is False
+    assert _locked(sudden=True, off=3.5, sigma=1.0).jumped is True
+
+
+def test_a_long_coast_raises_the_kidnap_floor() -> None:
+    # a sharp map edge coasted 40 m (jump_per_m 0.1: a 4 m floor): a 3 m correction is
+    # the dead reckoning's error; the same correction after 10 m of coasting is a jump
+    assert _locked(sudden=True, off=3.0, distance=40.0).jumped is False
+    assert _locked(sudden=True, off=3.0, distance=10.0).jumped is True
 
 
 def test_a_gradual_exit_is_never_taken_for_a_kidnap() -> None:

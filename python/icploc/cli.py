@@ -264,7 +264,7 @@ def replay(
     ] = False,
     refine_start: RefineStartOption = False,
     partial_map: Annotated[
-        bool | None, Option("--partial-map/--no-partial-map", help="Where the scan is outside the map, coast on odometry (reason outside_map, mapped 0, never tracking). On by default on map_server grids, which mark unknown space (config outside.enabled; line and point maps: --partial-map); --no-partial-map turns it off, --partial-map turns it on over a config that disables it")
+        bool | None, Option("--partial-map/--no-partial-map", help="Where the scan is outside the map, coast on odometry (reason outside_map, mapped 0, never tracking). On by default on map_server grids with at least one unknown cell (config outside.enabled; line and point maps: --partial-map); --no-partial-map turns it off, --partial-map turns it on over a config that disables it")
     ] = None,
     map_patch: Annotated[
         Path | None, Option("--map-patch", help="Write what the laser saw outside the map as a map_server grid (YAML + PGM; needs the outside-the-map state, on by default); merge it with 'icploc map merge'")

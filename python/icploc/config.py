@@ -972,7 +972,8 @@ class OutsideSection(Section):
 
     enabled: bool = _f(
         True,
-        "every Localizer on a map that marks unknown space (a map_server grid) gets the "
+        "every Localizer on a map that marks unknown space (a map_server grid with at least "
+        "one unknown cell) gets the "
         "outside-the-map monitor (icploc replay --no-partial-map, "
         "replay(partial_map=False) turn it off); without it a run that leaves the map matches "
         "the unmapped part against wrong walls and a global lock there can be reported tracking",

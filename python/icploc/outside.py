@@ -110,9 +110,13 @@ class OutsideConfig:
     #: Real dead reckoning errs far beyond its sigma (benches/eval_partial.py's 33 gradual
     #: stretches: up to 19 sigma, intel's 1.5 m at 0.08 m), so the floor: of those 33 and
     #: the simulated sudden exit (tests/partial_world.py: 1.65 m at sigma 0.81) none would
-    #: count as a kidnap, whose correction is the metres the robot was carried
+    #: count as a kidnap, whose correction is the metres the robot was carried. The floor
+    #: also grows by ``jump_per_m`` per metre coasted (review: a long coast off a sharp map
+    #: edge errs more than 2 m and would be taken for a kidnap and left out of the patch;
+    #: the real-data bases' dead reckoning errs up to 3 % in scale and 1 deg/m in heading)
     jump_sigmas: float = 3.0
     jump_min: float = 2.0
+    jump_per_m: float = 0.1
     #: ... for this many scans in a row (the scans before the last are localized as
     #: usual): a map made from another pass has gaps a scan wide. On the real-data
     #: benchmark's full maps (benches/eval_real.py, 60 folds of the tuned set) 1 began a
@@ -208,7 +212,7 @@ class OutsideConfig:
             )
         for k in ("reach", "margin", "resolution", "probe_sigmas", "probe_radius",
                   "probe_min_radius", "reentry_step", "reentry_heading_step",
-                  "exit_odometry", "jump_sigmas", "jump_min"):  # fmt: skip
+                  "exit_odometry", "jump_sigmas", "jump_min", "jump_per_m"):  # fmt: skip
             v = getattr(self, k)
             positive = k in ("resolution", "reentry_step", "reentry_heading_step")
             if not (math.isfinite(v) and v >= 0.0) or (positive and v <= 0.0):
@@ -789,7 +793,9 @@ class OutsideMonitor:
             )
             cfg = self.config
             off = math.hypot(st.correction[0], st.correction[1])
-            st.jumped = st.sudden and off > max(cfg.jump_min, cfg.jump_sigmas * st.max_sigma_xy)
+            st.jumped = st.sudden and off > max(
+                cfg.jump_min, cfg.jump_sigmas * st.max_sigma_xy, cfg.jump_per_m * st.distance
+            )
             if self.record:
                 st.scans.append((k, np.array(pts), est.pose))
             self.state = "inside"
@@ -971,7 +977,12 @@ class OutsideMonitor:
                     "reckoning nothing checked (--map-patch-open draws it)"
                 )
         if g is None:
-            why = "never outside the map" if not self.stretches else "no stretch came back into the map"
+            if not self.stretches:
+                why = "never outside the map"
+            elif all(s.jumped for s in self.stretches):
+                why = "every stretch was left out as a kidnap"
+            else:
+                why = "no stretch came back into the map"
             res.notes.append(f"map patch: nothing to write to {patch} ({why})")
             return
         h, w = g.occupied.shape
