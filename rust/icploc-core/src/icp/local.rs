@@ -47,6 +47,8 @@ const SLIDE_MIN_OFFSET: f64 = 0.12;
 /// Triangular smoothing of a circular histogram, normalised to sum 1 (all zeros stays so).
 fn smooth(h: &[f64]) -> Vec<f32> {
     let n = h.len();
+    // the wrap below folds at most one extra turn: right only when n > SMOOTH_BINS
+    debug_assert!(n == 0 || n > SMOOTH_BINS);
     let mut out = vec![0.0f64; n];
     for (i, o) in out.iter_mut().enumerate() {
         for d in 0..=2 * SMOOTH_BINS {

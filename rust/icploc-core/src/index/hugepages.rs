@@ -7,8 +7,9 @@
 //! the same cells are a few TLB entries: the same cells and answers, fewer page walks (on
 //! this project's bench machine, a VM: the warehouse's and the garage's small-start medians
 //! about 10-20 % lower). Linux only, and a hint: where transparent huge pages are off
-//! (`/sys/kernel/mm/transparent_hugepage/enabled` = `never`), or on another OS, the memory
-//! is ordinary pages and nothing else changes.
+//! (`/sys/kernel/mm/transparent_hugepage/enabled` = `never`: checked once, and then no
+//! advice is given at all, since `MADV_COLLAPSE` would otherwise override the admin's
+//! choice), or on another OS, the memory is ordinary pages and nothing else changes.
 
 /// Buffers smaller than this are left alone (they hold no whole huge page worth asking for).
 const MIN_BYTES: usize = 4 << 20;
@@ -44,7 +45,7 @@ fn advise(addr: usize, len: usize, written: bool) {
     const HUGE: usize = 2 << 20;
     /// `MADV_COLLAPSE` (not in every libc's headers)
     const MADV_COLLAPSE: libc::c_int = 25;
-    if len < MIN_BYTES {
+    if len < MIN_BYTES || !thp_allowed() {
         return;
     }
     // the whole huge pages inside [addr, addr + len)
@@ -65,12 +66,38 @@ fn advise(addr: usize, len: usize, written: bool) {
     }
 }
 
+/// Whether the system allows transparent huge pages (its sysfs setting is not `never`;
+/// unreadable: allowed, as the kernel's own default is). Read once per process.
+#[cfg(target_os = "linux")]
+fn thp_allowed() -> bool {
+    static ALLOWED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ALLOWED.get_or_init(|| {
+        std::fs::read_to_string("/sys/kernel/mm/transparent_hugepage/enabled")
+            .map(|s| thp_setting_allows(&s))
+            .unwrap_or(true)
+    })
+}
+
+/// `enabled`'s text (`always [madvise] never`: the bracketed word is the setting) allows
+/// huge pages unless the setting is `never`.
+#[cfg(any(target_os = "linux", test))]
+fn thp_setting_allows(text: &str) -> bool {
+    !text.contains("[never]")
+}
+
 #[cfg(not(target_os = "linux"))]
 fn advise(_addr: usize, _len: usize, _written: bool) {}
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_never_setting_turns_the_advice_off() {
+        assert!(thp_setting_allows("always [madvise] never\n"));
+        assert!(thp_setting_allows("[always] madvise never\n"));
+        assert!(!thp_setting_allows("always madvise [never]\n"));
+    }
 
     #[test]
     fn filled_and_collapsed_buffers_hold_their_values() {
