@@ -64,6 +64,9 @@ __all__ = [
     "refined_poses",
     "sigma_image",
     "sigma_path",
+    "submap_poses",
+    "self_consistency",
+    "SubmapRefinement",
     "wall_sigmas",
     "write_patch",
 ]
@@ -998,6 +1001,187 @@ def _scan_normals(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
     return n, ok
 
 
+
+#: a stretch's scan-to-submap match (:func:`submap_poses`) is verified when it converged,
+#: explains at least this share of the scan and moved the odometry's guess by at most
+#: :data:`SUBMAP_MAX_SHIFT` m / :data:`SUBMAP_MAX_TURN` rad
+SUBMAP_MIN_INLIERS = 0.6
+#: (see :data:`SUBMAP_MIN_INLIERS`) [m]
+SUBMAP_MAX_SHIFT = 0.5
+#: (see :data:`SUBMAP_MIN_INLIERS`) [rad]
+SUBMAP_MAX_TURN = 0.15
+#: the submap's points are those of the scans placed so far within this distance of the
+#: scan's guessed position [m] (the laser's reach on the real logs: 30 m)
+SUBMAP_RADIUS = 30.0
+#: a stretch's submap placement needs at least this share of its scans' matches verified
+#: (:data:`SUBMAP_MIN_INLIERS`), else the pose graph's placement stands
+SUBMAP_MIN_VERIFIED = 0.5
+#: :func:`self_consistency`: a beam end agrees with another scan's within this [m]
+SUBMAP_CONSISTENCY_NEAR = 0.1
+#: :func:`self_consistency`: ... of a scan more than this many scans away (a scan's
+#: neighbours overlap it whatever the placement)
+SUBMAP_CONSISTENCY_SKIP = 2
+
+
+@dataclass
+class SubmapRefinement:
+    """What :func:`submap_poses` made of a stretch: its poses, per scan whether its match
+    verified, and the loop error left at the lock (metres, radians) before it was spread,
+    against the dead reckoning's (the lock's correction)."""
+
+    poses: NDArray[np.float64]
+    verified: NDArray[np.bool_]
+    loop_error_m: float
+    loop_error_rad: float
+    odometry_error_m: float
+
+    @property
+    def verified_share(self) -> float:
+        return float(np.mean(self.verified)) if len(self.verified) else 0.0
+
+    def record(self) -> dict[str, Any]:
+        """The figures a patch's YAML lists of it (rounded)."""
+        return {
+            "submap_matches_verified": int(self.verified.sum()),
+            "submap_scans": len(self.verified),
+            "submap_loop_error_m": round(self.loop_error_m, 3),
+            "submap_loop_error_deg": round(math.degrees(self.loop_error_rad), 2),
+            "odometry_loop_error_m": round(self.odometry_error_m, 3),
+        }
+
+
+def self_consistency(
+    scans: Sequence[NDArray[np.float64]],
+    poses: NDArray[np.float64] | Sequence[Any],
+    near: float = SUBMAP_CONSISTENCY_NEAR,
+    skip: int = SUBMAP_CONSISTENCY_SKIP,
+) -> float:
+    """How well a placement of a stretch's scans (robot frame, at ``poses``) agrees with
+    itself, without any truth: the share of the beam ends that lie within ``near`` m of a
+    beam end of a scan more than ``skip`` scans away (another look at the same wall). 0
+    without such points."""
+    from scipy.spatial import cKDTree
+
+    w = [_to_world((float(p[0]), float(p[1]), float(p[2])), np.asarray(q).reshape(-1, 2))
+         for q, p in zip(scans, poses, strict=True)]  # fmt: skip
+    if not w or sum(len(a) for a in w) == 0:
+        return 0.0
+    lab = np.concatenate([np.full(len(a), i) for i, a in enumerate(w)])
+    pts = np.concatenate(w)
+    _, idx = cKDTree(pts).query(pts, k=16, distance_upper_bound=near)
+    found = idx < len(pts)
+    other = np.zeros_like(found)
+    other[found] = np.abs(lab[idx[found]] - np.repeat(lab, 16).reshape(idx.shape)[found]) > skip
+    return float(np.mean(other.any(axis=1)))
+
+
+def submap_poses(
+    start: Pose,
+    scans: Sequence[NDArray[np.float64]],
+    coasted: Sequence[Pose],
+    lock: Pose,
+    *,
+    lead_in: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
+    min_inliers: float = SUBMAP_MIN_INLIERS,
+    radius: float = SUBMAP_RADIUS,
+) -> SubmapRefinement:
+    """A stretch's poses by sequential scan-to-submap ICP (the core's :func:`icploc._core.icp`):
+    each scan, from the odometry step on from the pose found for the previous one, matched
+    against a point index of the stretch's scans placed so far (the lead-in's first, from
+    the exit pose: the submap starts at the exit anchor); a match that does not verify
+    (:data:`SUBMAP_MIN_INLIERS`, :data:`SUBMAP_MAX_SHIFT`, :data:`SUBMAP_MAX_TURN`) leaves
+    the odometry step. The loop error left at the lock (the last scan's pose against
+    ``lock``) is spread along the stretch (:func:`corrected_poses`, a verified step
+    taking a tenth of an odometry step's share). ``coasted``: the dead reckoning's poses,
+    the last one what it said at the lock. Returns the poses of ``scans`` (not the
+    lead-in's) and how the matches went."""
+    from icploc._core import IcpError, MapIndex, icp
+
+    cfg = _chain_config()
+    s0: Pose = (float(start[0]), float(start[1]), float(start[2]))
+    m = 0
+    all_scans = list(scans)
+    all_coasted = [(float(p[0]), float(p[1]), float(p[2])) for p in coasted]
+    if lead_in is not None and len(lead_in[0]):
+        m = len(lead_in[0])
+        all_scans = [*lead_in[0], *all_scans]
+        all_coasted = [*((float(p[0]), float(p[1]), float(p[2])) for p in lead_in[1]), *all_coasted]
+    pts_w: list[NDArray[np.float64]] = []
+    nrm_w: list[NDArray[np.float64]] = []
+    out: list[Pose] = []
+    ok: list[bool] = []
+    prev, prev_c = s0, s0
+    for pts, c in zip(all_scans, all_coasted, strict=True):
+        guess = compose(prev, between(prev_c, c))
+        pose, good = guess, False
+        if pts_w and pts.shape[0] >= 20:
+            w = np.concatenate(pts_w)
+            n = np.concatenate(nrm_w)
+            near = np.hypot(w[:, 0] - guess[0], w[:, 1] - guess[1]) <= radius
+            if int(near.sum()) >= 20:
+                try:
+                    r = icp(pts, MapIndex(w[near], n[near], None), guess, cfg)
+                except IcpError:
+                    r = None
+                if r is not None and r.converged and r.inlier_ratio >= min_inliers:
+                    z = (float(r.pose[0]), float(r.pose[1]), float(r.pose[2]))
+                    if (
+                        math.hypot(z[0] - guess[0], z[1] - guess[1]) <= SUBMAP_MAX_SHIFT
+                        and abs(wrap_angle(z[2] - guess[2])) <= SUBMAP_MAX_TURN
+                    ):
+                        pose, good = z, True
+        out.append(pose)
+        ok.append(good)
+        if pts.shape[0] >= 3:
+            w1, n1 = _chain_reference(pose, pts)
+            pts_w.append(w1)
+            nrm_w.append(n1)
+        prev, prev_c = pose, c
+    end = out[-1]
+    lk = (float(lock[0]), float(lock[1]), float(lock[2]))
+    trust = [1.0 if g else 0.0 for g in ok]
+    x = corrected_poses(s0, out, end, lk, trust=trust)
+    dr = all_coasted[-1]
+    return SubmapRefinement(
+        poses=x[m:],
+        verified=np.asarray(ok[m:], dtype=bool),
+        loop_error_m=math.hypot(lk[0] - end[0], lk[1] - end[1]),
+        loop_error_rad=abs(wrap_angle(lk[2] - end[2])),
+        odometry_error_m=math.hypot(lk[0] - dr[0], lk[1] - dr[1]),
+    )
+
+
+def _submap_or_graph(
+    st: Stretch,
+    scans: Sequence[NDArray[np.float64]],
+    coasted: Sequence[Pose],
+    graph: NDArray[np.float64],
+    lead_in: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]],
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """A stretch back in the map placed by its own scans matched to each other
+    (:func:`submap_poses`) when that verifies: at least :data:`SUBMAP_MIN_VERIFIED` of
+    its matches verified and the placement agrees with itself at least as well as the
+    pose graph's (:func:`self_consistency`); else the pose graph's placement ``graph``
+    stands. Returns the poses and what chose them (:attr:`icploc.outside.Stretch.patch_placement`)."""
+    assert st.lock_pose is not None
+    r = submap_poses(st.exit_pose, scans, coasted, st.lock_pose, lead_in=lead_in)
+    c_sub = self_consistency(scans, r.poses)
+    c_graph = self_consistency(scans, graph)
+    rec: dict[str, Any] = {
+        **r.record(),
+        "submap_self_consistency": round(c_sub, 3),
+        "graph_self_consistency": round(c_graph, 3),
+    }
+    if r.verified_share >= SUBMAP_MIN_VERIFIED and c_sub >= c_graph:
+        return r.poses, {"placement": "submap", **rec}
+    why = (
+        f"{rec['submap_matches_verified']} of {rec['submap_scans']} submap matches verified"
+        if r.verified_share < SUBMAP_MIN_VERIFIED
+        else "the submap placement agrees with itself less than the pose graph's"
+    )
+    return graph, {"placement": "graph", "why": why, **rec}
+
+
 def _stretch_poses(
     st: Stretch, refine: bool = True, walls: MappedWalls | None = None
 ) -> NDArray[np.float64]:
@@ -1027,6 +1211,7 @@ def _stretch_solution(
             st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead,
             marginals=marginals, exit_motion=st.exit_motion, lead_in=lead_in,
         )  # fmt: skip
+        x, st.patch_placement = _submap_or_graph(st, scans, coasted, x, lead_in)
         return x, (none if cov is None else list(cov))
     if refine:
         # not back yet: no second anchor; the loop edges alone measured worse (belgioioso
@@ -1290,6 +1475,8 @@ def patch_record(stretches: Sequence[Stretch], include_open: bool = False) -> li
                 "in_patch": in_patch(st, include_open),
             }
         )
+        if st.patch_placement is not None and in_patch(st, include_open):
+            out[-1]["placement"] = dict(st.patch_placement)
     return out
 
 

@@ -538,6 +538,12 @@ class Stretch:
     lead_in: list[tuple[int, NDArray[np.float64], Pose]] = field(
         default_factory=list, repr=False
     )
+    #: set by the map patch (:func:`icploc.mappatch.patch_solution`): how its poses were
+    #: placed (``placement``: ``"submap"``, the stretch's own scans matched to each other,
+    #: or ``"graph"``, the pose graph's, where the submap matches did not verify) and the
+    #: figures that chose it (:meth:`icploc.mappatch.SubmapRefinement.record`); None: not
+    #: drawn, or not refined
+    patch_placement: dict[str, Any] | None = field(default=None, repr=False)
 
     @property
     def closed(self) -> bool:
