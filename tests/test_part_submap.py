@@ -11,11 +11,15 @@ import math
 
 import numpy as np
 from icploc.mappatch import (
+    SUBMAP_CONSISTENCY_GAIN,
     corrected_poses,
     grid_from_scans,
+    patch_record,
+    patch_solution,
     self_consistency,
     submap_poses,
 )
+from icploc.outside import Stretch
 from icploc.se2 import between, compose
 from icploc.sim import simulate
 from numpy.typing import NDArray
@@ -97,4 +101,42 @@ def test_submap_refined_patch_walls_lie_on_the_true_walls_odometry_placed_do_not
     e = np.hypot(*(r.poses[:, :2] - truth[1:, :2]).T)
     assert float(np.max(e)) < 0.12
     # the truth-free check that picks the placement prefers the refined one
-    assert self_consistency(scans[1:], r.poses) > self_consistency(scans[1:], plain)
+    travel = np.cumsum(np.hypot(*np.diff(odo[:, :2], axis=0).T))
+    assert (
+        self_consistency(scans[1:], r.poses, travel)
+        > self_consistency(scans[1:], plain, travel) + SUBMAP_CONSISTENCY_GAIN
+    )
+
+
+def _stretch(points: int) -> Stretch:
+    """The drive as a stretch back in the map (exit and lock at the true poses, the scan at
+    the exit its lead-in), each scan cut to its first ``points`` beam ends."""
+    scans, truth = _sparse_drive()
+    odo = _drifting_odometry(truth, math.radians(2.0), 1.01)
+    st = Stretch(start=1, start_stamp=0.0, exit_pose=tuple(truth[0]))
+    st.scans = [(k, scans[k][:points], tuple(odo[k])) for k in range(1, len(scans))]
+    st.lead_in = [(0, scans[0][:points], tuple(truth[0]))]
+    st.lock_pose = tuple(truth[-1])
+    st.correction = tuple(truth[-1] - odo[-1])
+    st.end = len(scans) - 1
+    return st
+
+
+def test_the_patch_uses_the_submap_placement_and_says_so() -> None:
+    st = _stretch(10_000)
+    patch_solution([st], resolution=0.05, sigmas=False)
+    rec = patch_record([st])[0]["placement"]
+    assert rec["placement"] == "submap"
+    assert rec["submap_matches_verified"] >= 0.9 * rec["submap_scans"]
+    assert rec["submap_self_consistency"] > rec["graph_self_consistency"]
+
+
+def test_unverified_submap_matches_leave_the_pose_graph_placement_and_say_why() -> None:
+    # 15 beam ends a scan: too few for a match (20), so none verifies
+    st = _stretch(15)
+    g, _ = patch_solution([st], resolution=0.05, sigmas=False)
+    assert g is not None
+    rec = patch_record([st])[0]["placement"]
+    assert rec["placement"] == "graph"
+    assert rec["submap_matches_verified"] == 0
+    assert rec["why"] == f"0 of {rec['submap_scans']} submap matches verified"
