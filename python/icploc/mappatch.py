@@ -19,7 +19,12 @@ chain steps, keyframe scans matched against the stretch's earlier keyframes near
 wing toured, the corridor driven back), the exit and the lock as priors; heading included;
 one odometry scale for the whole stretch (:class:`_Scale`); and, with :class:`MappedWalls`,
 each scan's beams that end on mapped walls matched against them (the stretch's ends tied
-to the map). The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's faint fringe goes.
+to the map). Each stretch back in the map is also placed by its own scans alone
+(:func:`submap_poses`: sequential scan-to-submap ICP from the exit, the loop error at the
+lock spread along it); that placement replaces the graph's where it verifies
+(:func:`_submap_or_graph`, :func:`self_consistency`), and the patch's YAML says per
+stretch which was used and why. The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's
+faint fringe goes.
 """
 
 from __future__ import annotations
