@@ -19,7 +19,12 @@ chain steps, keyframe scans matched against the stretch's earlier keyframes near
 wing toured, the corridor driven back), the exit and the lock as priors; heading included;
 one odometry scale for the whole stretch (:class:`_Scale`); and, with :class:`MappedWalls`,
 each scan's beams that end on mapped walls matched against them (the stretch's ends tied
-to the map). The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's faint fringe goes.
+to the map). Each stretch back in the map is also placed by its own scans alone
+(:func:`submap_poses`: sequential scan-to-submap ICP from the exit, the loop error at the
+lock spread along it); that placement replaces the graph's where it verifies
+(:func:`_submap_or_graph`, :func:`self_consistency`), and the patch's YAML says per
+stretch which was used and why. The grid is thinned (:data:`PATCH_PEAK_SHARE`): a wall's
+faint fringe goes.
 """
 
 from __future__ import annotations
@@ -64,6 +69,9 @@ __all__ = [
     "refined_poses",
     "sigma_image",
     "sigma_path",
+    "submap_poses",
+    "self_consistency",
+    "SubmapRefinement",
     "wall_sigmas",
     "write_patch",
 ]
@@ -998,6 +1006,223 @@ def _scan_normals(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[
     return n, ok
 
 
+
+#: a stretch's scan-to-submap match (:func:`submap_poses`) is verified when it converged,
+#: explains at least this share of the scan and moved the odometry's guess by at most
+#: :data:`SUBMAP_MAX_SHIFT` m / :data:`SUBMAP_MAX_TURN` rad
+SUBMAP_MIN_INLIERS = 0.6
+#: (see :data:`SUBMAP_MIN_INLIERS`) [m]
+SUBMAP_MAX_SHIFT = 0.5
+#: (see :data:`SUBMAP_MIN_INLIERS`) [rad]
+SUBMAP_MAX_TURN = 0.15
+#: the submap's points are those of the scans placed so far within this distance of the
+#: scan's guessed position [m] (the laser's reach on the real logs: 30 m)
+SUBMAP_RADIUS = 30.0
+#: a stretch's submap placement needs at least this share of its scans' matches verified
+#: (:data:`SUBMAP_MIN_INLIERS`), else the pose graph's placement stands
+SUBMAP_MIN_VERIFIED = 0.5
+#: :func:`self_consistency`: a beam end agrees with another scan's within this [m] (10 cm
+#: told the placements of tests/test_part_submap.py's drive apart the wrong way round:
+#: 0.959 / 0.965, its walls 95.8 / 62.3 % within 10 cm)
+SUBMAP_CONSISTENCY_NEAR = 0.05
+#: :func:`self_consistency`: ... of a keyframe more than this far away along the way [m
+#: travelled] (a scan's neighbours overlap it whatever the placement)
+SUBMAP_CONSISTENCY_APART = 3.0
+#: the submap placement replaces the pose graph's only when its :func:`self_consistency`
+#: is higher by more than this: the simulated wing's two placements (scans 4 cm apart;
+#: the graph's walls 99.9 / 100 % within 10 cm, the submap's 90.2 / 91.0 %, seeds 3 / 24)
+#: score 0.962 / 0.964 and 0.960 / 0.968 (submap / graph); the real logs' stretches where
+#: the submap's walls are better 0.02-0.32 higher (aces, belgioioso, csail, freiburg-079,
+#: freiburg-101, intel); tests/test_part_submap.py's drive 0.910 / 0.899
+SUBMAP_CONSISTENCY_GAIN = 0.01
+#: :func:`self_consistency`'s keyframes are this far apart [m travelled] (the real logs'
+#: scans are 0.5 m apart: all of theirs)
+SUBMAP_CONSISTENCY_SPACING = 0.5
+
+
+@dataclass
+class SubmapRefinement:
+    """What :func:`submap_poses` made of a stretch: its poses, per scan whether its match
+    verified, and the loop error left at the lock (metres, radians) before it was spread,
+    against the dead reckoning's (the lock's correction)."""
+
+    poses: NDArray[np.float64]
+    verified: NDArray[np.bool_]
+    loop_error_m: float
+    loop_error_rad: float
+    odometry_error_m: float
+
+    @property
+    def verified_share(self) -> float:
+        return float(np.mean(self.verified)) if len(self.verified) else 0.0
+
+    def record(self) -> dict[str, Any]:
+        """The figures a patch's YAML lists of it (rounded)."""
+        return {
+            "submap_matches_verified": int(self.verified.sum()),
+            "submap_scans": len(self.verified),
+            "submap_loop_error_m": round(self.loop_error_m, 3),
+            "submap_loop_error_deg": round(math.degrees(self.loop_error_rad), 2),
+            "odometry_loop_error_m": round(self.odometry_error_m, 3),
+        }
+
+
+def self_consistency(
+    scans: Sequence[NDArray[np.float64]],
+    poses: NDArray[np.float64] | Sequence[Any],
+    travel: NDArray[np.float64] | Sequence[float],
+    near: float = SUBMAP_CONSISTENCY_NEAR,
+    apart: float = SUBMAP_CONSISTENCY_APART,
+    spacing: float = SUBMAP_CONSISTENCY_SPACING,
+) -> float:
+    """How well a placement of a stretch's scans (robot frame, at ``poses``) agrees with
+    itself, without any truth: of the keyframe scans (``spacing`` m of ``travel`` apart,
+    the metres travelled to each scan: the same scans whatever the placement, and as many
+    per metre whether the scans are centimetres or half a metre apart), the share of the
+    beam ends within ``near`` m of a beam end of a keyframe more than ``apart`` m of travel
+    away (another look at the same wall, not the scan's neighbour). 0 without such points."""
+    from scipy.spatial import cKDTree
+
+    tr = np.asarray(travel, dtype=np.float64)
+    keys: list[int] = []
+    for k in range(len(scans)):
+        if np.asarray(scans[k]).size and (not keys or tr[k] - tr[keys[-1]] >= spacing):
+            keys.append(k)
+    if len(keys) < 2:
+        return 0.0
+    w = [
+        _to_world(
+            (float(poses[k][0]), float(poses[k][1]), float(poses[k][2])),
+            np.asarray(scans[k], dtype=np.float64).reshape(-1, 2),
+        )
+        for k in keys
+    ]
+    at = np.concatenate([np.full(len(a), tr[k]) for a, k in zip(w, keys, strict=True)])
+    pts = np.concatenate(w)
+    hit = 0
+    for a, k in zip(w, keys, strict=True):
+        far = np.abs(at - tr[k]) > apart
+        if not far.any():
+            continue
+        d, _ = cKDTree(pts[far]).query(a, k=1, distance_upper_bound=near)
+        hit += int(np.sum(np.isfinite(d)))
+    return hit / len(pts)
+
+
+def _travel(start: Pose, poses: Sequence[Pose]) -> NDArray[np.float64]:
+    """Metres travelled from ``start`` to each of ``poses``."""
+    p = np.asarray([start, *poses], dtype=np.float64).reshape(-1, 3)
+    return np.cumsum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1])))
+
+
+def submap_poses(
+    start: Pose,
+    scans: Sequence[NDArray[np.float64]],
+    coasted: Sequence[Pose],
+    lock: Pose,
+    *,
+    lead_in: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]] | None = None,
+    min_inliers: float = SUBMAP_MIN_INLIERS,
+    radius: float = SUBMAP_RADIUS,
+) -> SubmapRefinement:
+    """A stretch's poses by sequential scan-to-submap ICP (the core's :func:`icploc._core.icp`):
+    each scan, from the odometry step on from the pose found for the previous one, matched
+    against a point index of the stretch's scans placed so far (the lead-in's first, from
+    the exit pose: the submap starts at the exit anchor); a match that does not verify
+    (:data:`SUBMAP_MIN_INLIERS`, :data:`SUBMAP_MAX_SHIFT`, :data:`SUBMAP_MAX_TURN`) leaves
+    the odometry step. The loop error left at the lock (the last scan's pose against
+    ``lock``) is spread along the stretch (:func:`corrected_poses`, a verified step
+    taking a tenth of an odometry step's share). ``coasted``: the dead reckoning's poses,
+    the last one what it said at the lock. Returns the poses of ``scans`` (not the
+    lead-in's) and how the matches went."""
+    from icploc._core import IcpError, MapIndex, icp
+
+    cfg = _chain_config()
+    s0: Pose = (float(start[0]), float(start[1]), float(start[2]))
+    m = 0
+    all_scans = list(scans)
+    all_coasted = [(float(p[0]), float(p[1]), float(p[2])) for p in coasted]
+    if lead_in is not None and len(lead_in[0]):
+        m = len(lead_in[0])
+        all_scans = [*lead_in[0], *all_scans]
+        all_coasted = [*((float(p[0]), float(p[1]), float(p[2])) for p in lead_in[1]), *all_coasted]
+    pts_w: list[NDArray[np.float64]] = []
+    nrm_w: list[NDArray[np.float64]] = []
+    out: list[Pose] = []
+    ok: list[bool] = []
+    prev, prev_c = s0, s0
+    for pts, c in zip(all_scans, all_coasted, strict=True):
+        guess = compose(prev, between(prev_c, c))
+        pose, good = guess, False
+        if pts_w and pts.shape[0] >= 20:
+            w = np.concatenate(pts_w)
+            n = np.concatenate(nrm_w)
+            near = np.hypot(w[:, 0] - guess[0], w[:, 1] - guess[1]) <= radius
+            if int(near.sum()) >= 20:
+                try:
+                    r = icp(pts, MapIndex(w[near], n[near], None), guess, cfg)
+                except IcpError:
+                    r = None
+                if r is not None and r.converged and r.inlier_ratio >= min_inliers:
+                    z = (float(r.pose[0]), float(r.pose[1]), float(r.pose[2]))
+                    if (
+                        math.hypot(z[0] - guess[0], z[1] - guess[1]) <= SUBMAP_MAX_SHIFT
+                        and abs(wrap_angle(z[2] - guess[2])) <= SUBMAP_MAX_TURN
+                    ):
+                        pose, good = z, True
+        out.append(pose)
+        ok.append(good)
+        if pts.shape[0] >= 3:
+            w1, n1 = _chain_reference(pose, pts)
+            pts_w.append(w1)
+            nrm_w.append(n1)
+        prev, prev_c = pose, c
+    end = out[-1]
+    lk = (float(lock[0]), float(lock[1]), float(lock[2]))
+    trust = [1.0 if g else 0.0 for g in ok]
+    x = corrected_poses(s0, out, end, lk, trust=trust)
+    dr = all_coasted[-1]
+    return SubmapRefinement(
+        poses=x[m:],
+        verified=np.asarray(ok[m:], dtype=bool),
+        loop_error_m=math.hypot(lk[0] - end[0], lk[1] - end[1]),
+        loop_error_rad=abs(wrap_angle(lk[2] - end[2])),
+        odometry_error_m=math.hypot(lk[0] - dr[0], lk[1] - dr[1]),
+    )
+
+
+def _submap_or_graph(
+    st: Stretch,
+    scans: Sequence[NDArray[np.float64]],
+    coasted: Sequence[Pose],
+    graph: NDArray[np.float64],
+    lead_in: tuple[Sequence[NDArray[np.float64]], Sequence[Pose]],
+) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """A stretch back in the map placed by its own scans matched to each other
+    (:func:`submap_poses`) when that verifies: at least :data:`SUBMAP_MIN_VERIFIED` of
+    its matches verified and the placement agrees with itself clearly better than the
+    pose graph's (:func:`self_consistency`, by more than :data:`SUBMAP_CONSISTENCY_GAIN`);
+    else the pose graph's placement ``graph`` stands. Returns the poses and what chose them (:attr:`icploc.outside.Stretch.patch_placement`)."""
+    assert st.lock_pose is not None
+    r = submap_poses(st.exit_pose, scans, coasted, st.lock_pose, lead_in=lead_in)
+    travel = _travel(st.exit_pose, coasted)
+    c_sub = self_consistency(scans, r.poses, travel)
+    c_graph = self_consistency(scans, graph, travel)
+    rec: dict[str, Any] = {
+        **r.record(),
+        "submap_self_consistency": round(c_sub, 3),
+        "graph_self_consistency": round(c_graph, 3),
+    }
+    if r.verified_share >= SUBMAP_MIN_VERIFIED and c_sub > c_graph + SUBMAP_CONSISTENCY_GAIN:
+        return r.poses, {"placement": "submap", **rec}
+    why = (
+        f"{rec['submap_matches_verified']} of {rec['submap_scans']} submap matches verified"
+        if r.verified_share < SUBMAP_MIN_VERIFIED
+        else "the submap placement agrees with itself no better than the pose graph's"
+    )
+    return graph, {"placement": "graph", "why": why, **rec}
+
+
 def _stretch_poses(
     st: Stretch, refine: bool = True, walls: MappedWalls | None = None
 ) -> NDArray[np.float64]:
@@ -1027,7 +1252,14 @@ def _stretch_solution(
             st.exit_pose, scans, coasted, st.lock_pose, walls=walls, lead=lead,
             marginals=marginals, exit_motion=st.exit_motion, lead_in=lead_in,
         )  # fmt: skip
-        return x, (none if cov is None else list(cov))
+        y, st.patch_placement = _submap_or_graph(st, scans, coasted, x, lead_in)
+        if cov is not None and st.patch_placement["placement"] == "submap":
+            # the graph's marginals, no surer than the two placements agree: each scan's
+            # covariance widened by the square of the difference of its poses
+            d = y - x
+            d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+            cov = cov + np.einsum("ni,ij->nij", d * d, np.eye(3))
+        return y, (none if cov is None else list(cov))
     if refine:
         # not back yet: no second anchor; the loop edges alone measured worse (belgioioso
         # 31 % -> 26 % of the patch's walls within 10 cm) than the re-chained odometry
@@ -1290,6 +1522,8 @@ def patch_record(stretches: Sequence[Stretch], include_open: bool = False) -> li
                 "in_patch": in_patch(st, include_open),
             }
         )
+        if st.patch_placement is not None and in_patch(st, include_open):
+            out[-1]["placement"] = dict(st.patch_placement)
     return out
 
 

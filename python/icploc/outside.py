@@ -542,6 +542,12 @@ class Stretch:
     lead_in: list[tuple[int, NDArray[np.float64], Pose]] = field(
         default_factory=list, repr=False
     )
+    #: set by the map patch (:func:`icploc.mappatch.patch_solution`): how its poses were
+    #: placed (``placement``: ``"submap"``, the stretch's own scans matched to each other,
+    #: or ``"graph"``, the pose graph's, where the submap matches did not verify) and the
+    #: figures that chose it (:meth:`icploc.mappatch.SubmapRefinement.record`); None: not
+    #: drawn, or not refined
+    patch_placement: dict[str, Any] | None = field(default=None, repr=False)
 
     @property
     def closed(self) -> bool:
@@ -958,6 +964,19 @@ class OutsideMonitor:
             include_open=include_open, confident_only=confident_only,
         )  # fmt: skip
         for i, s in enumerate(self.stretches, 1):
+            pl = s.patch_placement
+            if s.scans and in_patch(s, include_open) and pl is not None:
+                if pl["placement"] == "submap":
+                    res.notes.append(
+                        f"map patch: stretch {i} placed by its own scans matched to each other "
+                        f"({pl['submap_matches_verified']} of {pl['submap_scans']} matches "
+                        f"verified, loop error at the lock {pl['submap_loop_error_m']:.2f} m "
+                        f"against the odometry's {pl['odometry_loop_error_m']:.2f} m)"
+                    )
+                else:
+                    res.notes.append(
+                        f"map patch: stretch {i} placed by the odometry pose graph ({pl['why']})"
+                    )
             if not s.scans or in_patch(s):
                 continue
             if s.jumped:
