@@ -277,7 +277,7 @@ def test_the_patch_yaml_says_what_it_made_of_each_stretch_and_still_merges(tmp_p
     r = merge_files(tmp_path / "map.yaml", tmp_path / "patch.yaml", tmp_path / "out.yaml")
     assert [rec, r.added_occupied > 0] == [
         [{"first_scan": 5, "scans": 2, "coasted_m": 0.0, "back_in_map": False,
-          "correction_m": None, "in_patch": True}],
+          "correction_m": None, "in_patch": True, "kidnap": False}],
         True,
     ]  # fmt: skip
 

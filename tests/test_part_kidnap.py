@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from icploc.localizer import Estimate, Localizer, Status
-from icploc.mappatch import in_patch
+from icploc.mappatch import in_patch, patch_record
 from icploc.outside import Stretch, stretch_lines
 from partial_world import half_known_grid, sudden_exit_run
 
@@ -40,6 +40,8 @@ def test_a_sudden_stretch_locked_beyond_its_uncertainty_is_a_kidnap() -> None:
     lines = stretch_lines([st], 10)
     assert "1 of them a kidnap rather than a drive off the map" in lines[0]
     assert "a robot carried elsewhere (a kidnap)" in lines[1]
+    rec = patch_record([st])[0]
+    assert (rec["in_patch"], rec["kidnap"]) == (False, True)
 
 
 def test_a_sudden_stretch_locked_near_its_dead_reckoning_is_drawn() -> None:

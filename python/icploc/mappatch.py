@@ -1508,7 +1508,8 @@ def in_patch(st: Stretch, include_open: bool = False) -> bool:
 def patch_record(stretches: Sequence[Stretch], include_open: bool = False) -> list[dict[str, Any]]:
     """Per stretch what the patch made of it (the ``icploc_patch_stretches`` list of a
     patch's YAML): its first scan, scans recorded, metres coasted, whether it came back
-    into the map (and the lock's correction [m]) and whether its scans are in the patch."""
+    into the map (and the lock's correction [m]), whether its scans are in the patch and
+    whether it was left out as a kidnap."""
     out: list[dict[str, Any]] = []
     for st in stretches:
         c = st.correction
@@ -1520,6 +1521,8 @@ def patch_record(stretches: Sequence[Stretch], include_open: bool = False) -> li
                 "back_in_map": st.end is not None,
                 "correction_m": None if c is None else round(math.hypot(c[0], c[1]), 3),
                 "in_patch": in_patch(st, include_open),
+                # left out as a kidnap (OutsideConfig.jump_*), not for being still open
+                "kidnap": bool(st.jumped),
             }
         )
         if st.patch_placement is not None and in_patch(st, include_open):
