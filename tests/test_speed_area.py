@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-
 from icploc.maps.map import Map
 from icploc.outside import MappedArea, OutsideConfig, _dilate
 
@@ -23,7 +22,7 @@ def _square_grown(m: np.ndarray, r: int) -> np.ndarray:
     """The definition: a cell is known when any cell within r (Chebyshev) is."""
     h, w = m.shape
     out = np.zeros_like(m)
-    for y, x in zip(*np.nonzero(m)):
+    for y, x in zip(*np.nonzero(m), strict=True):
         out[max(y - r, 0) : min(y + r + 1, h), max(x - r, 0) : min(x + r + 1, w)] = True
     return out
 

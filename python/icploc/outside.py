@@ -269,8 +269,10 @@ class MappedArea:
         self.layers = tuple(np.asarray(a, dtype=bool) for a in lay)
         shape = self.layers[0].shape
         if len(shape) != 2 or any(a.shape != shape for a in self.layers):
-            raise ValueError(f"outside: mapped-area masks must be 2-D of one shape, got "
-                             f"{[a.shape for a in self.layers]}")
+            raise ValueError(
+                f"outside: mapped-area masks must be 2-D of one shape, got "
+                f"{[a.shape for a in self.layers]}"
+            )
         if grow < 0 or tile < 1:
             raise ValueError(f"outside: need grow >= 0 and tile >= 1, got {grow}, {tile}")
         self.resolution = float(resolution)
@@ -294,7 +296,7 @@ class MappedArea:
     def _grow_tiles(self, ty: NDArray[np.intp], tx: NDArray[np.intp]) -> None:
         t, r = self.tile, self.grow
         h, w = self.shape
-        for a, b in zip(ty.tolist(), tx.tolist()):
+        for a, b in zip(ty.tolist(), tx.tolist(), strict=True):
             y0, x0 = a * t, b * t
             y1, x1 = min(y0 + t, h), min(x0 + t, w)
             # the tile and up to r cells around it; beyond the mask's edge nothing is known
@@ -332,9 +334,7 @@ class MappedArea:
         known = np.zeros((h, w), dtype=bool)
         c = np.floor((pts - lo) / res).astype(np.int64)
         known[c[:, 1], c[:, 0]] = True
-        return cls(
-            known, res, (float(lo[0]), float(lo[1])), grow=int(math.ceil(cfg.reach / res))
-        )
+        return cls(known, res, (float(lo[0]), float(lo[1])), grow=int(math.ceil(cfg.reach / res)))
 
     def unmapped(self, xy: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Per map-frame point: beyond the mask or in an unknown cell."""
