@@ -294,19 +294,27 @@ class MappedArea:
         return self._mask
 
     def _grow_tiles(self, ty: NDArray[np.intp], tx: NDArray[np.intp]) -> None:
+        """Grow the tiles ``(ty, tx)`` (distinct), a run of neighbours in a tile row at once."""
+        if len(ty) == 0:
+            return
         t, r = self.tile, self.grow
         h, w = self.shape
-        for a, b in zip(ty.tolist(), tx.tolist(), strict=True):
-            y0, x0 = a * t, b * t
-            y1, x1 = min(y0 + t, h), min(x0 + t, w)
-            # the tile and up to r cells around it; beyond the mask's edge nothing is known
+        order = np.lexsort((tx, ty))
+        ty, tx = np.asarray(ty)[order], np.asarray(tx)[order]
+        # a new run where the row changes or the next tile is not the neighbour
+        cut = np.flatnonzero((np.diff(ty) != 0) | (np.diff(tx) != 1)) + 1
+        for lo, hi in zip(np.r_[0, cut].tolist(), np.r_[cut, len(ty)].tolist(), strict=True):
+            a, b0, b1 = int(ty[lo]), int(tx[lo]), int(tx[hi - 1])
+            y0, x0 = a * t, b0 * t
+            y1, x1 = min(y0 + t, h), min((b1 + 1) * t, w)
+            # the tiles and up to r cells around them; beyond the mask's edge nothing is known
             cy0, cx0, cy1, cx1 = max(y0 - r, 0), max(x0 - r, 0), min(y1 + r, h), min(x1 + r, w)
             m = self.layers[0][cy0:cy1, cx0:cx1]
             for extra in self.layers[1:]:
                 m = m | extra[cy0:cy1, cx0:cx1]
             g = _dilate(m, r)
             self._mask[y0:y1, x0:x1] = g[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0]
-            self._done[a, b] = True
+            self._done[a, b0 : b1 + 1] = True
 
     @classmethod
     def of(cls, map_: Any, index: Any, config: OutsideConfig | None = None) -> MappedArea:
