@@ -221,26 +221,65 @@ class OutsideConfig:
 
 
 def _dilate(mask: NDArray[np.bool_], r: int) -> NDArray[np.bool_]:
-    """``mask`` grown by a (2r+1)-square: per axis, ORs of shifted copies, the window
-    doubling each step (a map_server grid of 25 M cells in ~0.2 s: sums over cumulative
-    sums took 4-7 s, now that every Localizer builds its mapped area)."""
+    """``mask`` grown by a (2r+1)-square (a cell is set when any cell within r of it in x
+    and in y is; nothing beyond the edges). On the rows packed 8 cells a byte: 2r shifted
+    ORs along the rows (bits moved across bytes), then 2r along the columns, each from the
+    unshifted array (a shift past an edge drops what it moves out, the edge's zero
+    padding). A map_server grid of 26 M cells (freiburg-campus, 5 cm) in ~20 ms; the
+    earlier doubling ORs of whole bool arrays took ~50-80 ms (and 0.2 s and more on a
+    loaded machine) of every process that attaches the monitor."""
+    m = np.asarray(mask, dtype=bool)
     if r <= 0:
-        return np.array(mask, dtype=bool)
-    # padded by r: a window shifted past the edge still carries what lies inside it
-    out = np.pad(np.asarray(mask, dtype=bool), r)
-    for axis in (0, 1):
-        n = out.shape[axis]
-        half = 0  # out is the OR over offsets -half..half along this axis
-        while half < r:
-            s = min(2 * half + 1, r - half)
-            src = out.copy()
-            lo = [slice(None)] * 2
-            hi = [slice(None)] * 2
-            lo[axis], hi[axis] = slice(s, None), slice(None, n - s)
-            out[tuple(lo)] |= src[tuple(hi)]
-            out[tuple(hi)] |= src[tuple(lo)]
-            half += s
-    return out[r:-r, r:-r]
+        return np.array(m, dtype=bool)
+    if m.ndim != 2:
+        raise ValueError(f"outside: the mask must be 2-D, got shape {m.shape}")
+    w = m.shape[1]
+    return _unpack(_grow_packed(np.packbits(m, axis=1, bitorder="little"), r), w)
+
+
+def _unpack(p: NDArray[np.uint8], w: int) -> NDArray[np.bool_]:
+    return np.unpackbits(p, axis=1, count=w, bitorder="little").view(bool)
+
+
+def _grow_packed(x: NDArray[np.uint8], r: int) -> NDArray[np.uint8]:
+    """:func:`_dilate` on rows packed little-endian (cell j: bit j % 8 of byte j // 8; the
+    bits past the last cell zero)."""
+    h = np.empty_like(x)
+    for a in range(0, x.shape[0], 256):  # row blocks: each block's shifts stay in cache
+        h[a : a + 256] = _grow_rows(x[a : a + 256], r)
+    out = h.copy()
+    n = h.shape[0]
+    for k in range(1, min(r, n - 1) + 1):
+        out[k:] |= h[:-k]
+        out[:-k] |= h[k:]
+    return out
+
+
+def _grow_rows(x: NDArray[np.uint8], r: int) -> NDArray[np.uint8]:
+    """The packed rows ``x`` each grown by r cells both ways."""
+    nb = x.shape[1]
+    h = x.copy()
+    for k in range(1, r + 1):
+        q, b = divmod(k, 8)
+        if q >= nb:
+            break
+        # toward higher cells: cell j gets cell j - k
+        y = np.zeros_like(x)
+        y[:, q:] = x[:, : nb - q]
+        if b:
+            z = y << np.uint8(b)
+            z[:, 1:] |= y[:, :-1] >> np.uint8(8 - b)
+            y = z
+        h |= y
+        # toward lower cells: cell j gets cell j + k
+        y = np.zeros_like(x)
+        y[:, : nb - q] = x[:, q:]
+        if b:
+            z = y >> np.uint8(b)
+            z[:, :-1] |= y[:, 1:] << np.uint8(8 - b)
+            y = z
+        h |= y
+    return h
 
 
 @dataclass
@@ -262,10 +301,16 @@ class MappedArea:
         free = getattr(map_, "free", None)
         res = getattr(map_, "resolution", None)
         if grid is not None and free is not None and res:
-            known = np.asarray(grid, dtype=bool) | np.asarray(free, dtype=bool)
+            g, f = np.asarray(grid, dtype=bool), np.asarray(free, dtype=bool)
+            if g.shape != f.shape or g.ndim != 2:
+                raise ValueError(f"outside: grid {g.shape} and free {f.shape} differ")
             r = int(math.ceil(cfg.margin / float(res) - 1e-9))
+            # packed first: the OR of two packed grids is an eighth of the work
+            p = np.packbits(g, axis=1, bitorder="little")
+            p |= np.packbits(f, axis=1, bitorder="little")
+            known = _unpack(_grow_packed(p, r) if r > 0 else p, g.shape[1])
             o = map_.origin
-            return cls(_dilate(known, r), float(res), (float(o[0]), float(o[1])), float(o[2]))
+            return cls(known, float(res), (float(o[0]), float(o[1])), float(o[2]))
         pts = np.asarray(index.points, dtype=np.float64).reshape(-1, 2)
         if pts.shape[0] == 0:
             raise ValueError("outside: the map holds no points")
