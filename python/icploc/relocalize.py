@@ -767,10 +767,9 @@ class GlobalRelocalization:
         coarse score is, as measured, well above a refined pose's score), so it prunes much of
         the tree where nothing fits well (a crowd, a poorly mapped place). A floored
         tracking check that finds no distinct pose above its floor decides from that one
-        search (no second, lower one): ``""`` when the tracked place itself reached the
-        floor (a candidate near ``tracked``) or ``tracked`` is a good fit, the only place
-        at the confirming level; ``"unsure"`` when no place, the tracked one included,
-        reached it. ``floored=False``: the plain search (and its verdicts: ``""`` for no
+        search (no second, lower one): ``""`` when ``tracked`` is a good fit or a candidate
+        near it refines to the confirming minimum, the only place at that level;
+        ``"unsure"`` when no place, the tracked one included, reached it. ``floored=False``: the plain search (and its verdicts: ``""`` for no
         distinct pose among its leaves, within ``accept_ratio`` of its best)."""
         if not self.ready(index):
             return CheckVerdict("unsure")
@@ -797,9 +796,12 @@ class GlobalRelocalization:
             # told by what this search found near it. (The plain search's leaves, down to
             # accept_ratio x its best, told it before at 2-4x this search's cost on the
             # large held-out maps: benches/results/speed.md.)
-            if found or rel._good(s_here, here.inlier_ratio, here.see_through):
-                return CheckVerdict("", here=s_here, best=s_here)
-            return CheckVerdict("unsure", here=s_here, best=0.0)
+            near = max((rel._score(c) for c in found), default=0.0)
+            if rel._good(s_here, here.inlier_ratio, here.see_through) or near >= good:
+                return CheckVerdict("", here=s_here, best=max(s_here, near))
+            # (review: reaching the coarse floor alone is no good fit. Only strict checks'
+            # verdicts clear a pose, Localizer._clear: this non-strict one never does)
+            return CheckVerdict("unsure", here=s_here, best=near)
         if not cands:
             return CheckVerdict("", here=s_here, best=s_here)
         best = max(cands, key=rel._score)
