@@ -2,7 +2,7 @@
 
 The Intel lab's real scans (``test_acc_slip``); the map is the endpoints of the other scans
 at their reference poses, kept only towards one side of the robot (a place the map covers
-by half: at the reference pose 0.58 of the beams end on walls, short of verifying), and the
+by half: at the prediction 0.57 of the beams end on walls, short of verifying), and the
 odometry's noise model loose (alphas 0.3: odometry off beyond its usual model), so the
 chi-square test admits fits 0.2 m off. On the localized scan the ICP's answer is replaced by
 a fit at a chosen offset from the prediction, with the evidence measured there (its hit
