@@ -516,7 +516,7 @@ class LocalizerSection(Section):
         "a fit that does not verify is retried (as from the heading-turned predictions) "
         "from the last pose moved on by this scan's odometry step times each of these "
         "(odometry off by a share of one step: a slip, a stop); the retry that verifies "
-        "and explains clearly more of the scan replaces the fit; empty: off",
+        "and explains clearly more of the scan replaces the fit; each >= 0; empty: off",
         "x step",
     )
     step_retry_min_turn_deg: float = _f(
@@ -527,6 +527,7 @@ class LocalizerSection(Section):
         "pose)",
         "deg",
         ge=0,
+        le=180,
     )
     step_retry_max_offset: float = _f(
         0.6,
@@ -708,6 +709,12 @@ class LocalizerSection(Section):
 
     @model_validator(mode="after")
     def _check(self) -> LocalizerSection:
+        bad = [f for f in self.step_retry_scales if f < 0]
+        if bad:
+            raise ValueError(
+                "step_retry_scales: every scale must be >= 0 (a share of the odometry "
+                f"step's travel; empty: off), got {list(self.step_retry_scales)}"
+            )
         if self.noise_gain_min_samples > self.noise_gain_window:
             raise ValueError(
                 "noise_gain_min_samples: must not exceed noise_gain_window "
