@@ -1810,10 +1810,17 @@ class Localizer:
             # the usual share: the minimum next to a wrong dead reckoning can half explain
             # the scan while a turned seed finds the place explaining most of it)
             best = got
+            off_map = self.outside is not None and getattr(self.outside, "state", "inside") != "inside"
             for k in range(1, lc.coast_heading_seeds + 1):
                 for sign in (-1.0, 1.0):
                     seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * k * d))
                     alt = self._coast_fit(pts, pred, pred_cov, seed, sig)
+                    # while a stretch outside the map is open (icploc.outside: coasted or
+                    # re-entering) a turned seed must pass on the usual share: a weak fit
+                    # from a turned heading took a wrong place there (freiburg-079's partial
+                    # map: its one stretch never re-locked, revisits 100 -> 87 %)
+                    if alt is not None and alt[5] and off_map:
+                        continue
                     if alt is not None and (best is None or alt[2].hit > best[2].hit):
                         best = alt
             got = best
