@@ -22,7 +22,7 @@ from icploc.messages import Scan
 from icploc.recovery import RecoveryStep, RecoveryView
 from icploc.se2 import wrap_angle
 from icploc.status import Status
-from test_acc_slip import LOG, _log
+from test_acc_slip import LOG, _log, _map_near
 
 pytestmark = [
     pytest.mark.shared_data,
@@ -38,18 +38,6 @@ class _Nothing:
 
     def reset(self) -> None:
         pass
-
-
-def _map_near(j: int) -> np.ndarray:
-    log, keep, ref, ends = _log()
-    c = ref[j][:2]
-    lo, hi = keep[j - 5] - 40, keep[j + 2] + 40
-    near = [
-        ends[i]
-        for i in range(0, len(log), 2)
-        if not lo <= i <= hi and math.hypot(*(log.poses[i, :2] - c)) <= 12.0
-    ]
-    return np.unique(np.round(np.vstack(near) / 0.05).astype(np.int64), axis=0) * 0.05
 
 
 def _coast_once(j: int, off: float, config: dict[str, Any]) -> tuple[float, float, Status]:

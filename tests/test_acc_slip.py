@@ -49,10 +49,10 @@ def _log() -> tuple[Any, Any, Any, list[Any]]:
     return log, keep, log.poses[keep], rl.endpoints_world(log, 30.0, every=2)
 
 
-def _slipped_turn(j: int, slip: tuple[float, float], config: dict[str, Any]) -> list[float]:
-    """Track five sparse scans up to scan ``j`` (a turn) from its reference pose, the
-    odometry on the step to ``j`` off by ``slip`` (robot frame, m); the position errors (m)
-    at ``j`` and the two scans after it."""
+def _map_near(j: int) -> np.ndarray:
+    """A 5 cm point map of the other scans' beam ends within 12 m of sparse scan ``j``'s
+    reference pose (the scans from sparse ``j - 5`` to ``j + 2`` and 40 raw scans either
+    side left out: a map from another pass)."""
     log, keep, ref, ends = _log()
     c = ref[j][:2]
     lo, hi = keep[j - 5] - 40, keep[j + 2] + 40
@@ -61,8 +61,15 @@ def _slipped_turn(j: int, slip: tuple[float, float], config: dict[str, Any]) -> 
         for i in range(0, len(log), 2)
         if not lo <= i <= hi and math.hypot(*(log.poses[i, :2] - c)) <= 12.0
     ]
-    cells = np.unique(np.round(np.vstack(near) / 0.05).astype(np.int64), axis=0)
-    loc = Localizer(cells * 0.05, LocalizerConfig.from_dict(config), initial_pose=tuple(ref[j - 5]))
+    return np.unique(np.round(np.vstack(near) / 0.05).astype(np.int64), axis=0) * 0.05
+
+
+def _slipped_turn(j: int, slip: tuple[float, float], config: dict[str, Any]) -> list[float]:
+    """Track five sparse scans up to scan ``j`` (a turn) from its reference pose, the
+    odometry on the step to ``j`` off by ``slip`` (robot frame, m); the position errors (m)
+    at ``j`` and the two scans after it."""
+    log, keep, ref, _ = _log()
+    loc = Localizer(_map_near(j), LocalizerConfig.from_dict(config), initial_pose=tuple(ref[j - 5]))
     odo = tuple(ref[j - 5])
     errs = []
     for k in range(j - 5, j + 3):

@@ -26,8 +26,7 @@ from icploc.localizer import Localizer
 from icploc.messages import Scan
 from icploc.se2 import Pose, between, compose
 from icploc.status import Reason
-from test_acc_coast import _map_near
-from test_acc_slip import LOG, _log
+from test_acc_slip import LOG, _log, _map_near
 
 J = 300  # a sparse scan the map covers well all round; the crop leaves it half covered
 LOOSE = {"alpha3": 0.3, "alpha5": 0.3, "alpha1": 0.01, "alpha2": 0.01}
