@@ -646,7 +646,9 @@ class LocalizerSection(Section):
     coast_heading_seeds: int = _f(
         2,
         "while coasting, a fit from the dead reckoning that does not pass is retried from it "
-        "turned by 1..this many times max(2 heading sigmas, 3 deg) either way; 0: off",
+        "turned by 1..this many times max(2 heading sigmas, 3 deg) either way (while a "
+        "stretch outside the map is open, a turned seed's fit must pass on the usual share, "
+        "not as a weak fit); 0: off",
         "seeds a side",
         ge=0,
     )
