@@ -32,7 +32,7 @@ def _coast(state: str | None, weak: bool) -> tuple[tuple[float, float, float], b
     loc.outside = None if state is None else SimpleNamespace(state=state)
     cov = np.diag([0.1**2, 0.1**2, 0.1**2])
 
-    def fit(pts: Any, pred: Any, pred_cov: Any, seed: Any, sig: float) -> Any:
+    def fit(pts: Any, pred: Any, pred_cov: Any, seed: Any, sig: float, at_pred: Any) -> Any:
         if seed == pred:  # the dead reckoning's own fit: nothing passes
             return None
         hit = SimpleNamespace(hit=0.4)

@@ -1796,7 +1796,9 @@ class Localizer:
         sig = math.sqrt(max(float(pred_cov[0, 0] + pred_cov[1, 1]), 0.0))
         if pts.shape[0] < self.config.scan.min_points or not sig <= lc.coast_sigma_xy:
             return pred, pred_cov, False
-        got = self._coast_fit(pts, pred, pred_cov, pred, sig)
+        # the dead reckoning's own evidence: every seed's fit is judged against it
+        at_pred = self.checker.check(pts, pred)
+        got = self._coast_fit(pts, pred, pred_cov, pred, sig, at_pred)
         if (got is None or got[5]) and lc.coast_heading_seeds:
             # the dead reckoning's heading is what carries it off while lost (odometry off
             # in a turn: freiburg-campus 10 cm bad, 0.13-0.18 rad, the pose ran 4.5 m off
@@ -1814,7 +1816,7 @@ class Localizer:
             for k in range(1, lc.coast_heading_seeds + 1):
                 for sign in (-1.0, 1.0):
                     seed = (pred[0], pred[1], wrap_angle(pred[2] + sign * k * d))
-                    alt = self._coast_fit(pts, pred, pred_cov, seed, sig)
+                    alt = self._coast_fit(pts, pred, pred_cov, seed, sig, at_pred)
                     # while a stretch outside the map is open (icploc.outside: coasted or
                     # re-entering) a turned seed must pass on the usual share: a weak fit
                     # from a turned heading took a wrong place there (freiburg-079's partial
@@ -1845,9 +1847,10 @@ class Localizer:
         pred_cov: NDArray[np.float64],
         seed: Pose,
         sig: float,
+        at_pred: FitCheck,
     ) -> tuple[Pose, NDArray[np.float64], FitCheck, float, Pose, bool] | None:
         """One coasting fit from ``seed`` judged against the dead reckoning ``pred``
-        (:meth:`_coast`): the fused pose, its covariance, the fit's evidence, its inlier
+        (:meth:`_coast`; ``at_pred``: its evidence at ``pred``): the fused pose, its covariance, the fit's evidence, its inlier
         ratio, the fit's pose and whether it passed only as a weak fit (under the usual
         share, taken for its tight hits); None when it is not consistent with the dead reckoning
         or explains the scan less well than it (the strict check a move past the jump cap
@@ -1876,7 +1879,6 @@ class Localizer:
         at_z = self.checker.check(pts, z)
         if at_z.hit < lc.coast_min_hit_ratio:
             return None
-        at_pred = self.checker.check(pts, pred)
         if at_z.hit < at_pred.hit:
             return None
         floor = max(lc.verify_min_hit_ratio, lc.lost_hit_fraction * self.quality.hit_reference)
