@@ -362,6 +362,14 @@ class LocalizerSection(Section):
         1.0e-4, "along- and cross-track variance per squared turn", "m^2/rad^2", ge=0
     )
     alpha5: float = _f(1.0e-3, "cross-track variance per squared distance", "m^2/m^2", ge=0)
+    turn_walk_variance: float = _f(
+        2.0e-3,
+        "along- and cross-track variance per radian turned, growing linearly with the turn (a "
+        "random walk: the wheels' slip over a turn on the spot adds up per radian); the real "
+        "paired motions hold no step turning 0.3 rad, so alpha4's fit says nothing about it",
+        "m^2/rad",
+        ge=0,
+    )
     learn_noise: bool = _f(
         True,
         "learn the odometry noise online (icploc.motion.NoiseGain): the alphas scale up (to "
@@ -594,6 +602,14 @@ class LocalizerSection(Section):
         "as well as the map's usual hit share, with no unverified scan between (unsettled)",
         "scans",
         gt=0,
+    )
+    settle_correction: float = _f(
+        0.15,
+        "a fit that moved the pose farther than this from its prediction (a correction "
+        "beyond what a tracking pose promises) leaves it unsettled too, whatever the "
+        "chi-square test said; 0: off",
+        "m",
+        ge=0,
     )
     tracking_max_sigma: float = _f(
         0.15, "tracking promises the pose: verified, and its sigma at most this", "m", gt=0

@@ -1276,6 +1276,12 @@ class Localizer:
             # or the fit before was beyond it too (the fits pull the pose away from the
             # odometry scan after scan, each within the gate)
             inflated and (self._apart(pred, pose) or self._inflated)
+        ) or (
+            # a correction larger than a tracking pose promises: the pose was that far off
+            # or now is (a turn on the spot the odometry got wrong by tens of centimetres,
+            # whose fit the grown covariance admits, can land in a neighbouring minimum)
+            lc.settle_correction > 0.0
+            and math.hypot(pose[0] - pred[0], pose[1] - pred[1]) > lc.settle_correction
         )
         self._inflated = inflated
         q = self.quality

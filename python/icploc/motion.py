@@ -8,6 +8,9 @@ turn ``rot`` (its heading change)::
     var(along)    = alpha3 trans^2 + alpha4 rot^2     travel from travel, travel from turn
     var(sideways) = alpha5 trans^2 + alpha4 rot^2     drift across the direction of travel
 
+plus ``turn_walk |rot|`` along and sideways (``localizer.turn_walk_variance``): a turn's
+position error adds up per radian as its sub-steps' errors do, a random walk that the squared
+``alpha4`` term, fitted to motions with no turn on the spot, leaves out.
 "along" is the direction of the motion's chord. (AMCL's differential model splits the motion
 into turn-drive-turn; on real pairs of odometry and scan-matched motions the first turn of
 short steps is pure lateral jitter, and a fit then inflates ``alpha1`` tenfold: here the
@@ -57,6 +60,9 @@ class MotionModel:
     floor_theta: float = 0.0
     #: multiplies every alpha (the online noise estimate; 1 = as configured)
     gain: float = 1.0
+    #: along- and cross-track variance per radian turned (m^2/rad), linear in the turn: a
+    #: random walk over the turn (``localizer.turn_walk_variance``; scaled by ``gain`` too)
+    turn_walk: float = 0.0
 
     @classmethod
     def from_config(cls, lc: LocalizerSection) -> MotionModel:
@@ -69,6 +75,7 @@ class MotionModel:
             lc.alpha5,
             floor_xy=lc.process_sigma_xy,
             floor_theta=lc.process_sigma_theta,
+            turn_walk=lc.turn_walk_variance,
         )
 
     def motion_covariance(self, d: Sequence[float]) -> NDArray[np.float64]:
@@ -82,8 +89,9 @@ class MotionModel:
         g = self.gain
         t2, r2 = t * t, dth * dth
         v_th = g * (self.alpha1 * r2 + self.alpha2 * t2)
-        v_al = g * (self.alpha3 * t2 + self.alpha4 * r2)
-        v_lat = g * (self.alpha5 * t2 + self.alpha4 * r2)
+        v_turn = self.alpha4 * r2 + self.turn_walk * abs(dth)
+        v_al = g * (self.alpha3 * t2 + v_turn)
+        v_lat = g * (self.alpha5 * t2 + v_turn)
         if t >= _MIN_TRANS:
             c, s = dx / t, dy / t
         else:
