@@ -42,7 +42,9 @@ def test_the_turn_walk_grows_linearly_with_the_turn_and_only_the_position() -> N
     lc = LocalizerConfig().localizer
     assert lc.turn_walk_variance == pytest.approx(2.0e-3)
     on = MotionModel.from_config(lc)
-    off = MotionModel.from_config(LocalizerConfig.from_dict({"localizer": {"turn_walk_variance": 0.0}}).localizer)
+    off = MotionModel.from_config(
+        LocalizerConfig.from_dict({"localizer": {"turn_walk_variance": 0.0}}).localizer
+    )
     spot = (0.05, 0.0, 0.5)
     q_on, q_off = on.motion_covariance(spot), off.motion_covariance(spot)
     # along and across the step: 2e-3 m^2/rad x 0.5 rad more; the heading untouched
@@ -50,13 +52,20 @@ def test_the_turn_walk_grows_linearly_with_the_turn_and_only_the_position() -> N
     assert q_on[1, 1] - q_off[1, 1] == pytest.approx(1.0e-3)
     assert q_on[2, 2] == pytest.approx(q_off[2, 2])
     # linear in the turn, either way round: twice the turn, twice the added variance
-    d2 = on.motion_covariance((0.05, 0.0, -1.0))[0, 0] - off.motion_covariance((0.05, 0.0, -1.0))[0, 0]
+    d2 = (
+        on.motion_covariance((0.05, 0.0, -1.0))[0, 0]
+        - off.motion_covariance((0.05, 0.0, -1.0))[0, 0]
+    )
     assert d2 == pytest.approx(2.0e-3)
     # a straight step gets nothing from it
-    assert on.motion_covariance((1.0, 0.0, 0.0))[0, 0] == pytest.approx(off.motion_covariance((1.0, 0.0, 0.0))[0, 0])
+    assert on.motion_covariance((1.0, 0.0, 0.0))[0, 0] == pytest.approx(
+        off.motion_covariance((1.0, 0.0, 0.0))[0, 0]
+    )
     # the learned gain scales it as every alpha
     g_on, g_off = (dataclasses.replace(m, gain=3.0) for m in (on, off))
-    assert g_on.motion_covariance(spot)[0, 0] - g_off.motion_covariance(spot)[0, 0] == pytest.approx(3.0e-3)
+    assert g_on.motion_covariance(spot)[0, 0] - g_off.motion_covariance(spot)[
+        0, 0
+    ] == pytest.approx(3.0e-3)
 
 
 @pytest.mark.shared_data
@@ -73,7 +82,11 @@ def test_a_turn_on_the_spot_off_by_a_few_centimetres_is_corrected_by_its_fit(j: 
     assert abs(st_j[2]) > 0.45 and math.hypot(st_j[0], st_j[1]) < 0.08
 
     def run(localizer: dict[str, Any]) -> tuple[Any, float]:
-        loc = Localizer(_map_near(j), LocalizerConfig.from_dict({"localizer": {**FIXED, **localizer}}), initial_pose=tuple(ref[j - 5]))
+        loc = Localizer(
+            _map_near(j),
+            LocalizerConfig.from_dict({"localizer": {**FIXED, **localizer}}),
+            initial_pose=tuple(ref[j - 5]),
+        )
         odo = tuple(ref[j - 5])
         e = None
         for k in range(j - 5, j + 1):
@@ -82,7 +95,9 @@ def test_a_turn_on_the_spot_off_by_a_few_centimetres_is_corrected_by_its_fit(j: 
                 if k == j:
                     st = (st[0] + 0.1, st[1] - 0.1, st[2])
                 odo = compose(odo, st)
-            scan = Scan(stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0)
+            scan = Scan(
+                stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0
+            )
             e = loc.update(scan, odo)
         assert e is not None
         return e, math.hypot(e.pose[0] - ref[j][0], e.pose[1] - ref[j][1])
@@ -96,7 +111,7 @@ def test_a_turn_on_the_spot_off_by_a_few_centimetres_is_corrected_by_its_fit(j: 
     # map's word against the odometry's (odometry_off)
     assert off.nis > REJECT, off.nis
     assert off.reason in (Reason.INCONSISTENT, Reason.ODOMETRY_OFF, Reason.CONTRADICTED), off.reason
-    assert not (off.status is Status.TRACKING)
+    assert off.status is not Status.TRACKING
 
 
 @pytest.mark.shared_data
@@ -112,7 +127,11 @@ def test_a_correction_larger_than_the_promise_leaves_the_pose_unsettled() -> Non
     loose = {"alpha3": 0.3, "alpha5": 0.3, "alpha1": 0.01, "alpha2": 0.01}
 
     def run(localizer: dict[str, Any]) -> list[Any]:
-        loc = Localizer(_map_near(j), LocalizerConfig.from_dict({"localizer": {**FIXED, **loose, **localizer}}), initial_pose=tuple(ref[j - 5]))
+        loc = Localizer(
+            _map_near(j),
+            LocalizerConfig.from_dict({"localizer": {**FIXED, **loose, **localizer}}),
+            initial_pose=tuple(ref[j - 5]),
+        )
         odo = tuple(ref[j - 5])
         out = []
         for k in range(j - 5, j + 5):
@@ -121,7 +140,9 @@ def test_a_correction_larger_than_the_promise_leaves_the_pose_unsettled() -> Non
                 if k == j:
                     st = (st[0] + 0.2, st[1], st[2])
                 odo = compose(odo, st)
-            scan = Scan(stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0)
+            scan = Scan(
+                stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0
+            )
             out.append(loc.update(scan, odo))
         return out
 
