@@ -12,14 +12,20 @@ near, so :class:`OutsideMonitor` takes over the scan instead:
 * **outside**: no scan matching and no global search; the pose is the odometry
   prediction (calibrated by :mod:`icploc.calibration`, its covariance grown by the motion
   model each scan). Status ``degraded`` (``lost`` once the covariance is wider than
-  ``localizer.lost_sigma_xy``), reason ``outside_map``, ``Estimate.mapped`` False.
+  ``localizer.lost_sigma_xy``), reason ``outside_map``, ``Estimate.mapped`` False. The
+  localizer's own status stays ``degraded`` (``lost``, its prediction would grow by
+  ``localizer.lost_noise_gain``: the dead reckoning is unchecked here, not contradicted).
 * **re-entry**: once the scan lands mostly on mapped space again (``exit_share``, for
   ``confirm_scans`` scans in a row) the localizer is declared lost *at the dead-reckoned
   pose with its covariance*, and :class:`ReentryRecovery` searches around it over that
   whole uncertainty and verifies; after a few scans the localizer's own recovery
   (:mod:`icploc.recovery`, :mod:`icploc.relocalize`: global) runs beside it. The scans from re-entry to the lock are counted per stretch; they report
   the dead-reckoned pose as ``degraded``, reason ``reentering`` (``lost`` once the
-  covariance is wider than ``localizer.lost_sigma_xy``).
+  covariance is wider than ``localizer.lost_sigma_xy``) while the localizer's own status
+  is ``lost`` (that runs the search).
+* **leaving**: a scan matched as usual before a stretch begins that is ``tracking`` but
+  mostly off the map at the pose found is ``degraded``, reason ``leaving_map``, in the
+  estimate and in the localizer's own status.
 * **where the map is missing**: every stretch (first outside scan .. the re-entry lock)
   is kept in :attr:`OutsideMonitor.stretches`; with ``record=True`` also the scans' points
   and their poses by odometry alone from the exit (the last ``tracking`` pose), and the
@@ -874,8 +880,11 @@ class OutsideMonitor:
         ):
             # mostly off the map at the pose found too: the scans before a stretch begins
             # (enter_scans, the sudden exit's wait) are matched as usual, but a pose that
-            # most beams cannot check is not promised
+            # most beams cannot check is not promised; the localizer's own status says so
+            # too (it was ``tracking``: its next fit would count as one that follows a
+            # promised pose, a corridor's weakly constrained fit promised at once)
             est = dataclasses.replace(est, status=Status.DEGRADED, reason=LEAVING)
+            loc.status = Status.DEGRADED
         if est.status is not Status.LOST or est.reason == REASON:
             self._last_pose = est.pose
         if self.state == "inside" and est.status is Status.TRACKING and not self._entering:
