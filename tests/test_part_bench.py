@@ -34,3 +34,34 @@ def test_the_cropped_map_keeps_the_full_maps_cells_where_the_partial_map_knows_a
     assert np.array_equal(got.occupied, occ & known)  # the full map's walls, not the partial's
     assert np.array_equal(got.free, ~occ & known)
     assert not (got.occupied | got.free)[:, [0, 1, 4, 5]].any()
+
+
+def test_seeds_are_a_range_or_a_list_and_bad_ones_are_refused() -> None:
+    import pytest
+
+    assert ep.parse_seeds("0-3") == [0, 1, 2, 3]
+    assert ep.parse_seeds("2,5") == [2, 5]
+    assert ep.parse_seeds("7") == [7]
+    for bad in ("x", "3-1", "1,1", "-1", "0-2-4", ""):
+        with pytest.raises(ValueError, match="--seeds"):
+            ep.parse_seeds(bad)
+
+
+def test_the_seed_summary_averages_per_log_and_method_and_counts_against_the_full_map() -> None:
+    def row(log: str, method: str, seed: int, med: float, p95: float) -> dict:
+        return {"log": log, "method": method, "seed": seed, "scans": 10,
+                "inside_median_m": med, "inside_p95_m": p95}  # fmt: skip
+
+    rows = [
+        row("aces", "icploc", 0, 0.04, 0.10), row("aces", "icploc-full", 0, 0.03, 0.08),
+        row("aces", "icploc", 1, 0.02, 0.06), row("aces", "icploc-full", 1, 0.03, 0.09),
+        {"log": "aces", "method": "icploc-crop", "seed": 0, "error": "failed"},
+    ]  # fmt: skip
+    got = {r["method"]: r for r in ep.seed_summary(rows)}
+    assert set(got) == {"icploc", "icploc-full"}  # a failed run is no figure
+    assert got["icploc"]["seeds"] == [0, 1]
+    assert abs(got["icploc"]["inside_median_m"] - 0.03) < 1e-12
+    assert abs(got["icploc"]["inside_p95_m"] - 0.08) < 1e-12
+    assert got["icploc"]["median_le_full"] == [1, 2]  # seed 1 only
+    assert got["icploc"]["p95_le_full"] == [1, 2]
+    assert ep.seeds_md_row(got["icploc"]) == "| aces | icploc | 2 | 3.00 | 8.00 | 1 of 2 | 1 of 2 |"
