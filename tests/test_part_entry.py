@@ -133,3 +133,43 @@ def test_the_localizer_status_while_outside_and_reentering() -> None:
             assert est.status is Status.DEGRADED and sig <= lost_sigma
     assert mon.stretches[0].end is not None  # back in the map: both states were seen
     assert seen["outside"] >= 10 and seen["reentering"] >= 1
+
+
+def _mixed(off: int) -> np.ndarray:
+    """60 points, ``off`` of them beyond the map's edge (x = 3.5 m), the rest on its wall."""
+    return np.vstack([_points(-0.5)[: 60 - off], _points(2.5)[:off]])
+
+
+def _edge_run(hold: bool) -> Localizer:
+    # towards the edge (a third off), mostly off, back to 0.42 off (between exit_share
+    # 0.35 and enter_share 0.5: along the edge), mostly off again
+    import dataclasses
+
+    loc = _localizer()
+    loc.outside.config = dataclasses.replace(loc.outside.config, enter_hold=hold)
+    for off in (20, 40, 25, 40):
+        _feed(loc, _mixed(off))
+    return loc
+
+
+def test_a_scan_along_the_maps_edge_holds_the_streak_that_began_a_stretch() -> None:
+    # aces' partial map (benches/eval_partial.py): the robot skirted the map's edge for 11
+    # scans with 0.35-0.58 of its beams off the map, never 0.5 twice in a row, and the
+    # localizer was lost there, searching the whole map, for 24 scans (its scans explained
+    # nowhere, not even at the reference pose); with the hold the stretch begins
+    cfg = OutsideConfig()
+    assert cfg.exit_share < 25 / 60 < cfg.enter_share <= 40 / 60
+    loc = _edge_run(hold=True)
+    assert [s.start for s in loc.outside.stretches] == [loc.scans_processed - 1]
+    assert loc.outside.state == "outside"
+    # without the hold the scan along the edge broke the streak: no stretch
+    loc = _edge_run(hold=False)
+    assert not loc.outside.stretches and loc.outside.state == "inside"
+
+
+def test_scans_along_the_maps_edge_begin_no_streak_by_themselves() -> None:
+    # the hold keeps a streak that began; the streak needs its scans at enter_share or more
+    loc = _localizer()
+    for off in (20, 25, 25, 25):
+        _feed(loc, _mixed(off))
+    assert not loc.outside.stretches and loc.outside._entering == 0
