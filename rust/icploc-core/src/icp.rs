@@ -518,7 +518,7 @@ struct Workspace {
 }
 
 /// See [`Workspace::nn`].
-const UNKNOWN: u32 = u32::MAX;
+const UNKNOWN: u32 = window::FAR;
 
 impl Workspace {
     /// The exact answers (the index's own) for the points of the last pass whose closest
@@ -547,7 +547,13 @@ fn assessed(
         let shift = (r.pose.x - p.x).hypot(r.pose.y - p.y)
             + wrap_angle(r.pose.theta - p.theta).abs() * ws.reach;
         if shift <= window::REUSE_SHIFT && ws.nn.len() == scan.len() {
-            ws.resolve_nn(index);
+            // the points with no map point within the grid's reach need their exact
+            // answer (a k-d tree search each, far from the map) only when they could
+            // count in the fit
+            let near = 2.0 * index.spacing() + 3.0 * cfg.expected_noise;
+            if !window::far_is_nothing(cfg, near) {
+                ws.resolve_nn(index);
+            }
             return assess_with(scan, index, r.pose, cfg, &ws.nn);
         }
     }
@@ -602,8 +608,35 @@ pub fn align(
     cfg: &IcpConfig,
 ) -> Result<IcpResult> {
     check_inputs(scan, initial, cfg)?;
-    let mut ws = Workspace::default();
-    Ok(align_unchecked(scan, index, initial, cfg, &mut ws))
+    // the thread's buffers of its last call (no allocation per call); a fresh set in the
+    // (impossible) case of a call from inside a call
+    WORKSPACE.with(|w| match w.try_borrow_mut() {
+        Ok(mut ws) => {
+            let r = align_unchecked(scan, index, initial, cfg, &mut ws);
+            // a huge scan's buffers are not kept for the thread's life
+            if ws.moved.capacity() > KEPT_WORKSPACE_POINTS {
+                *ws = Workspace::default();
+            }
+            Ok(r)
+        }
+        Err(_) => Ok(align_unchecked(
+            scan,
+            index,
+            initial,
+            cfg,
+            &mut Workspace::default(),
+        )),
+    })
+}
+
+/// [`align`] keeps its buffers between calls for scans of up to this many points.
+const KEPT_WORKSPACE_POINTS: usize = 1 << 16;
+
+thread_local! {
+    /// [`align`]'s buffers, kept between calls on a thread: every call sizes and fills
+    /// them before it reads them (and resets the last pass's pose), so a call's result does
+    /// not depend on the calls before it.
+    static WORKSPACE: std::cell::RefCell<Workspace> = std::cell::RefCell::new(Workspace::default());
 }
 
 /// `align_batch` uses at most this many threads per core (a larger request is clamped).
@@ -1025,12 +1058,13 @@ fn slide_points(
     cfg: &IcpConfig,
 ) -> (Vec<[f64; 2]>, Vec<bool>) {
     let stride = scan.len().div_ceil(SLIDE_POINTS);
+    let pick = window::Picker::new(stride);
     let normals = index.normals();
     let near = 3.0 * cfg.expected_noise + 2.0 * index.spacing();
     let mut out = Vec::new();
     let mut picked = Vec::new();
     for p in scan {
-        if window::picked(p, stride) {
+        if pick.picked(p) {
             out.push(*p);
             picked.push(true);
             continue;
@@ -1044,7 +1078,7 @@ fn slide_points(
     }
     if out.len() < 3 {
         out = scan.to_vec();
-        picked = scan.iter().map(|p| window::picked(p, stride)).collect();
+        picked = scan.iter().map(|p| pick.picked(p)).collect();
     }
     (out, picked)
 }
@@ -1400,7 +1434,9 @@ fn align_plain(
         pose = heading_search(scan, index, pose, cfg, ws);
     }
     let mut mse = f64::INFINITY;
-    let mut accel = Accelerator::new(scan);
+    // point-to-point's acceleration (point-to-line does not use it: its scale, a pass
+    // with two divisions per point, is not computed)
+    let mut accel = normals.is_none().then(|| Accelerator::new(scan));
     let mut iterations = 0;
     let mut termination = Termination::MaxIterations;
     ws.moved.resize(n, [0.0; 2]);
@@ -1423,11 +1459,9 @@ fn align_plain(
     let stride = n / COARSE_POINTS;
     ws.coarse.clear();
     if stride >= 2 {
-        ws.coarse.extend(
-            (0..n)
-                .filter(|&i| window::picked(&scan[i], stride))
-                .map(|i| i as u32),
-        );
+        let pick = window::Picker::new(stride);
+        ws.coarse
+            .extend((0..n).filter(|&i| pick.picked(&scan[i])).map(|i| i as u32));
     }
     // fewer pairs than this in a coarse stage: that stage and the rest see every point
     let coarse_min = (min_inl * ws.coarse.len())
@@ -1464,8 +1498,17 @@ fn align_plain(
         pairs.clear();
         last_coarse = coarse && !at_final;
         if last_coarse {
-            let ids = sub.iter().map(|&i| i as usize);
-            gather(scan, index, pose, thr2, ids, pairs, moved, nn, &mut buf);
+            gather(
+                scan,
+                index,
+                pose,
+                thr2,
+                Some(sub),
+                pairs,
+                moved,
+                nn,
+                &mut buf,
+            );
             *nn_pose = None;
             if pairs.len() < coarse_min {
                 coarse = false;
@@ -1474,7 +1517,7 @@ fn align_plain(
         }
         if !last_coarse {
             pairs.clear();
-            gather(scan, index, pose, thr2, 0..n, pairs, moved, nn, &mut buf);
+            gather(scan, index, pose, thr2, None, pairs, moved, nn, &mut buf);
             *nn_pose = Some(pose);
         }
         trim(&mut ws.pairs, cfg.trim_fraction);
@@ -1503,6 +1546,7 @@ fn align_plain(
                 match cc.solve() {
                     Some(reg) => {
                         let mut np = Pose2::new(reg.t[0], reg.t[1], wrap_angle(reg.theta));
+                        let accel = accel.as_mut().expect("made for point-to-point");
                         if at_final {
                             np = accel.step(np, registered_mse(scan, map, &ws.pairs, np));
                         } else {
@@ -1671,9 +1715,10 @@ const COARSE_POINTS: usize = 96;
 /// A coarse stage needs at least this many pairs (and the scaled `min_inliers`).
 const COARSE_MIN_PAIRS: usize = 12;
 
-/// The pairs of the scan points `ids` moved to `pose` within `sqrt(thr2)` of their closest
-/// map points (`moved`: the moved points, `nn`: their closest map points, by scan index;
-/// `buf`: room for the queries and answers of [`MapIndex::correspondences`]).
+/// The pairs of the scan points `sub` (all of them when `None`) moved to `pose` within
+/// `sqrt(thr2)` of their closest map points (`moved`: the moved points, `nn`: their closest
+/// map points, by scan index; `buf`: room for a subsample's queries and the answers of
+/// [`MapIndex::correspondences`]).
 #[inline]
 #[allow(clippy::too_many_arguments)]
 fn gather(
@@ -1681,7 +1726,7 @@ fn gather(
     index: &MapIndex,
     pose: Pose2,
     thr2: f64,
-    ids: impl Iterator<Item = usize> + Clone,
+    sub: Option<&[u32]>,
     pairs: &mut Vec<Pair>,
     moved: &mut [[f64; 2]],
     nn: &mut [u32],
@@ -1689,25 +1734,55 @@ fn gather(
 ) {
     let (s, c) = pose.theta.sin_cos();
     let (queries, answers) = buf;
-    queries.clear();
-    for i in ids.clone() {
-        let p = scan[i];
-        let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
-        moved[i] = q;
-        queries.push(q);
+    let n = scan.len();
+    // every point: the moved points are the queries, in place; a subsample: its moved
+    // points gathered into `queries`
+    let qs: &[[f64; 2]] = match sub {
+        None => {
+            for (m, p) in moved[..n].iter_mut().zip(scan) {
+                *m = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+            }
+            &moved[..n]
+        }
+        Some(ids) => {
+            queries.clear();
+            for &i in ids {
+                let p = scan[i as usize];
+                let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
+                moved[i as usize] = q;
+                queries.push(q);
+            }
+            queries
+        }
+    };
+    // room for the answers (each is written by the look-up before it is read)
+    if answers.len() < qs.len() {
+        answers.resize(qs.len(), (0.0, 0));
     }
-    answers.resize(queries.len(), (0.0, 0));
+    let answers = &mut answers[..qs.len()];
     // a threshold within the grid's reach rejects every point farther than the reach: no
     // exact answer for those (their closest point stays unknown until a fit needs it)
     if thr2 <= crate::index::CACHE_REACH * crate::index::CACHE_REACH {
-        index.correspondences_within_reach(queries, answers);
+        index.correspondences_within_reach(qs, answers);
     } else {
-        index.correspondences(queries, answers);
+        index.correspondences(qs, answers);
     }
-    for (i, &(d2, j)) in ids.zip(answers.iter()) {
+    let mut keep = |i: usize, (d2, j): (f64, u32)| {
         nn[i] = j;
         if d2 <= thr2 {
             pairs.push(Pair { i: i as u32, j, d2 });
+        }
+    };
+    match sub {
+        None => {
+            for (i, &a) in answers.iter().enumerate() {
+                keep(i, a);
+            }
+        }
+        Some(ids) => {
+            for (&i, &a) in ids.iter().zip(answers.iter()) {
+                keep(i as usize, a);
+            }
         }
     }
 }

@@ -195,12 +195,17 @@ impl LikelihoodField {
         let x = (p[0] - self.x0) / self.res;
         let y = (p[1] - self.y0) / self.res;
         // for x ≥ 0 the truncation is ⌊x⌋ (`f64::floor` is a libm call on baseline x86-64,
-        // and this is the see-through check's inner loop); NaN and negatives fail the test,
-        // +∞ saturates beyond the grid (through i64: the same truncation for x ≥ 0, a
-        // value at or above 2⁶³ saturating beyond the grid too, in fewer instructions than
-        // a saturating cast to usize)
-        let (xi, yi) = (x as i64 as usize, y as i64 as usize);
-        if x >= 0.0 && y >= 0.0 && xi < self.w && yi < self.h {
+        // and this is the see-through check's inner loop); NaN, negatives and values beyond
+        // the grid fail the test, and the rest truncate without a saturating cast's tests
+        if x >= 0.0 && y >= 0.0 && x < self.w as f64 && y < self.h as f64 {
+            // SAFETY: 0 ≤ x < w and 0 ≤ y < h (so finite and below 2⁶³): their
+            // truncations are representable, and below w and h (integers)
+            let (xi, yi) = unsafe {
+                (
+                    x.to_int_unchecked::<i64>() as usize,
+                    y.to_int_unchecked::<i64>() as usize,
+                )
+            };
             Some(self.dist[yi * self.w + xi] as f64)
         } else {
             None

@@ -49,19 +49,28 @@ fn smooth(h: &[f64]) -> Vec<f32> {
     let n = h.len();
     // the wrap below folds at most one extra turn: right only when n > SMOOTH_BINS
     debug_assert!(n == 0 || n > SMOOTH_BINS);
+    let w: [f64; 2 * SMOOTH_BINS + 1] =
+        std::array::from_fn(|d| (SMOOTH_BINS + 1 - SMOOTH_BINS.abs_diff(d)) as f64);
     let mut out = vec![0.0f64; n];
     for (i, o) in out.iter_mut().enumerate() {
-        for d in 0..=2 * SMOOTH_BINS {
-            let w = (SMOOTH_BINS + 1 - SMOOTH_BINS.abs_diff(d)) as f64;
+        if i >= SMOOTH_BINS && i + SMOOTH_BINS < n {
+            // away from the ends: no wrap (the same terms, added in the same order)
+            for (d, &wd) in w.iter().enumerate() {
+                *o += wd * h[i + d - SMOOTH_BINS];
+            }
+            continue;
+        }
+        for (d, &wd) in w.iter().enumerate() {
             // (i + n + d − SMOOTH_BINS) mod n, without the division
             let k = i + n + d - SMOOTH_BINS;
-            *o += w * h[if k >= 2 * n {
-                k - 2 * n
-            } else if k >= n {
-                k - n
-            } else {
-                k
-            }];
+            *o += wd
+                * h[if k >= 2 * n {
+                    k - 2 * n
+                } else if k >= n {
+                    k - n
+                } else {
+                    k
+                }];
         }
     }
     let total: f64 = out.iter().sum();
@@ -97,11 +106,10 @@ pub(crate) fn map_directions(normals: &[[f64; 2]]) -> Vec<f32> {
 /// point two beams before to the one two after (four or eight when that chord is shorter
 /// than [`MIN_CHORD`]), when it is a straight wall piece; each piece weighted by its length. `None` with fewer than [`MIN_PIECES`] pieces.
 pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
-    let mut pts: Vec<[f64; 2]> = scan
-        .iter()
-        .filter(|p| p[0].is_finite() && p[1].is_finite() && p[0] * p[0] + p[1] * p[1] > 0.05 * 0.05)
-        .copied()
-        .collect();
+    let mut pts: Vec<[f64; 2]> = Vec::with_capacity(scan.len());
+    pts.extend(scan.iter().filter(|p| {
+        p[0].is_finite() && p[1].is_finite() && p[0] * p[0] + p[1] * p[1] > 0.05 * 0.05
+    }));
     if pts.len() < 5 {
         return None;
     }
@@ -139,9 +147,10 @@ pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
                 break;
             }
             let q = half / 2;
+            let bend = MAX_BEND * len;
             let straight = [pts[i - q], pts[i], pts[i + q]].iter().all(|m| {
-                let off = (c[0] * (m[1] - a[1]) - c[1] * (m[0] - a[0])).abs() / len;
-                off <= MAX_BEND * len
+                let area = (c[0] * (m[1] - a[1]) - c[1] * (m[0] - a[0])).abs();
+                within_bend(area, len, bend)
             });
             if straight {
                 h[bin_of(approx_atan2(c[1], c[0]))] += len;
@@ -151,6 +160,23 @@ pub(crate) fn scan_directions(scan: &[[f64; 2]]) -> Option<Vec<f32>> {
         }
     }
     (pieces >= MIN_PIECES).then(|| smooth(&h))
+}
+
+/// `area / len <= bend` (a middle point's offset from a chord of length `len` > 0 against
+/// the bend allowed, all finite and non-negative), as computed in floating point, mostly
+/// without the division: away from the border (a relative 1e-12, far beyond the rounding
+/// of the quotient and of the product here) the product `bend · len` decides it; at the
+/// border the quotient itself.
+#[inline(always)]
+fn within_bend(area: f64, len: f64, bend: f64) -> bool {
+    let lim = bend * len;
+    if area <= lim * (1.0 - 1e-12) {
+        true
+    } else if area >= lim * (1.0 + 1e-12) {
+        false
+    } else {
+        area / len <= bend
+    }
 }
 
 /// `atan2(y, x)` to about 1e-5 rad (a polynomial for the arctangent on [-1, 1],
@@ -192,24 +218,30 @@ pub(crate) fn heading_prior(
     let step = PI / DIRECTION_BINS as f64;
     let c0 = (center / step).round() as i64;
     let k = (half_range / step).ceil() as i64;
-    // the scan's non-empty bins only (a few walls' directions), and the map's histogram
-    // twice over so that a shift needs no modulo
-    let nonzero: Vec<(usize, f64)> = scan_h
-        .iter()
-        .enumerate()
-        .filter(|(_, &v)| v != 0.0)
-        .map(|(b, &v)| (b, v as f64))
+    // the correlation at the shifts c0 − k − 1, …, c0 + k + 1: for shift s, the sum over
+    // the scan's non-empty bins b (a few walls' directions), in ascending order, of
+    // scan[b] · map[(b + s) mod n]. Computed bin by bin for all shifts at once (each
+    // shift's sum still adds its terms in the order of the bins: the same sums, in a
+    // loop over contiguous shifts that the compiler vectorises), on the map's histogram
+    // repeated so that b + s needs no modulo.
+    let shifts = (2 * k + 3) as usize;
+    let s0 = (c0 - k - 1).rem_euclid(n) as usize;
+    let nu = n as usize;
+    let reps = (nu - 1 + s0 + shifts).div_ceil(nu);
+    let repeated: Vec<f64> = (0..reps)
+        .flat_map(|_| map_h.iter().map(|&v| v as f64))
         .collect();
-    let twice: Vec<f64> = map_h
-        .iter()
-        .chain(map_h.iter())
-        .map(|&v| v as f64)
-        .collect();
-    let corr = |shift: i64| -> f64 {
-        let s = shift.rem_euclid(n) as usize;
-        nonzero.iter().map(|&(b, v)| v * twice[b + s]).sum()
-    };
-    let vals: Vec<f64> = (-k - 1..=k + 1).map(|d| corr(c0 + d)).collect();
+    let mut vals = vec![0.0f64; shifts];
+    for (b, &v) in scan_h.iter().enumerate() {
+        if v == 0.0 {
+            continue;
+        }
+        let v = v as f64;
+        let row = &repeated[b + s0..b + s0 + shifts];
+        for (acc, &m) in vals.iter_mut().zip(row) {
+            *acc += v * m;
+        }
+    }
     let (mut bi, mut bv) = (0usize, 0.0f64);
     for (i, &v) in vals.iter().enumerate().skip(1).take(vals.len() - 2) {
         if v > bv {
@@ -381,6 +413,32 @@ mod tests {
         let scan_h = scan_directions(&scan).expect("a room has walls");
         let th = heading_prior(&scan_h, &map_h, 0.4 + deg(20.0), deg(30.0)).unwrap();
         assert!(wrap_angle(th - 0.4).abs() < deg(1.5), "{}", th.to_degrees());
+    }
+
+    #[test]
+    fn the_bend_test_without_division_decides_as_the_quotient() {
+        // random values and values at the border (quotients one ulp either side)
+        let mut rng = Rng::new(11);
+        for k in 0..200_000 {
+            let len = rng.range(0.08, 0.6);
+            let bend = 0.08 * len;
+            let area = if k % 2 == 0 {
+                rng.range(0.0, 2.0 * bend * len)
+            } else {
+                let q = bend * len / len;
+                let q = match k % 6 {
+                    1 => q,
+                    3 => f64::from_bits(q.to_bits() + 1),
+                    _ => f64::from_bits(q.to_bits() - 1),
+                };
+                q * len
+            };
+            assert_eq!(
+                within_bend(area, len, bend),
+                area / len <= bend,
+                "area {area:e}, len {len}"
+            );
+        }
     }
 
     #[test]

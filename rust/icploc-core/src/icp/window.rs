@@ -13,7 +13,7 @@
 
 use crate::global::{child_sums_shifted, Shifts};
 use crate::icp::IcpConfig;
-use crate::index::MapIndex;
+use crate::index::{MapIndex, CACHE_REACH};
 use crate::likelihood::LikelihoodField;
 use crate::se2::{wrap_angle, Pose2};
 
@@ -44,24 +44,81 @@ pub(crate) const RANKING_POINTS: usize = 96;
 /// The best ranked seeds refined by ICP.
 pub(crate) const WINDOW_REFINED: usize = 3;
 
-/// Is `p` in the every-`stride`-th subset of a scan? Decided by a hash of the point itself,
-/// not by its position in the array: the subset, and so the answer, does not depend on the
-/// order of the scan points.
-#[inline]
+/// [`Picker::picked`] by its definition (the tests' reference).
+#[cfg(test)]
 pub(crate) fn picked(p: &[f64; 2], stride: usize) -> bool {
-    if stride <= 1 {
-        return true;
-    }
+    stride <= 1 || point_hash(p) % stride as u64 == 0
+}
+
+/// The hash of [`Picker::picked`].
+#[inline(always)]
+fn point_hash(p: &[f64; 2]) -> u64 {
     let mut z = p[0].to_bits() ^ p[1].to_bits().rotate_left(29);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    (z ^ (z >> 31)) % stride as u64 == 0
+    z ^ (z >> 31)
+}
+
+/// The every-`stride`-th subset of a scan: a point is in it when a hash of the point
+/// itself (not its position in the array: the subset does not depend on the order of the
+/// scan points) is a multiple of the stride. The test of divisibility is a multiplication
+/// and a comparison (a 64-bit division per point costs more than the rest of the test):
+/// with the stride 2^k · m (m odd), a
+/// hash is a multiple of it when its low k bits are 0 and the rest times the inverse of m
+/// modulo 2⁶⁴ is at most ⌊(2⁶⁴ − 1) / m⌋ (the multiples of m are the numbers that map to
+/// 0, 1, …, ⌊(2⁶⁴ − 1) / m⌋).
+#[derive(Clone, Copy)]
+pub(crate) struct Picker {
+    all: bool,
+    shift: u32,
+    inv: u64,
+    limit: u64,
+}
+
+impl Picker {
+    pub(crate) fn new(stride: usize) -> Self {
+        if stride <= 1 {
+            return Self {
+                all: true,
+                shift: 0,
+                inv: 1,
+                limit: u64::MAX,
+            };
+        }
+        let d = stride as u64;
+        let shift = d.trailing_zeros();
+        let m = d >> shift;
+        // Newton's iteration for the inverse modulo 2⁶⁴: m · m ≡ 1 (mod 8) for odd m, and
+        // each step doubles the bits that are right (3, 6, 12, 24, 48, 96)
+        let mut inv = m;
+        for _ in 0..5 {
+            inv = inv.wrapping_mul(2u64.wrapping_sub(m.wrapping_mul(inv)));
+        }
+        debug_assert_eq!(m.wrapping_mul(inv), 1);
+        Self {
+            all: false,
+            shift,
+            inv,
+            limit: u64::MAX / m,
+        }
+    }
+
+    /// Is `p` in the subset?
+    #[inline(always)]
+    pub(crate) fn picked(&self, p: &[f64; 2]) -> bool {
+        if self.all {
+            return true;
+        }
+        let h = point_hash(p);
+        h.trailing_zeros() >= self.shift && (h >> self.shift).wrapping_mul(self.inv) <= self.limit
+    }
 }
 
 /// About `n / stride` points of `scan` (at least all of them when that leaves fewer than
-/// `min`), chosen by [`picked`].
+/// `min`), chosen by [`Picker`].
 pub(crate) fn subsample(scan: &[[f64; 2]], stride: usize, min: usize) -> Vec<[f64; 2]> {
-    let sub: Vec<[f64; 2]> = scan.iter().filter(|p| picked(p, stride)).copied().collect();
+    let pick = Picker::new(stride);
+    let sub: Vec<[f64; 2]> = scan.iter().filter(|p| pick.picked(p)).copied().collect();
     if sub.len() < min {
         scan.to_vec()
     } else {
@@ -142,7 +199,10 @@ pub fn assess(scan: &[[f64; 2]], index: &MapIndex, pose: Pose2, cfg: &IcpConfig)
 /// the distance is to the line through the map point found, which a shift of a few
 /// millimetres leaves on the same wall (its neighbouring sample has the same line); off
 /// the map (farther than the inlier band plus two spacings) the point is an outlier
-/// either way and its distance to that map point stands.
+/// either way and its distance to that map point stands. An entry [`FAR`] is a point with
+/// no map point within [`CACHE_REACH`] (the ICP pass's grid had no cell there), allowed
+/// only when [`far_is_nothing`] holds for `cfg`: such a point adds exactly nothing (an
+/// outlier, and a likelihood term that is exactly 0), whichever map point is nearest.
 pub(crate) fn assess_with(
     scan: &[[f64; 2]],
     index: &MapIndex,
@@ -160,7 +220,11 @@ pub(crate) fn assess_with(
     let inv2s2 = 1.0 / (2.0 * sigma * sigma);
     let (s, c) = pose.theta.sin_cos();
     let (mut inl, mut sq, mut lik) = (0usize, 0.0, 0.0);
+    debug_assert!(far_is_nothing(cfg, near) || !nn.contains(&FAR));
     for (p, &j) in scan.iter().zip(nn) {
+        if j == FAR {
+            continue;
+        }
         let q = [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]];
         let (x, n) = (points[j as usize], normals[j as usize]);
         let d = [q[0] - x[0], q[1] - x[1]];
@@ -190,6 +254,23 @@ pub(crate) fn assess_with(
         vanished,
         score: lik / nf * (1.0 - st).powi(2),
     }
+}
+
+/// See [`assess_with`]: the closest map point of a scan point that has none within
+/// [`CACHE_REACH`], not looked up.
+pub(crate) const FAR: u32 = u32::MAX;
+
+/// Does a scan point farther than [`CACHE_REACH`] from the map add exactly nothing to
+/// [`assess_with`]'s fit, for `cfg` (and `near`, the point-to-line reach of the index:
+/// twice its spacing plus the inlier band)? Its distance is then beyond `near` (the
+/// point-to-point distance counts) and the inlier band, and its likelihood term is
+/// exp(−d²/2σ²) = 0 exactly: exp underflows to +0 below −745.2, and adding +0 leaves any
+/// sum as it is.
+pub(crate) fn far_is_nothing(cfg: &IcpConfig, near: f64) -> bool {
+    let sigma = cfg.expected_noise;
+    near < CACHE_REACH
+        && 3.0 * sigma < CACHE_REACH
+        && CACHE_REACH * CACHE_REACH / (2.0 * sigma * sigma) > 746.0
 }
 
 /// [`assess_with`] reuses the closest points of a pass at most this far (m) from the
@@ -303,7 +384,8 @@ pub(crate) fn see_through_parts(
     // part of the map), and the reads of different beams overlap. Each beam's steps are
     // exactly those it takes alone; its small objects are listed together when it ends.
     let mut beams: Vec<Beam> = Vec::with_capacity(SEE_THROUGH_BEAMS + 1);
-    for p in scan.iter().filter(|p| picked(p, stride)) {
+    let pick = Picker::new(stride);
+    for p in scan.iter().filter(|p| pick.picked(p)) {
         let r = p[0].hypot(p[1]);
         if !(r > 2.0 * margin) || !r.is_finite() {
             continue;
@@ -443,6 +525,8 @@ pub(crate) fn see_through_parts(
     for (i, p) in scan.iter().enumerate() {
         let q = pose.transform(*p);
         let j = match nn {
+            // no map point within `CACHE_REACH`: none within `OBSERVED`
+            Some(nn) if nn[i] == FAR => continue,
             Some(nn) => nn[i] as usize,
             None => index.correspondence(q).1,
         };
@@ -734,6 +818,36 @@ pub(crate) fn search(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_picker_picks_as_the_division_does() {
+        let mut z = 0x1234_5678_9abc_def0u64;
+        for stride in (0..1000).chain([1 << 20, (1 << 31) + 1, usize::MAX / 3]) {
+            let pick = Picker::new(stride);
+            for k in 0..300 {
+                // points spread over the plane, and some with hashes near multiples
+                z = z
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                let p = if k % 3 == 0 {
+                    [k as f64 * 0.01, -(k as f64) * 0.37]
+                } else {
+                    [
+                        f64::from_bits(z >> 2),
+                        f64::from_bits(z.rotate_left(17) >> 2),
+                    ]
+                };
+                assert_eq!(
+                    pick.picked(&p),
+                    picked(&p, stride),
+                    "stride {stride}, {p:?}"
+                );
+            }
+        }
+        // a hash of 0 (a multiple of every stride), through the test itself
+        let pick = Picker::new(12);
+        assert!(0u64.trailing_zeros() >= pick.shift && 0u64.wrapping_mul(pick.inv) <= pick.limit);
+    }
+
     use super::*;
     use crate::icp::{align, StartPath};
     use crate::index::DEFAULT_CACHE_RESOLUTION;

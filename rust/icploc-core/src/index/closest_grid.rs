@@ -58,6 +58,17 @@ fn floor_i64(x: f64) -> i64 {
     t - i64::from((t as f64) > x)
 }
 
+/// ⌊x⌋ of a cell coordinate the caller has checked to lie in [0, `MAX_CELL_COORD`): one
+/// truncating instruction on x86-64 (a saturating cast `as i64` adds the tests of its
+/// saturation, which such values never reach).
+#[inline(always)]
+fn trunc(x: f64) -> u64 {
+    debug_assert!((0.0..MAX_CELL_COORD as f64).contains(&x));
+    // SAFETY: `x` is finite and in [0, 2³⁶), so it truncates to a representable i64
+    // (the callers test it first: `fx >= 0.0 && fx < MAX_CELL_COORD as f64`, false for NaN)
+    unsafe { x.to_int_unchecked::<i64>() as u64 }
+}
+
 /// Why a grid was not built at the requested resolution.
 #[derive(Debug, Clone, PartialEq)]
 pub(super) enum Unbuilt {
@@ -525,9 +536,7 @@ impl ClosestGrid {
         if !(fx >= 0.0 && fy >= 0.0 && fx < MAX_CELL_COORD as f64 && fy < MAX_CELL_COORD as f64) {
             return None;
         }
-        // through i64: the same truncation for these (non-negative, below 2³⁶) values,
-        // one instruction on x86-64 where a saturating cast to u64 takes about ten
-        let (gx, gy) = (fx as i64 as u64, fy as i64 as u64);
+        let (gx, gy) = (trunc(fx), trunc(fy));
         if let Some([x0, y0, w, h]) = self.full {
             let (x, y) = (gx.wrapping_sub(x0), gy.wrapping_sub(y0));
             if !(x < w && y < h) {
@@ -557,8 +566,8 @@ impl ClosestGrid {
                     let fy = q[1] * self.inv_res - by;
                     o.1 = NONE;
                     if fx >= 0.0 && fy >= 0.0 && fx < max && fy < max {
-                        let x = (fx as i64 as u64).wrapping_sub(x0);
-                        let y = (fy as i64 as u64).wrapping_sub(y0);
+                        let x = trunc(fx).wrapping_sub(x0);
+                        let y = trunc(fy).wrapping_sub(y0);
                         if x < w && y < h {
                             o.1 = cells[(y * w + x) as usize];
                         }
