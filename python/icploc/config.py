@@ -324,6 +324,13 @@ class GatingSection(Section):
         0.99, "chi-square probability (3 dof) of the accept quantile", ge=0.5, lt=1
     )
     chi2_reject: float = _f(0.9999, "... of the reject quantile (>= chi2_accept)", ge=0.5, lt=1)
+    heading_test: bool = _f(
+        True,
+        "test the heading on its own too: the gate's statistic is the larger of the joint "
+        "v' (P + R)^-1 v and the 3-dof value with the tail of the heading's own "
+        "v_t^2 / (P + R)_tt (1 dof), so a position covariance grown by a turn does not "
+        "loosen the heading a fit may take",
+    )
     max_translation_jump: float = _f(1.5, "hard cap on one correction's translation", "m", gt=0)
     max_rotation_jump_deg: float = _f(45.0, "hard cap on one correction's rotation", "deg", gt=0)
     min_inlier_ratio: float = _f(0.12, "a fit with a smaller inlier ratio is rejected", ge=0, le=1)
@@ -368,6 +375,14 @@ class LocalizerSection(Section):
         "random walk: the wheels' slip over a turn on the spot adds up per radian); the real "
         "paired motions hold no step turning 0.3 rad, so alpha4's fit says nothing about it",
         "m^2/rad",
+        ge=0,
+    )
+    turn_walk_max_travel: float = _f(
+        0.5,
+        "a step that travelled farther than this adds no turn walk: the walk is a turn on "
+        "the spot's, the alphas cover a step as long as the 0.5 m motions they were fitted "
+        "to; 0: every step",
+        "m",
         ge=0,
     )
     learn_noise: bool = _f(

@@ -28,7 +28,16 @@ from numpy.typing import NDArray
 from icploc import _core
 from icploc.se2 import Pose, wrap_angle
 
-__all__ = ["CHI2_3", "CHI2_3_MEDIAN", "axis_measurements", "fuse", "mahalanobis2", "scan_covariance"]
+__all__ = [
+    "CHI2_3",
+    "CHI2_3_MEDIAN",
+    "axis_measurements",
+    "chi2_3_same_tail",
+    "fuse",
+    "heading_nis",
+    "mahalanobis2",
+    "scan_covariance",
+]
 
 #: chi-square quantiles with 3 degrees of freedom (probability -> value): the gate's
 #: quantiles (the tables' values, 3 decimals; scipy is not imported for them)
@@ -164,6 +173,46 @@ def mahalanobis2(
         + Si[2][2] * v2 * v2
         + 2.0 * (Si[0][1] * v0 * v1 + Si[0][2] * v0 * v2 + Si[1][2] * v1 * v2)
     )
+
+
+def heading_nis(
+    pred: Pose, P: NDArray[np.float64], meas: Pose, R: NDArray[np.float64]
+) -> float:
+    """The heading's own chi-square statistic (1 dof), ``v_t^2 / (P + R)_tt``: the
+    heading innovation tested against the heading variance alone, whatever the position's
+    covariance (the joint :func:`mahalanobis2` lets a heading innovation hide in a wide
+    position covariance correlated with it)."""
+    s = float(P[2, 2] + R[2, 2])
+    if not s > 0.0:
+        return math.inf
+    v = wrap_angle(meas[2] - pred[2])
+    return v * v / s
+
+
+def chi2_3_same_tail(x1: float) -> float:
+    """The 3-dof chi-square value with the same upper tail probability as ``x1`` has with
+    1 dof (so one per-axis statistic can be read against the joint test's quantiles):
+    ``Q3(x) = erfc(sqrt(x/2)) + sqrt(2x/pi) exp(-x/2)`` solved for ``Q3(x) = erfc(sqrt(x1/2))``
+    by bisection; beyond ``x1 = 600`` (tails below 1e-130) the asymptote ``x1 + 2 ln x1``."""
+    if not x1 > 0.0:
+        return 0.0
+    if not math.isfinite(x1):
+        return math.inf
+    if x1 > 600.0:
+        return x1 + 2.0 * math.log(x1)
+    q1 = math.erfc(math.sqrt(0.5 * x1))
+
+    def q3(x: float) -> float:
+        return math.erfc(math.sqrt(0.5 * x)) + math.sqrt(2.0 * x / math.pi) * math.exp(-0.5 * x)
+
+    lo, hi = x1, x1 + 4.0 * math.log(x1 + 2.0) + 10.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if q3(mid) > q1:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
 
 
 def fuse(

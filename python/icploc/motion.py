@@ -63,6 +63,9 @@ class MotionModel:
     #: along- and cross-track variance per radian turned (m^2/rad), linear in the turn: a
     #: random walk over the turn (``localizer.turn_walk_variance``; scaled by ``gain`` too)
     turn_walk: float = 0.0
+    #: a step that travelled farther than this (m) adds no walk: the walk is a turn on the
+    #: spot's, the alphas cover a step as long as the motions they were fitted to (0: any)
+    walk_max_travel: float = 0.0
 
     @classmethod
     def from_config(cls, lc: LocalizerSection) -> MotionModel:
@@ -76,6 +79,7 @@ class MotionModel:
             floor_xy=lc.process_sigma_xy,
             floor_theta=lc.process_sigma_theta,
             turn_walk=lc.turn_walk_variance,
+            walk_max_travel=lc.turn_walk_max_travel,
         )
 
     def motion_covariance(self, d: Sequence[float]) -> NDArray[np.float64]:
@@ -89,7 +93,8 @@ class MotionModel:
         g = self.gain
         t2, r2 = t * t, dth * dth
         v_th = g * (self.alpha1 * r2 + self.alpha2 * t2)
-        v_turn = self.alpha4 * r2 + self.turn_walk * abs(dth)
+        far = self.walk_max_travel > 0.0 and t > self.walk_max_travel
+        v_turn = self.alpha4 * r2 + (0.0 if far else self.turn_walk * abs(dth))
         v_al = g * (self.alpha3 * t2 + v_turn)
         v_lat = g * (self.alpha5 * t2 + v_turn)
         if t >= _MIN_TRANS:
