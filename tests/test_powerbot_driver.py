@@ -202,8 +202,11 @@ def test_a_lost_sync2_reply_is_recovered_from() -> None:
 
     dev._send = lose_first_reply  # type: ignore[method-assign]
     try:
-        with PowerBot(run.port, sync_timeout=0.5, sync_tries=4) as bot:
+        # the device streams SIPs as fast as the line takes them: a queue that never drops
+        # (256 by default; a starved test thread read seq 117 once) keeps the first one
+        with PowerBot(run.port, sync_timeout=0.5, sync_tries=4, queue_size=100_000) as bot:
             assert (lost, next(bot.sips()).seq) == ([reply], 1)
+            assert bot.counters["dropped_sips"] == 0
     finally:
         run.stop()
 
