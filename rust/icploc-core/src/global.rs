@@ -18,7 +18,10 @@
 //! explored depth-first (best child first) in parallel over roots, and pruned when their
 //! bound falls below `accept_ratio` × the best leaf found so far (shared atomically) —
 //! so every leaf within that ratio of the best survives, not just the best one, which is
-//! what lets a symmetric or repetitive map show its alternatives.
+//! what lets a symmetric or repetitive map show its alternatives. On a large region the
+//! tree starts lower, at level [`DENSE_LEVEL`]: every node of that level summed at once,
+//! heading by heading, row by row (the levels above it prune almost nothing on a large real
+//! map and cost most of a whole-map search in random reads); the same leaves.
 //!
 //! The surviving leaves are thinned (non-maximum suppression) to `max_candidates` seeds,
 //! each refined by point-to-line ICP ([`crate::icp::align`], in parallel) and re-scored on
@@ -31,7 +34,7 @@
 //! next scans (odometry) rather than pick one.
 
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use rayon::prelude::*;
 
@@ -213,8 +216,12 @@ pub struct GlobalResult {
     pub candidates: Vec<Candidate>,
     /// The best two distinct candidates are too close in score to choose.
     pub ambiguous: bool,
-    /// Quadtree nodes and leaves scored by the coarse search.
+    /// Quadtree nodes and leaves scored by the coarse search (on a large region: below
+    /// the nodes of the level it starts from, those at the threshold counted).
     pub nodes: usize,
+    /// Nodes of the level a search of a large region starts from, summed densely (all
+    /// free ones in the region, every heading); 0 for a search from the top level.
+    pub dense_nodes: usize,
     /// Coarse leaves within `accept_ratio` of the best.
     pub leaves: usize,
     /// Headings searched.
@@ -238,6 +245,9 @@ pub struct GlobalLocalizer {
     field: LikelihoodField,
     /// Pooled "some cell of the window is free".
     free: Vec<Vec<bool>>,
+    /// The pyramid's level [`DENSE_LEVEL`] laid out for [`Self::dense_roots`], built on
+    /// the first search that reads it.
+    dense: OnceLock<DenseLevel>,
 }
 
 impl std::fmt::Debug for GlobalLocalizer {
@@ -313,6 +323,7 @@ impl GlobalLocalizer {
             cfg,
             field,
             free,
+            dense: OnceLock::new(),
         }
     }
 
@@ -460,8 +471,11 @@ impl GlobalLocalizer {
         let sub: Vec<[f64; 2]> = (0..m).map(|k| usable[k * usable.len() / m]).collect();
         let offsets = cell_offsets(&sub, headings.iter().copied(), self.field.res);
         let full = 255 * m as u32;
-        let (mut leaves, nodes) =
-            self.coarse_leaves(&offsets, [ri0, rj0, ri1, rj1], m, floor_score);
+        let Coarse {
+            mut leaves,
+            nodes,
+            dense: dense_nodes,
+        } = self.coarse(&offsets, [ri0, rj0, ri1, rj1], m, floor_score);
         let n_leaves = leaves.len();
         // ties broken by position: the seeds (and the result) do not depend on thread timing
         leaves.sort_unstable_by_key(|l| (std::cmp::Reverse(l.score), l.k, l.j, l.i));
@@ -525,6 +539,7 @@ impl GlobalLocalizer {
             candidates: merged,
             ambiguous,
             nodes,
+            dense_nodes,
             leaves: n_leaves,
             headings: headings.len(),
             coarse_time,
@@ -733,7 +748,7 @@ fn cell_offsets(
 /// (i, j + s) and (i + s, j + s) with s = 2^`level`, in one pass over the points: each
 /// the value [`LikelihoodField::sum`] gives for it at `level` (where all four cells of a
 /// point are inside the grid they are read from one base index; elsewhere by its rule).
-#[inline]
+#[cfg(test)]
 fn child_sums(f: &LikelihoodField, level: usize, offs: &[(i32, i32)], i: i32, j: i32) -> [u32; 4] {
     let g = &f.pooled[level];
     let (w, h) = (f.w as i32, f.h as i32);
@@ -836,8 +851,7 @@ fn child_sums_above(
     let [x0, y0, x1, y1] = sh.bbox;
     let (w, h) = (f.w as i32, f.h as i32);
     if sh.offs.is_empty() || i + x0 < 0 || j + y0 < 0 || i + x1 + s >= w || j + y1 + s >= h {
-        let out = child_sums(f, level, sh.offs, i, j);
-        return (out[0].max(out[1]).max(out[2].max(out[3])) >= thr).then_some(out);
+        return child_sums_clipped(f, level, sh.offs, i, j, bound, thr);
     }
     let g = &f.pooled[level];
     let base = j as isize * f.w as isize + i as isize;
@@ -863,6 +877,261 @@ fn child_sums_above(
     Some(out)
 }
 
+/// [`child_sums_above`] of a node some of whose points' cells lie outside the grid: the
+/// points one by one, each cell read by [`LikelihoodField::sum`]'s rule (a window that
+/// starts left of / below the grid but overlaps it reads the window at 0, one wholly
+/// outside reads 0), with the same early exit. It holds here too: under that rule a
+/// point's value at the parent's level still bounds its four values at the children's
+/// (each child's window, clipped to the grid, lies in the parent's clipped window, and
+/// a child window wholly outside reads 0), so `bound` minus the largest values summed so
+/// far bounds what the remaining points can add to any child. After the last point:
+/// `None` exactly when all four sums are below `thr`, whatever `bound`.
+#[inline]
+fn child_sums_clipped(
+    f: &LikelihoodField,
+    level: usize,
+    offs: &[(i32, i32)],
+    i: i32,
+    j: i32,
+    bound: u32,
+    thr: u32,
+) -> Option<[u32; 4]> {
+    let g = &f.pooled[level];
+    let (w, h) = (f.w as i32, f.h as i32);
+    let s = 1i32 << level;
+    let lo = 1 - s;
+    let sw = (s * w) as usize;
+    let su = s as usize;
+    let at = |x: i32, y: i32| -> u8 {
+        if x >= lo && y >= lo && x < w && y < h {
+            g[(y.max(0) * w + x.max(0)) as usize]
+        } else {
+            0
+        }
+    };
+    let mut out = [0u32; 4];
+    let mut used = 0u32;
+    for chunk in offs.chunks(EXIT_CHUNK) {
+        for &(ox, oy) in chunk {
+            let (x, y) = (i + ox, j + oy);
+            let v = if x >= 0 && y >= 0 && x + s < w && y + s < h {
+                let c = (y * w + x) as usize;
+                [g[c], g[c + su], g[c + sw], g[c + sw + su]]
+            } else {
+                [at(x, y), at(x + s, y), at(x, y + s), at(x + s, y + s)]
+            };
+            out[0] += v[0] as u32;
+            out[1] += v[1] as u32;
+            out[2] += v[2] as u32;
+            out[3] += v[3] as u32;
+            used += v[0].max(v[1]).max(v[2].max(v[3])) as u32;
+        }
+        let top = out[0].max(out[1]).max(out[2].max(out[3]));
+        if top.saturating_add(bound.saturating_sub(used)) < thr {
+            return None;
+        }
+    }
+    (out[0].max(out[1]).max(out[2].max(out[3])) >= thr).then_some(out)
+}
+
+/// The pyramid level the coarse search starts from on a large region (the two to three
+/// levels above it prune almost nothing on a large real map, where the pooled likelihood
+/// under most points is high over a 1-3 m window: they only cost random reads).
+const DENSE_LEVEL: usize = 3;
+
+/// Below this many nodes of the dense level in a search's region (and headings), the
+/// search starts from its top level's nodes as before (a small window: a few roots).
+const DENSE_MIN_NODES: usize = 4096;
+
+/// One level `L` of the likelihood pyramid laid out for reading the value under one scan
+/// point at every node of the level's lattice (cells (a·2ᴸ, b·2ᴸ)) as contiguous rows: a
+/// plane per residue (rx, ry) in [0, 2ᴸ)², holding at row `b + 1`, column `a + 1` the value
+/// [`LikelihoodField::sum`] reads at cell (a·2ᴸ + rx, b·2ᴸ + ry), for a in [-1, nx) and b in
+/// [-1, ny) (row and column -1: the windows that start left of / below the grid; a cell
+/// wholly outside the grid reads 0). The same bytes as the level, once more.
+struct DenseLevel {
+    level: usize,
+    /// Lattice nodes across and up: ceil(w / 2ᴸ), ceil(h / 2ᴸ).
+    nx: i32,
+    ny: i32,
+    /// Row length (nx + 1) and plane size ((nx + 1)(ny + 1)).
+    stride: usize,
+    plane: usize,
+    cells: Vec<u8>,
+}
+
+impl DenseLevel {
+    fn build(f: &LikelihoodField, level: usize) -> Self {
+        let g = &f.pooled[level];
+        let (w, h) = (f.w as i32, f.h as i32);
+        let s = 1i32 << level;
+        let lo = 1 - s;
+        let (nx, ny) = ((w + s - 1) / s, (h + s - 1) / s);
+        let stride = nx as usize + 1;
+        let plane = stride * (ny as usize + 1);
+        let mut cells = vec![0u8; plane * (s * s) as usize];
+        cells.par_chunks_mut(plane).enumerate().for_each(|(r, pl)| {
+            let (rx, ry) = (r as i32 % s, r as i32 / s);
+            for b in -1..ny {
+                let y = b * s + ry;
+                if y < lo || y >= h {
+                    continue;
+                }
+                let src = &g[(y.max(0) * w) as usize..][..w as usize];
+                let dst = &mut pl[(b + 1) as usize * stride..][..stride];
+                for (a, d) in (-1..nx).zip(dst.iter_mut()) {
+                    let x = a * s + rx;
+                    if x >= lo && x < w {
+                        *d = src[x.max(0) as usize];
+                    }
+                }
+            }
+        });
+        Self {
+            level,
+            nx,
+            ny,
+            stride,
+            plane,
+            cells,
+        }
+    }
+
+    /// The start of the plane of residue (rx, ry).
+    fn plane_of(&self, rx: i32, ry: i32) -> usize {
+        (ry * (1i32 << self.level) + rx) as usize * self.plane
+    }
+}
+
+/// Whether this CPU has AVX2 (checked once).
+#[cfg(target_arch = "x86_64")]
+fn has_avx2() -> bool {
+    static AVX2: OnceLock<bool> = OnceLock::new();
+    *AVX2.get_or_init(|| std::arch::is_x86_feature_detected!("avx2"))
+}
+
+/// The per-node part of the branch-and-bound, shared by its workers.
+struct Tree<'a> {
+    g: &'a GlobalLocalizer,
+    shifts: &'a [Shifts<'a>],
+    region: [i32; 4],
+    floor: u32,
+    best: &'a AtomicU32,
+}
+
+impl Tree<'_> {
+    fn threshold(&self) -> u32 {
+        let b = self.best.load(Ordering::Relaxed);
+        (((b as f64) * self.g.cfg.accept_ratio).ceil() as u32).max(self.floor)
+    }
+
+    fn in_region(&self, lvl: usize, i: i32, j: i32) -> bool {
+        let [ri0, rj0, ri1, rj1] = self.region;
+        let e = (1i32 << lvl) - 1;
+        i <= ri1 && i + e >= ri0 && j <= rj1 && j + e >= rj0
+    }
+
+    /// A level-0 node that has reached the threshold: a leaf.
+    fn leaf(&self, n: &Node, leaves: &mut Vec<Leaf>) {
+        leaves.push(Leaf {
+            score: n.bound,
+            k: n.k,
+            i: n.i,
+            j: n.j,
+        });
+        self.best.fetch_max(n.bound, Ordering::Relaxed);
+    }
+
+    /// Depth-first below `root` (best child first), pruning at the threshold of the
+    /// moment; the leaves go to `leaves`, the count of nodes scored to `nodes`.
+    fn descend(
+        &self,
+        root: Node,
+        leaves: &mut Vec<Leaf>,
+        nodes: &mut usize,
+        stack: &mut Vec<Node>,
+    ) {
+        let field = &self.g.field;
+        let free = &self.g.free;
+        let [ri0, rj0, ri1, rj1] = self.region;
+        stack.clear();
+        stack.push(root);
+        while let Some(n) = stack.pop() {
+            let thr = self.threshold();
+            if n.bound < thr {
+                continue;
+            }
+            if n.level == 0 {
+                self.leaf(&n, leaves);
+                continue;
+            }
+            let lvl = n.level as usize - 1;
+            let s = 1i32 << lvl;
+            // None: every child is below the threshold (scored, and dropped)
+            let sums = child_sums_above(
+                field,
+                lvl,
+                &self.shifts[n.k as usize],
+                n.i,
+                n.j,
+                n.bound,
+                thr,
+            )
+            .unwrap_or([0; 4]);
+            let mut kids: [Node; 4] = [n; 4];
+            let mut nk = 0;
+            for (c, (a, b)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate() {
+                let (ci, cj) = (n.i + a, n.j + b);
+                if ci >= field.w as i32 || cj >= field.h as i32 {
+                    continue;
+                }
+                let ok = if lvl == 0 {
+                    ci >= ri0
+                        && ci <= ri1
+                        && cj >= rj0
+                        && cj <= rj1
+                        && free[0][cj as usize * field.w + ci as usize]
+                } else {
+                    self.in_region(lvl, ci, cj) && free[lvl][cj as usize * field.w + ci as usize]
+                };
+                if !ok {
+                    continue;
+                }
+                *nodes += 1;
+                let bound = sums[c];
+                if bound < thr {
+                    continue;
+                }
+                let kid = Node {
+                    bound,
+                    level: lvl as u8,
+                    k: n.k,
+                    i: ci,
+                    j: cj,
+                };
+                if lvl == 0 {
+                    // the bound is the exact score at level 0
+                    self.leaf(&kid, leaves);
+                    continue;
+                }
+                kids[nk] = kid;
+                nk += 1;
+            }
+            let kids = &mut kids[..nk];
+            kids.sort_unstable_by_key(|c| c.bound);
+            stack.extend_from_slice(kids);
+        }
+    }
+}
+
+/// What the coarse search found: the leaves, the tree's nodes scored and the dense
+/// level's nodes summed.
+struct Coarse {
+    leaves: Vec<Leaf>,
+    nodes: usize,
+    dense: usize,
+}
+
 impl GlobalLocalizer {
     /// The coarse branch-and-bound of [`Self::search`]: every level-0 leaf (heading `k`,
     /// cell (i, j)) in `region` (cells, inclusive) on a free cell whose score is at least
@@ -870,6 +1139,7 @@ impl GlobalLocalizer {
     /// number of nodes evaluated. A node is dropped only when its bound (an upper bound of
     /// all its leaves) is below `accept_ratio` x the best leaf found so far, so the leaves
     /// are exactly those whatever the order of the search.
+    #[cfg(test)]
     fn coarse_leaves(
         &self,
         offsets: &[Vec<(i32, i32)>],
@@ -877,21 +1147,81 @@ impl GlobalLocalizer {
         m: usize,
         min_score: f64,
     ) -> (Vec<Leaf>, usize) {
-        let cfg = &self.cfg;
+        let c = self.coarse(offsets, region, m, min_score);
+        (c.leaves, c.nodes)
+    }
+
+    /// [`Self::coarse_leaves`]: on a large region the tree starts from the nodes of
+    /// [`DENSE_LEVEL`] (every node of that level in the region summed at once, row by row,
+    /// [`Self::dense_roots`]), else from the top level's nodes. The same leaves either way:
+    /// a node of the dense level gets the bound its parent's [`child_sums_above`] would
+    /// give it, and any of its ancestors bounds it.
+    fn coarse(
+        &self,
+        offsets: &[Vec<(i32, i32)>],
+        region: [i32; 4],
+        m: usize,
+        min_score: f64,
+    ) -> Coarse {
+        let lvl = DENSE_LEVEL.min(self.cfg.levels);
         let [ri0, rj0, ri1, rj1] = region;
-        let top = cfg.levels;
-        let stride = 1i32 << top;
-        let in_region = |lvl: usize, i: i32, j: i32| -> bool {
-            let e = (1i32 << lvl) - 1;
-            i <= ri1 && i + e >= ri0 && j <= rj1 && j + e >= rj0
+        let span =
+            |lo: i32, hi: i32| (hi.div_euclid(1 << lvl) - lo.div_euclid(1 << lvl) + 1) as usize;
+        let dense_nodes = span(ri0, ri1) * span(rj0, rj1) * offsets.len();
+        // the dense rows sum in u16
+        let dense = dense_nodes >= DENSE_MIN_NODES && 255 * m <= u16::MAX as usize;
+        self.coarse_from(offsets, region, m, min_score, dense.then_some(lvl))
+    }
+
+    /// The coarse search from the nodes of level `dense` summed densely, or (None) from the
+    /// top level's nodes.
+    fn coarse_from(
+        &self,
+        offsets: &[Vec<(i32, i32)>],
+        region: [i32; 4],
+        m: usize,
+        min_score: f64,
+        dense: Option<usize>,
+    ) -> Coarse {
+        let shifts: Vec<Shifts> = offsets
+            .iter()
+            .map(|o| Shifts::new(o, self.field.w))
+            .collect();
+        let full = 255 * m as u32;
+        let floor = (min_score * full as f64).ceil() as u32;
+        let best = AtomicU32::new(floor);
+        let tree = Tree {
+            g: self,
+            shifts: &shifts,
+            region,
+            floor,
+            best: &best,
         };
-        // roots: the coarsest level, all headings
+        let (leaves, nodes, summed) = match dense {
+            None => self.start_at_top(&tree, offsets),
+            Some(lvl) => self.start_dense(&tree, offsets, lvl),
+        };
+        let keep = tree.threshold();
+        Coarse {
+            leaves: leaves.into_iter().filter(|l| l.score >= keep).collect(),
+            nodes,
+            dense: summed,
+        }
+    }
+
+    /// The roots: the coarsest level's nodes of every heading, scored one by one; explored
+    /// in parallel, best bound first.
+    fn start_at_top(&self, tree: &Tree, offsets: &[Vec<(i32, i32)>]) -> (Vec<Leaf>, usize, usize) {
+        let top = self.cfg.levels;
+        let stride = 1i32 << top;
+        let [ri0, rj0, ri1, rj1] = tree.region;
         let mut roots: Vec<Node> = Vec::new();
         let mut j = (rj0 / stride) * stride;
         while j <= rj1 {
             let mut i = (ri0 / stride) * stride;
             while i <= ri1 {
-                if self.free[top][(j as usize) * self.field.w + i as usize] && in_region(top, i, j)
+                if self.free[top][(j as usize) * self.field.w + i as usize]
+                    && tree.in_region(top, i, j)
                 {
                     for k in 0..offsets.len() {
                         roots.push(Node {
@@ -911,92 +1241,14 @@ impl GlobalLocalizer {
             n.bound = self.field.sum(top, &offsets[n.k as usize], n.i, n.j);
         });
         roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
-        let shifts: Vec<Shifts> = offsets
-            .iter()
-            .map(|o| Shifts::new(o, self.field.w))
-            .collect();
-        let full = 255 * m as u32;
-        let floor = (min_score * full as f64).ceil() as u32;
-        let best = AtomicU32::new(floor);
-        let ratio = cfg.accept_ratio;
-        let threshold = |b: u32| -> u32 { ((b as f64) * ratio).ceil() as u32 };
-        let (leaves, nodes): (Vec<Leaf>, usize) = roots
+        let (leaves, nodes) = roots
             .par_iter()
             .with_max_len(1)
             .fold(
                 || (Vec::new(), 0usize, Vec::<Node>::new()),
                 |(mut leaves, mut nodes, mut stack), root| {
                     nodes += 1;
-                    stack.clear();
-                    stack.push(*root);
-                    while let Some(n) = stack.pop() {
-                        let thr = threshold(best.load(Ordering::Relaxed)).max(floor);
-                        if n.bound < thr {
-                            continue;
-                        }
-                        let lvl = n.level as usize - 1;
-                        let s = 1i32 << lvl;
-                        // None: every child is below the threshold (scored, and dropped)
-                        let sums = child_sums_above(
-                            &self.field,
-                            lvl,
-                            &shifts[n.k as usize],
-                            n.i,
-                            n.j,
-                            n.bound,
-                            thr,
-                        )
-                        .unwrap_or([0; 4]);
-                        let mut kids: [Node; 4] = [n; 4];
-                        let mut nk = 0;
-                        for (c, (a, b)) in [(0, 0), (s, 0), (0, s), (s, s)].into_iter().enumerate()
-                        {
-                            let (ci, cj) = (n.i + a, n.j + b);
-                            if ci >= self.field.w as i32 || cj >= self.field.h as i32 {
-                                continue;
-                            }
-                            let ok = if lvl == 0 {
-                                ci >= ri0
-                                    && ci <= ri1
-                                    && cj >= rj0
-                                    && cj <= rj1
-                                    && self.free[0][cj as usize * self.field.w + ci as usize]
-                            } else {
-                                in_region(lvl, ci, cj)
-                                    && self.free[lvl][cj as usize * self.field.w + ci as usize]
-                            };
-                            if !ok {
-                                continue;
-                            }
-                            nodes += 1;
-                            let bound = sums[c];
-                            if bound < thr {
-                                continue;
-                            }
-                            if lvl == 0 {
-                                // the bound is the exact score at level 0
-                                leaves.push(Leaf {
-                                    score: bound,
-                                    k: n.k,
-                                    i: ci,
-                                    j: cj,
-                                });
-                                best.fetch_max(bound, Ordering::Relaxed);
-                                continue;
-                            }
-                            kids[nk] = Node {
-                                bound,
-                                level: lvl as u8,
-                                k: n.k,
-                                i: ci,
-                                j: cj,
-                            };
-                            nk += 1;
-                        }
-                        let kids = &mut kids[..nk];
-                        kids.sort_unstable_by_key(|c| c.bound);
-                        stack.extend_from_slice(kids);
-                    }
+                    tree.descend(*root, &mut leaves, &mut nodes, &mut stack);
                     (leaves, nodes, stack)
                 },
             )
@@ -1008,11 +1260,192 @@ impl GlobalLocalizer {
                     (a, na + nb)
                 },
             );
-        let keep = threshold(best.load(Ordering::Relaxed)).max(floor);
-        (
-            leaves.into_iter().filter(|l| l.score >= keep).collect(),
-            nodes,
-        )
+        (leaves, nodes, 0)
+    }
+
+    /// Heading by heading (in parallel): every free node of level `lvl` in the region
+    /// summed densely ([`Self::dense_roots`]), those at the threshold explored depth-first,
+    /// best bound first.
+    fn start_dense(
+        &self,
+        tree: &Tree,
+        offsets: &[Vec<(i32, i32)>],
+        lvl: usize,
+    ) -> (Vec<Leaf>, usize, usize) {
+        let built;
+        let cached = self
+            .dense
+            .get_or_init(|| DenseLevel::build(&self.field, DENSE_LEVEL.min(self.cfg.levels)));
+        let d = if cached.level == lvl {
+            cached
+        } else {
+            // another level (the tests'): built for this search
+            built = DenseLevel::build(&self.field, lvl);
+            &built
+        };
+        let rows = self.dense_rows(d, tree.region);
+        let (leaves, nodes, summed) = (0..offsets.len())
+            .into_par_iter()
+            .with_max_len(1)
+            .fold(
+                || {
+                    (
+                        Vec::new(),
+                        0usize,
+                        0usize,
+                        Vec::<Node>::new(),
+                        Vec::<Node>::new(),
+                    )
+                },
+                |(mut leaves, mut nodes, mut summed, mut roots, mut stack), k| {
+                    roots.clear();
+                    summed += self.dense_roots(d, &rows, &offsets[k], k as u32, tree, &mut roots);
+                    roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
+                    nodes += roots.len();
+                    for &root in roots.iter() {
+                        tree.descend(root, &mut leaves, &mut nodes, &mut stack);
+                    }
+                    (leaves, nodes, summed, roots, stack)
+                },
+            )
+            .map(|(l, n, s, _, _)| (l, n, s))
+            .reduce(
+                || (Vec::new(), 0, 0),
+                |(mut a, na, sa), (b, nb, sb)| {
+                    a.extend(b);
+                    (a, na + nb, sa + sb)
+                },
+            );
+        (leaves, nodes, summed)
+    }
+
+    /// For each node row b of the dense level (from 0): the columns [a0, a1] from the first
+    /// to the last free node in the region (a0 > a1: none).
+    fn dense_rows(&self, d: &DenseLevel, region: [i32; 4]) -> Vec<(i32, i32)> {
+        let [ri0, rj0, ri1, rj1] = region;
+        let s = 1i32 << d.level;
+        let free = &self.free[d.level];
+        let w = self.field.w;
+        let (a_lo, a_hi) = (ri0.div_euclid(s).max(0), ri1.div_euclid(s).min(d.nx - 1));
+        let (b_lo, b_hi) = (rj0.div_euclid(s).max(0), rj1.div_euclid(s).min(d.ny - 1));
+        (0..d.ny)
+            .map(|b| {
+                if b < b_lo || b > b_hi {
+                    return (1, 0);
+                }
+                let row = (b * s) as usize * w;
+                let is_free = |a: i32| free[row + (a * s) as usize];
+                match (a_lo..=a_hi).find(|&a| is_free(a)) {
+                    None => (1, 0),
+                    Some(a0) => (a0, (a0..=a_hi).rev().find(|&a| is_free(a)).unwrap_or(a0)),
+                }
+            })
+            .collect()
+    }
+
+    /// Sum heading `k`'s points (`offs`) over the free nodes of the dense level `d` in the
+    /// region's rows `rows`, row by row (each point adds one contiguous run of its residue's
+    /// plane), and push those at the threshold as roots. Returns the
+    /// number of nodes summed.
+    fn dense_roots(
+        &self,
+        d: &DenseLevel,
+        rows: &[(i32, i32)],
+        offs: &[(i32, i32)],
+        k: u32,
+        tree: &Tree,
+        roots: &mut Vec<Node>,
+    ) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if has_avx2() {
+            // SAFETY: the CPU has AVX2 (checked at run time)
+            return unsafe { self.dense_roots_avx2(d, rows, offs, k, tree, roots) };
+        }
+        self.dense_roots_plain(d, rows, offs, k, tree, roots)
+    }
+
+    /// [`Self::dense_roots`] compiled for AVX2 (its row sums: twice the lanes of SSE2's).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn dense_roots_avx2(
+        &self,
+        d: &DenseLevel,
+        rows: &[(i32, i32)],
+        offs: &[(i32, i32)],
+        k: u32,
+        tree: &Tree,
+        roots: &mut Vec<Node>,
+    ) -> usize {
+        self.dense_roots_plain(d, rows, offs, k, tree, roots)
+    }
+
+    #[inline(always)]
+    fn dense_roots_plain(
+        &self,
+        d: &DenseLevel,
+        rows: &[(i32, i32)],
+        offs: &[(i32, i32)],
+        k: u32,
+        tree: &Tree,
+        roots: &mut Vec<Node>,
+    ) -> usize {
+        let s = 1i32 << d.level;
+        // each point: its plane's start and its node shift (qx, qy): the point of node
+        // (a, b) reads row b + qy + 1, column a + qx + 1 of its plane
+        let pts: Vec<(usize, i32, i32)> = offs
+            .iter()
+            .map(|&(ox, oy)| {
+                let (rx, ry) = (ox.rem_euclid(s), oy.rem_euclid(s));
+                (d.plane_of(rx, ry), ox.div_euclid(s), oy.div_euclid(s))
+            })
+            .collect();
+        let thr = tree.threshold();
+        let free = &self.free[d.level];
+        let w = self.field.w;
+        let mut acc: Vec<u16> = Vec::new();
+        let mut summed = 0usize;
+        for (b, &(a0, a1)) in rows.iter().enumerate() {
+            if a0 > a1 {
+                continue;
+            }
+            let b = b as i32;
+            acc.clear();
+            acc.resize((a1 - a0 + 1) as usize, 0);
+            summed += acc.len();
+            for &(base, qx, qy) in &pts {
+                let r = b + qy;
+                if r < -1 || r >= d.ny {
+                    continue; // a row wholly outside the grid: 0
+                }
+                // columns a with a + qx in [-1, nx)
+                let lo = a0.max(-1 - qx);
+                let hi = (a1 + 1).min(d.nx - qx);
+                if lo >= hi {
+                    continue;
+                }
+                let src = &d.cells[base + (r + 1) as usize * d.stride + (lo + qx + 1) as usize..]
+                    [..(hi - lo) as usize];
+                let dst = &mut acc[(lo - a0) as usize..][..(hi - lo) as usize];
+                for (t, &v) in dst.iter_mut().zip(src) {
+                    *t += v as u16;
+                }
+            }
+            let row = (b * s) as usize * w;
+            for (a, &v) in (a0..=a1).zip(acc.iter()) {
+                let bound = v as u32;
+                if bound >= thr && free[row + (a * s) as usize] {
+                    // (at level 0 a leaf: Tree::descend takes it as one)
+                    roots.push(Node {
+                        bound,
+                        level: d.level as u8,
+                        k,
+                        i: a * s,
+                        j: b * s,
+                    });
+                }
+            }
+        }
+        summed
     }
 }
 
@@ -1342,6 +1775,74 @@ mod tests {
         let mut kept: Vec<_> = all.into_iter().filter(|l| l.0 >= keep).collect();
         kept.sort_unstable();
         kept
+    }
+
+    /// The search from the dense level finds exactly the leaves of the search from the
+    /// top level's nodes (the tree before the dense level): every heading, floor and
+    /// region, on maps whose scans reach past the grid's edges, and for pyramids lower
+    /// than the dense level (down to none at all); below the dense level it scores the
+    /// same nodes when the floor decides (the best leaf's share does not move the bar).
+    #[test]
+    fn the_dense_start_keeps_exactly_the_leaves_of_the_top_start() {
+        let segs = office_segments();
+        let mut rng = Rng::new(29);
+        let mut compared = 0;
+        for (res, levels) in [(0.05, 6), (0.1, 6), (0.1, 2), (0.2, 0)] {
+            let (p, n) = sample_segments(&segs, 0.05);
+            let idx = Arc::new(MapIndex::new(p, Some(n)).unwrap());
+            let cfg = GlobalConfig {
+                levels,
+                ..GlobalConfig::default()
+            };
+            let g = GlobalLocalizer::new(idx, res, cfg).unwrap();
+            let (w, h) = (g.field.w as i32, g.field.h as i32);
+            for t in 0..6 {
+                let truth = random_pose(&mut rng);
+                let scan = make_scan(&segs, truth, 361, 30.0, 0.01, 0.05, &mut rng);
+                let m = scan.len().min(g.cfg.max_points);
+                let sub: Vec<[f64; 2]> = (0..m).map(|k| scan[k * scan.len() / m]).collect();
+                let headings: Vec<f64> = if t % 2 == 0 {
+                    (0..180).map(|k| k as f64 * 2f64.to_radians()).collect()
+                } else {
+                    (0..25)
+                        .map(|k| truth.theta - 0.4 + k as f64 * 0.033)
+                        .collect()
+                };
+                let offsets = cell_offsets(&sub, headings.into_iter(), g.field.res);
+                let region = match t / 2 {
+                    0 => [0, 0, w - 1, h - 1],
+                    1 => [w / 5, 3, w - 2, h / 2 + 7],
+                    _ => [0, h / 3, w / 3 + 1, h - 1],
+                };
+                for floor in [g.cfg.min_score, 0.4, 0.6, 0.9] {
+                    let lvl = DENSE_LEVEL.min(levels);
+                    let top = g.coarse_from(&offsets, region, m, floor, None);
+                    let dense = g.coarse_from(&offsets, region, m, floor, Some(lvl));
+                    let key = |c: &Coarse| {
+                        let mut v: Vec<_> =
+                            c.leaves.iter().map(|l| (l.score, l.k, l.i, l.j)).collect();
+                        v.sort_unstable();
+                        v
+                    };
+                    let want = key(&top);
+                    assert_eq!(
+                        key(&dense),
+                        want,
+                        "res {res} levels {levels} case {t} floor {floor}"
+                    );
+                    assert!(dense.dense > 0 && top.dense == 0);
+                    compared += want.len();
+                    if floor >= 0.6 && levels == 6 && !want.is_empty() {
+                        // the floor is the bar (the best leaf is below floor / accept_ratio)
+                        let best = want.iter().map(|l| l.0).max().unwrap() as f64;
+                        if best * g.cfg.accept_ratio < (floor * (255 * m) as f64).ceil() {
+                            assert!(dense.nodes < top.nodes, "{} vs {}", dense.nodes, top.nodes);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(compared > 500, "{compared} leaves compared");
     }
 
     #[test]
