@@ -11,6 +11,7 @@ maps do (benches/eval_partial.py)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -140,14 +141,14 @@ def _mixed(off: int) -> np.ndarray:
     return np.vstack([_points(-0.5)[: 60 - off], _points(2.5)[:off]])
 
 
-def _edge_run(hold: bool) -> Localizer:
+def _edge_run(hold: int, offs: tuple[int, ...] = (20, 40, 25, 40)) -> Localizer:
     # towards the edge (a third off), mostly off, back to 0.42 off (between exit_share
     # 0.35 and enter_share 0.5: along the edge), mostly off again
     import dataclasses
 
     loc = _localizer()
-    loc.outside.config = dataclasses.replace(loc.outside.config, enter_hold=hold)
-    for off in (20, 40, 25, 40):
+    loc.outside.config = dataclasses.replace(loc.outside.config, enter_hold=hold).validate()
+    for off in offs:
         _feed(loc, _mixed(off))
     return loc
 
@@ -159,12 +160,31 @@ def test_a_scan_along_the_maps_edge_holds_the_streak_that_began_a_stretch() -> N
     # nowhere, not even at the reference pose); with the hold the stretch begins
     cfg = OutsideConfig()
     assert cfg.exit_share < 25 / 60 < cfg.enter_share <= 40 / 60
-    loc = _edge_run(hold=True)
+    loc = _edge_run(hold=cfg.enter_hold)
     assert [s.start for s in loc.outside.stretches] == [loc.scans_processed - 1]
     assert loc.outside.state == "outside"
     # without the hold the scan along the edge broke the streak: no stretch
-    loc = _edge_run(hold=False)
+    loc = _edge_run(hold=0)
     assert not loc.outside.stretches and loc.outside.state == "inside"
+
+
+def test_the_hold_along_the_maps_edge_is_bounded() -> None:
+    # review: a long run along the edge must not keep the streak's dead reckoning from its
+    # first scan; past enter_hold scans in a row the streak breaks, and a scan mostly off
+    # the map after it begins a new streak, not a stretch
+    n = OutsideConfig().enter_hold
+    assert n >= 1
+    within = _edge_run(hold=n, offs=(20, 40, *([25] * n), 40))
+    assert [s.start for s in within.outside.stretches] == [within.scans_processed - 1]
+    beyond = _edge_run(hold=n, offs=(20, 40, *([25] * (n + 1)), 40))
+    assert not beyond.outside.stretches and beyond.outside.state == "inside"
+    assert beyond.outside._entering == 1
+
+
+@pytest.mark.parametrize("bad", [True, -1, 2.5, "yes"])
+def test_enter_hold_must_be_a_count_of_scans(bad: object) -> None:
+    with pytest.raises(ValueError, match="enter_hold"):
+        dataclasses.replace(OutsideConfig(), enter_hold=bad).validate()
 
 
 def test_scans_along_the_maps_edge_begin_no_streak_by_themselves() -> None:

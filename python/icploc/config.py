@@ -326,7 +326,7 @@ class GatingSection(Section):
     chi2_reject: float = _f(0.9999, "... of the reject quantile (>= chi2_accept)", ge=0.5, lt=1)
     heading_test: bool = _f(
         True,
-        "test the heading on its own too: the gate's statistic is the larger of the joint "
+        "test the heading on its own too: the tracking gate's statistic is the larger of the joint "
         "v' (P + R)^-1 v and the 3-dof value with the tail of the heading's own "
         "v_t^2 / (P + R)_tt (1 dof), so a position covariance grown by a turn does not "
         "loosen the heading a fit may take",
@@ -899,7 +899,12 @@ class GlobalSearchSection(Section):
     angle_step: float = _f(
         _global_default("angle_step"), "heading lattice step", "rad", gt=0, le=math.pi
     )
-    max_points: int = _f(_global_default("max_points"), "scan points of the coarse search", ge=3)
+    max_points: int = _f(
+        _global_default("max_points"),
+        "scan points of the coarse search (above 257 a large region's search starts from its "
+        "top level: the dense start sums in 16 bits)",
+        ge=3,
+    )
     sigma: float = _f(_global_default("sigma"), "sigma of the coarse likelihood grid", "m", gt=0)
     min_clearance: float = _f(
         _global_default("min_clearance"),

@@ -134,8 +134,11 @@ class OutsideConfig:
     #: has begun (aces' partial map, benches/eval_partial.py: the robot skirted the edge
     #: for 11 scans at 0.35-0.58, never 0.5 twice in a row, and the localizer was lost
     #: there for 24 scans, searching the whole map, on scans the map explains nowhere, not
-    #: even at their reference poses; with the hold the stretch begins: lost 13 -> 5 %)
-    enter_hold: bool = True
+    #: even at their reference poses; with the hold the stretch begins: lost 13 -> 5 %),
+    #: for at most this many such scans in a row (review: a long run along the edge would
+    #: otherwise begin a stretch from the dead reckoning of its first scan, discarding the
+    #: matched poses in between); 0: no hold
+    enter_hold: int = 20
     #: a lost localizer's dead-reckoned pose still counts (outside the map may begin lost:
     #: the scan half unmapped contradicts the pose) while its sigma is at most this [m]
     lost_sigma: float = 1.0
@@ -208,6 +211,14 @@ class OutsideConfig:
             )
         if self.enter_scans < 1:
             raise ValueError(f"outside: enter_scans must be >= 1, got {self.enter_scans}")
+        if (
+            isinstance(self.enter_hold, bool)
+            or not isinstance(self.enter_hold, int)
+            or self.enter_hold < 0
+        ):
+            raise ValueError(
+                f"outside: enter_hold must be an integer >= 0 (scans), got {self.enter_hold!r}"
+            )
         if self.confirm_scans < 1:
             raise ValueError(f"outside: confirm_scans must be >= 1, got {self.confirm_scans}")
         if self.reentry_confirm < 1 or self.reentry_local_scans < 0:
@@ -647,6 +658,8 @@ class OutsideMonitor:
         #: scans in a row that would begin a stretch (``enter_scans``), the last believed
         #: pose before the first of them, and the dead reckoning from it
         self._entering = 0
+        #: scans in a row along the map's edge that held the streak (``enter_hold``)
+        self._held = 0
         self._streak_exit: Pose | None = None
         self._streak_dr: Pose = (0.0, 0.0, 0.0)
         #: with ``record``: the streak's scans before its last (localized as usual), their
@@ -725,7 +738,7 @@ class OutsideMonitor:
             self._lead_dr = compose(self._lead_dr, step)
         if self.state == "inside":
             if (
-                cfg.enter_hold
+                self._held < cfg.enter_hold
                 and self._entering > 0
                 and known
                 and self._verified
@@ -734,10 +747,12 @@ class OutsideMonitor:
             ):
                 # along the map's edge (the scan neither mostly off the map nor back on it):
                 # the streak holds, its dead reckoning runs on
+                self._held += 1
                 self._streak_dr = compose(self._streak_dr, step)
                 if self.record:
                     self._streak_rec.append((k, np.array(pts), self._streak_dr, self._since))
                 return None
+            self._held = 0
             if not known or share < cfg.enter_share or not self._verified:
                 self._entering = 0
                 self._sudden = False
@@ -949,7 +964,7 @@ class OutsideMonitor:
         self._restore(loc)
         self.state = "inside"
         self._verified = False
-        self._entering = 0
+        self._entering = self._held = 0
         self._streak_rec = []
         self._sudden, self._sudden_n = False, 0
         self._below = self._above = 0

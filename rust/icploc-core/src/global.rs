@@ -1365,9 +1365,13 @@ impl GlobalLocalizer {
     }
 
     /// [`Self::dense_roots`] compiled for AVX2 (its row sums: twice the lanes of SSE2's).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 (`has_avx2()`). An `unsafe fn` rather than a safe
+    /// `#[target_feature]` one, which needs Rust 1.86 (the crate's `rust-version` is 1.85).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn dense_roots_avx2(
+    unsafe fn dense_roots_avx2(
         &self,
         d: &DenseLevel,
         rows: &[(i32, i32)],

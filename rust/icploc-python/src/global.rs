@@ -89,9 +89,17 @@ impl PyGlobalResult {
     fn ambiguous(&self) -> bool {
         self.inner.ambiguous
     }
+    /// Quadtree nodes scored below the level a large region's search starts from (see
+    /// `dense_nodes`).
     #[getter]
     fn nodes(&self) -> usize {
         self.inner.nodes
+    }
+    /// Nodes of the start level of a large region's search, summed densely; 0 for a search
+    /// from the top level.
+    #[getter]
+    fn dense_nodes(&self) -> usize {
+        self.inner.dense_nodes
     }
     #[getter]
     fn leaves(&self) -> usize {

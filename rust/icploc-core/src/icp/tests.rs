@@ -1137,3 +1137,93 @@ fn clinic_case_76_keeps_the_truth_in_its_corridor() {
     // feature is a peak, while a place beyond the range's end scores higher still
     assert_clinic_case_succeeds((0.3, 0.3, 10f64.to_radians()), 76);
 }
+
+#[test]
+fn the_fit_skipping_far_points_is_the_resolved_fit_bit_for_bit() {
+    // review: `assessed` leaves the points with no map point within the grid's reach
+    // unresolved when `far_is_nothing` holds; resolving them first (a k-d tree search each)
+    // must give exactly the same fit
+    let cfg = IcpConfig::default();
+    let (mut compared, mut far) = (0usize, 0usize);
+    for w in crate::testkit::all_worlds()
+        .into_iter()
+        .chain(crate::testkit::unseen_worlds())
+    {
+        let (p, n) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let near = 2.0 * idx.spacing() + 3.0 * cfg.expected_noise;
+        assert!(window::far_is_nothing(&cfg, near));
+        for c in &crate::testkit::world_cases(&w, 15, (0.3, 0.3, 10f64.to_radians()), 5) {
+            // the families' rooms are closed: a few returns from far beyond the map (an open
+            // door onto an unmapped hall), 40-60 m out, are the points the grid cannot answer
+            let mut scan = c.scan.clone();
+            scan.extend((0..12).map(|k| {
+                let (a, r) = (0.5 * k as f64, 40.0 + 1.7 * k as f64);
+                [r * a.cos(), r * a.sin()]
+            }));
+            let mut ws = Workspace::default();
+            let r = align_plain(&scan, &idx, c.initial, &cfg, &mut ws);
+            if ws.nn_pose.is_none() {
+                continue;
+            }
+            let skipped = window::assess_with(&scan, &idx, r.pose, &cfg, &ws.nn);
+            far += ws.nn.iter().filter(|&&j| j == UNKNOWN).count();
+            ws.resolve_nn(&idx);
+            assert!(!ws.nn.contains(&UNKNOWN));
+            let resolved = window::assess_with(&scan, &idx, r.pose, &cfg, &ws.nn);
+            assert_eq!(
+                format!("{skipped:?}"),
+                format!("{resolved:?}"),
+                "{}",
+                w.name
+            );
+            compared += 1;
+        }
+    }
+    assert!(compared >= 50, "{compared}");
+    assert!(far > 0, "no case had a point beyond the grid's reach");
+}
+
+#[test]
+fn align_does_not_depend_on_the_calls_before_it() {
+    // review: `align` keeps its buffers between calls on a thread; a call's result must be
+    // that of a fresh workspace whatever ran before it (two maps, both orders)
+    let cfg = IcpConfig::default();
+    let mut sets = Vec::new();
+    for w in crate::testkit::all_worlds().into_iter().take(3) {
+        let (p, n) = sample_segments(&w.map_segments(), 0.025);
+        let idx = MapIndex::new(p, Some(n))
+            .unwrap()
+            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+            .unwrap();
+        let cs = crate::testkit::world_cases(&w, 8, (1.0, 0.5, 25f64.to_radians()), 11);
+        sets.push((idx, cs));
+    }
+    let fresh: Vec<Vec<String>> = sets
+        .iter()
+        .map(|(idx, cs)| {
+            cs.iter()
+                .map(|c| {
+                    check_inputs(&c.scan, c.initial, &cfg).unwrap();
+                    let mut ws = Workspace::default();
+                    format!(
+                        "{:?}",
+                        align_unchecked(&c.scan, idx, c.initial, &cfg, &mut ws)
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    for order in [[0usize, 1, 2], [2, 1, 0], [1, 0, 2]] {
+        for &k in &order {
+            let (idx, cs) = &sets[k];
+            for (c, want) in cs.iter().zip(&fresh[k]) {
+                let got = align(&c.scan, idx, c.initial, &cfg).unwrap();
+                assert_eq!(&format!("{got:?}"), want, "set {k} in order {order:?}");
+            }
+        }
+    }
+}

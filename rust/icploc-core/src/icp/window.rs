@@ -268,9 +268,10 @@ pub(crate) const FAR: u32 = u32::MAX;
 /// sum as it is.
 pub(crate) fn far_is_nothing(cfg: &IcpConfig, near: f64) -> bool {
     let sigma = cfg.expected_noise;
-    near < CACHE_REACH
-        && 3.0 * sigma < CACHE_REACH
-        && CACHE_REACH * CACHE_REACH / (2.0 * sigma * sigma) > 746.0
+    // the closest points may come from a pass up to REUSE_SHIFT before the pose scored
+    // (review): a point FAR there is at least this far from every map point here
+    let reach = CACHE_REACH - REUSE_SHIFT;
+    near < reach && 3.0 * sigma < reach && reach * reach / (2.0 * sigma * sigma) > 746.0
 }
 
 /// [`assess_with`] reuses the closest points of a pass at most this far (m) from the
