@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import icploc._core as core
 import numpy as np
 import pytest
 from icploc.config import LocalizerConfig
@@ -34,7 +33,7 @@ from icploc.motion import MotionModel
 from icploc.se2 import Pose, between, compose, wrap_angle
 from icploc.status import Reason
 from test_acc_slip import LOG, _log, _map_near
-from test_acc_unverified import _Placed
+from test_acc_unverified import update_with_fit_at
 
 #: chi-square quantiles with 1 dof at the gate's probabilities (tables)
 CHI2_1 = {0.99: 6.635, 0.999: 10.828, 0.9999: 15.137}
@@ -97,24 +96,14 @@ def _track(offset: Pose, data: dict[str, Any], j: int = 300) -> tuple[Any, float
     heading error (rad) and position error (m)."""
     log, keep, ref, _ = _log()
     loc = Localizer(_map_near(j), LocalizerConfig.from_dict(data), initial_pose=tuple(ref[j - 5]))
-    real = core.icp
     e = None
     for k in range(j - 5, j + 1):
         scan = Scan(stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0)
         if k == j:
-            pts = loc.prepare(scan)
             z = compose(compose(loc.pose, between(tuple(ref[k - 1]), tuple(ref[k]))), offset)
-            at_z = loc.checker.check(pts, z)
-            placed = (z, at_z.hit, at_z.rms)
-
-            def _fit(*a: Any, placed: tuple[Pose, float, float] = placed, **kw: Any) -> Any:
-                return _Placed(real(*a, **kw), *placed)
-
-            core.icp = _fit
-        try:
+            e, _ = update_with_fit_at(loc, scan, tuple(ref[k]), z)
+        else:
             e = loc.update(scan, tuple(ref[k]))
-        finally:
-            core.icp = real
     assert e is not None
     return (
         e,

@@ -55,6 +55,23 @@ class _Placed:
         return self._rms**2
 
 
+def update_with_fit_at(loc: Localizer, scan: Scan, odom: Pose, z: Pose) -> tuple[Any, Any]:
+    """``loc.update(scan, odom)`` with the ICP's answer replaced by a fit at ``z`` (its
+    evidence measured there by the localizer's own checker); the estimate and that check."""
+    pts = loc.prepare(scan)
+    at_z = loc.checker.check(pts, z)
+    real = core.icp
+
+    def _fit(*a: Any, **kw: Any) -> Any:
+        return _Placed(real(*a, **kw), z, at_z.hit, at_z.rms)
+
+    core.icp = _fit
+    try:
+        return loc.update(scan, odom), at_z
+    finally:
+        core.icp = real
+
+
 def _track(offset: Pose | None, localizer: dict[str, Any]) -> tuple[Any, Any, float, Localizer]:
     """Track five sparse scans up to ``J`` from the reference (odometry: the reference
     motion); at ``J`` the fit is placed at the prediction moved by ``offset`` (robot
@@ -67,26 +84,16 @@ def _track(offset: Pose | None, localizer: dict[str, Any]) -> tuple[Any, Any, fl
     keep_side = dy > -0.2 * (dx**2 + dy**2) ** 0.5  # the map towards the robot's +y half
     cfg = LocalizerConfig.from_dict({"localizer": {**LOOSE, **FIXED, **localizer}})
     loc = Localizer(near[keep_side], cfg, initial_pose=tuple(ref[J - 5]))
-    real = core.icp
     at_pred = at_z = None
     e = None
     for k in range(J - 5, J + 1):
         scan = Scan(stamp=float(k), ranges=log.ranges[keep[k]], angles=log.angles, max_range=30.0)
         if k == J and offset is not None:
-            pts = loc.prepare(scan)
             pred = compose(loc.pose, between(tuple(ref[k - 1]), tuple(ref[k])))
-            z = compose(pred, offset)
-            at_pred, at_z = loc.checker.check(pts, pred), loc.checker.check(pts, z)
-            placed = (z, at_z.hit, at_z.rms)
-
-            def _fit(*a: Any, placed: tuple[Pose, float, float] = placed, **kw: Any) -> Any:
-                return _Placed(real(*a, **kw), *placed)
-
-            core.icp = _fit
-        try:
+            at_pred = loc.checker.check(loc.prepare(scan), pred)
+            e, at_z = update_with_fit_at(loc, scan, tuple(ref[k]), compose(pred, offset))
+        else:
             e = loc.update(scan, tuple(ref[k]))
-        finally:
-            core.icp = real
     assert e is not None
     return e, (at_pred, at_z), math.hypot(e.pose[0] - ref[J][0], e.pose[1] - ref[J][1]), loc
 

@@ -862,15 +862,13 @@ fn child_sums_above(
     for chunk in sh.lin.chunks(EXIT_CHUNK) {
         for &l in chunk {
             let c = (base + l) as usize;
-            let v = [g[c], g[c + su], g[c + sw], g[c + sw + su]];
-            out[0] += v[0] as u32;
-            out[1] += v[1] as u32;
-            out[2] += v[2] as u32;
-            out[3] += v[3] as u32;
-            used += v[0].max(v[1]).max(v[2].max(v[3])) as u32;
+            add_four(
+                &mut out,
+                &mut used,
+                [g[c], g[c + su], g[c + sw], g[c + sw + su]],
+            );
         }
-        let top = out[0].max(out[1]).max(out[2].max(out[3]));
-        if top.saturating_add(bound.saturating_sub(used)) < thr {
+        if cannot_reach(&out, used, bound, thr) {
             return None;
         }
     }
@@ -920,18 +918,33 @@ fn child_sums_clipped(
             } else {
                 [at(x, y), at(x + s, y), at(x, y + s), at(x + s, y + s)]
             };
-            out[0] += v[0] as u32;
-            out[1] += v[1] as u32;
-            out[2] += v[2] as u32;
-            out[3] += v[3] as u32;
-            used += v[0].max(v[1]).max(v[2].max(v[3])) as u32;
+            add_four(&mut out, &mut used, v);
         }
-        let top = out[0].max(out[1]).max(out[2].max(out[3]));
-        if top.saturating_add(bound.saturating_sub(used)) < thr {
+        if cannot_reach(&out, used, bound, thr) {
             return None;
         }
     }
     (out[0].max(out[1]).max(out[2].max(out[3])) >= thr).then_some(out)
+}
+
+/// One point's values at a node's four children added to their sums, and the largest of
+/// them to `used` (what the point could add to any one child).
+#[inline(always)]
+fn add_four(out: &mut [u32; 4], used: &mut u32, v: [u8; 4]) {
+    out[0] += v[0] as u32;
+    out[1] += v[1] as u32;
+    out[2] += v[2] as u32;
+    out[3] += v[3] as u32;
+    *used += v[0].max(v[1]).max(v[2].max(v[3])) as u32;
+}
+
+/// The early exit of the child sums: even if every point not yet summed added its share of
+/// the parent's `bound` (`bound` minus the largest values summed so far) to the best child,
+/// it would stay below `thr`.
+#[inline(always)]
+fn cannot_reach(out: &[u32; 4], used: u32, bound: u32, thr: u32) -> bool {
+    let top = out[0].max(out[1]).max(out[2].max(out[3]));
+    top.saturating_add(bound.saturating_sub(used)) < thr
 }
 
 /// The pyramid level the coarse search starts from on a large region (the two to three

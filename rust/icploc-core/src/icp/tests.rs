@@ -808,15 +808,7 @@ fn the_fit_from_the_icps_own_closest_points_is_the_fresh_fit() {
     // final pose (the same inliers but for a point, RMS and score to a hair)
     let cfg = IcpConfig::default();
     let mut total = 0usize;
-    for w in crate::testkit::all_worlds()
-        .into_iter()
-        .chain(crate::testkit::unseen_worlds())
-    {
-        let (p, n) = sample_segments(&w.map_segments(), 0.025);
-        let idx = MapIndex::new(p, Some(n))
-            .unwrap()
-            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
-            .unwrap();
+    for (w, idx) in family_indexes() {
         let cs = crate::testkit::world_cases(&w, 15, (0.3, 0.3, 10f64.to_radians()), 3);
         for c in &cs {
             let mut ws = Workspace::default();
@@ -1145,15 +1137,7 @@ fn the_fit_skipping_far_points_is_the_resolved_fit_bit_for_bit() {
     // must give exactly the same fit
     let cfg = IcpConfig::default();
     let (mut compared, mut far) = (0usize, 0usize);
-    for w in crate::testkit::all_worlds()
-        .into_iter()
-        .chain(crate::testkit::unseen_worlds())
-    {
-        let (p, n) = sample_segments(&w.map_segments(), 0.025);
-        let idx = MapIndex::new(p, Some(n))
-            .unwrap()
-            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
-            .unwrap();
+    for (w, idx) in family_indexes() {
         let near = 2.0 * idx.spacing() + 3.0 * cfg.expected_noise;
         assert!(window::far_is_nothing(&cfg, near));
         for c in &crate::testkit::world_cases(&w, 15, (0.3, 0.3, 10f64.to_radians()), 5) {
@@ -1193,12 +1177,7 @@ fn align_does_not_depend_on_the_calls_before_it() {
     // that of a fresh workspace whatever ran before it (two maps, both orders)
     let cfg = IcpConfig::default();
     let mut sets = Vec::new();
-    for w in crate::testkit::all_worlds().into_iter().take(3) {
-        let (p, n) = sample_segments(&w.map_segments(), 0.025);
-        let idx = MapIndex::new(p, Some(n))
-            .unwrap()
-            .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
-            .unwrap();
+    for (w, idx) in family_indexes().into_iter().take(3) {
         let cs = crate::testkit::world_cases(&w, 8, (1.0, 0.5, 25f64.to_radians()), 11);
         sets.push((idx, cs));
     }
@@ -1226,4 +1205,22 @@ fn align_does_not_depend_on_the_calls_before_it() {
             }
         }
     }
+}
+
+/// Every family world (the team's and the unseen ones) with its map index as the bench
+/// builds it: 2.5 cm samples with exact normals, the closest-point grid at the default
+/// resolution.
+fn family_indexes() -> Vec<(crate::testkit::World, MapIndex)> {
+    crate::testkit::all_worlds()
+        .into_iter()
+        .chain(crate::testkit::unseen_worlds())
+        .map(|w| {
+            let (p, n) = sample_segments(&w.map_segments(), 0.025);
+            let idx = MapIndex::new(p, Some(n))
+                .unwrap()
+                .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
+                .unwrap();
+            (w, idx)
+        })
+        .collect()
 }
