@@ -956,6 +956,17 @@ const DENSE_LEVEL: usize = 3;
 /// search starts from its top level's nodes as before (a small window: a few roots).
 const DENSE_MIN_NODES: usize = 4096;
 
+/// One heading's share of a dense start: the dense level, the region's rows (first and
+/// last free node of each), the heading's point offsets and index, and the search's tree.
+#[derive(Clone, Copy)]
+struct DenseJob<'a> {
+    d: &'a DenseLevel,
+    rows: &'a [(i32, i32)],
+    offs: &'a [(i32, i32)],
+    k: u32,
+    tree: &'a Tree<'a>,
+}
+
 /// One level `L` of the likelihood pyramid laid out for reading the value under one scan
 /// point at every node of the level's lattice (cells (a·2ᴸ, b·2ᴸ)) as contiguous rows: a
 /// plane per residue (rx, ry) in [0, 2ᴸ)², holding at row `b + 1`, column `a + 1` the value
@@ -1312,7 +1323,14 @@ impl GlobalLocalizer {
                 },
                 |(mut leaves, mut nodes, mut summed, mut roots, mut stack), k| {
                     roots.clear();
-                    summed += self.dense_roots(d, &rows, &offsets[k], k as u32, tree, &mut roots);
+                    let job = DenseJob {
+                        d,
+                        rows: &rows,
+                        offs: &offsets[k],
+                        k: k as u32,
+                        tree,
+                    };
+                    summed += self.dense_roots(job, &mut roots);
                     roots.sort_unstable_by_key(|n| std::cmp::Reverse(n.bound));
                     nodes += roots.len();
                     for &root in roots.iter() {
@@ -1360,21 +1378,13 @@ impl GlobalLocalizer {
     /// region's rows `rows`, row by row (each point adds one contiguous run of its residue's
     /// plane), and push those at the threshold as roots. Returns the
     /// number of nodes summed.
-    fn dense_roots(
-        &self,
-        d: &DenseLevel,
-        rows: &[(i32, i32)],
-        offs: &[(i32, i32)],
-        k: u32,
-        tree: &Tree,
-        roots: &mut Vec<Node>,
-    ) -> usize {
+    fn dense_roots(&self, job: DenseJob<'_>, roots: &mut Vec<Node>) -> usize {
         #[cfg(target_arch = "x86_64")]
         if has_avx2() {
             // SAFETY: the CPU has AVX2 (checked at run time)
-            return unsafe { self.dense_roots_avx2(d, rows, offs, k, tree, roots) };
+            return unsafe { self.dense_roots_avx2(job, roots) };
         }
-        self.dense_roots_plain(d, rows, offs, k, tree, roots)
+        self.dense_roots_plain(job, roots)
     }
 
     /// [`Self::dense_roots`] compiled for AVX2 (its row sums: twice the lanes of SSE2's).
@@ -1384,28 +1394,19 @@ impl GlobalLocalizer {
     /// `#[target_feature]` one, which needs Rust 1.86 (the crate's `rust-version` is 1.85).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn dense_roots_avx2(
-        &self,
-        d: &DenseLevel,
-        rows: &[(i32, i32)],
-        offs: &[(i32, i32)],
-        k: u32,
-        tree: &Tree,
-        roots: &mut Vec<Node>,
-    ) -> usize {
-        self.dense_roots_plain(d, rows, offs, k, tree, roots)
+    unsafe fn dense_roots_avx2(&self, job: DenseJob<'_>, roots: &mut Vec<Node>) -> usize {
+        self.dense_roots_plain(job, roots)
     }
 
     #[inline(always)]
-    fn dense_roots_plain(
-        &self,
-        d: &DenseLevel,
-        rows: &[(i32, i32)],
-        offs: &[(i32, i32)],
-        k: u32,
-        tree: &Tree,
-        roots: &mut Vec<Node>,
-    ) -> usize {
+    fn dense_roots_plain(&self, job: DenseJob<'_>, roots: &mut Vec<Node>) -> usize {
+        let DenseJob {
+            d,
+            rows,
+            offs,
+            k,
+            tree,
+        } = job;
         let s = 1i32 << d.level;
         // each point: its plane's start and its node shift (qx, qy): the point of node
         // (a, b) reads row b + qy + 1, column a + qx + 1 of its plane

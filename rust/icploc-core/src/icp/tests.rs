@@ -719,7 +719,12 @@ fn starts_turned_by_the_heading_prior_are_right_and_skip_the_window() {
 }
 
 fn clinic_index() -> (crate::testkit::World, MapIndex) {
-    let w = crate::testkit::clinic_world();
+    world_index(crate::testkit::clinic_world())
+}
+
+/// `w` with its map index as the bench builds it: 2.5 cm samples with exact normals, the
+/// closest-point grid at the default resolution.
+fn world_index(w: crate::testkit::World) -> (crate::testkit::World, MapIndex) {
     let (p, n) = sample_segments(&w.map_segments(), 0.025);
     let idx = MapIndex::new(p, Some(n))
         .unwrap()
@@ -1207,20 +1212,12 @@ fn align_does_not_depend_on_the_calls_before_it() {
     }
 }
 
-/// Every family world (the team's and the unseen ones) with its map index as the bench
-/// builds it: 2.5 cm samples with exact normals, the closest-point grid at the default
-/// resolution.
+/// Every family world (the team's and the unseen ones) with its map index
+/// ([`world_index`]).
 fn family_indexes() -> Vec<(crate::testkit::World, MapIndex)> {
     crate::testkit::all_worlds()
         .into_iter()
         .chain(crate::testkit::unseen_worlds())
-        .map(|w| {
-            let (p, n) = sample_segments(&w.map_segments(), 0.025);
-            let idx = MapIndex::new(p, Some(n))
-                .unwrap()
-                .with_cache(Some(crate::index::DEFAULT_CACHE_RESOLUTION))
-                .unwrap();
-            (w, idx)
-        })
+        .map(world_index)
         .collect()
 }
